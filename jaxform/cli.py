@@ -1,0 +1,105 @@
+"""Command line: the only module that prints.
+
+    jaxform material-point [--material NAME] [--rates R ...] [--strain E] --out DIR
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def _material_point(args) -> int:
+    import jax
+    import jax.numpy as jnp
+
+    from jaxform.io import write_csv
+    from jaxform.materialpoint import uniaxial_compression
+    from jaxform.materials import load_material
+    from jaxform.plot import stress_strain
+
+    law, params = load_material(args.material)
+    if args.strain <= 0 or args.strain > 3:
+        raise SystemExit(f"--strain = {args.strain}: must lie in (0, 3]")
+    if args.steps < 1:
+        raise SystemExit(f"--steps = {args.steps}: must be >= 1")
+    by_speed = args.ram_speeds_mm_s is not None
+    loads = args.ram_speeds_mm_s if by_speed else args.rates
+    if any(r <= 0 for r in loads):
+        flag = "--ram-speeds-mm-s" if by_speed else "--rates"
+        raise SystemExit(f"{flag} = {loads}: every value must be > 0")
+    if args.height_mm <= 0:
+        raise SystemExit(f"--height-mm = {args.height_mm}: must be > 0 (mm)")
+    out_dir = Path(args.out)
+    out_dir.mkdir(parents=True, exist_ok=True)
+
+    def one(load):
+        kw = (dict(ram_speed_mm_s=load, height_mm=args.height_mm) if by_speed
+              else dict(strain_rate_1_s=load))
+        return uniaxial_compression(law, params, final_strain=args.strain, n_steps=args.steps, **kw)
+
+    t0 = time.perf_counter()
+    res = jax.jit(jax.vmap(one))(jnp.asarray(loads, dtype=jnp.float64))
+    res = {k: np.asarray(v) for k, v in res.items()}
+    print(f"material point: {len(loads)} loadings x {args.steps} steps in "
+          f"{time.perf_counter() - t0:.2f} s (including compilation)")
+    curves = {}
+    unit = "mm/s" if by_speed else "/s"
+    for i, rate in enumerate(loads):
+        if not res["ok"][i].all():
+            bad = int(np.argmin(res["ok"][i]))
+            print(f"{rate:g} {unit}: local solve failed at step {bad}", file=sys.stderr)
+            return 2
+        name = (f"uniaxial_speed_{rate:g}_mm_s.csv" if by_speed
+                else f"uniaxial_rate_{rate:g}_1_s.csv")
+        write_csv(
+            out_dir / name,
+            {
+                "time_s": res["time_s"][i],
+                "strain": res["strain"][i],
+                "stress_MPa": res["stress_MPa"][i],
+                "s_MPa": res["s_MPa"][i],
+                "eqps": res["eqps"][i],
+            },
+        )
+        curves[f"{rate:g} {unit}"] = (res["strain"][i], res["stress_MPa"][i])
+        print(f"  {rate:>8g} {unit}: stress at strain {args.strain:g} = "
+              f"{res['stress_MPa'][i][-1]:.3f} MPa, s = {res['s_MPa'][i][-1]:.3f} MPa -> {name}")
+    png = out_dir / "stress_strain.png"
+    stress_strain(curves, png, f"{args.material}: uniaxial compression")
+    print(f"wrote {png}")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    from jaxform.precision import enable_x64
+
+    enable_x64()
+    parser = argparse.ArgumentParser(prog="jaxform", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    mp = sub.add_parser("material-point", help="uniaxial compression of one material point")
+    mp.add_argument("--material", default="al1100_673K",
+                    help="preset name in configs/materials or a .toml path")
+    mp.add_argument("--rates", type=float, nargs="+", default=[0.001, 0.01, 0.1, 1.0],
+                    help="true strain rates in 1/s")
+    mp.add_argument("--ram-speeds-mm-s", type=float, nargs="+", default=None,
+                    help="constant ram speeds in mm/s instead of true strain rates")
+    mp.add_argument("--height-mm", type=float, default=7.5,
+                    help="specimen height in mm (with --ram-speeds-mm-s)")
+    mp.add_argument("--strain", type=float, default=1.0, help="final true strain")
+    mp.add_argument("--steps", type=int, default=1000, help="number of equal steps")
+    mp.add_argument("--out", default="out/material_point", help="output folder")
+    mp.set_defaults(func=_material_point)
+
+    args = parser.parse_args(argv)
+    return args.func(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

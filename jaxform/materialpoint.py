@@ -1,0 +1,138 @@
+"""Material-point driver: homogeneous uniaxial compression of one point.
+
+The point is a cylinder compressed along z with a traction-free side: the deformation
+gradient is F = diag(lam_r, lam_r, lam_z) with lam_z prescribed and lam_r found in every
+step by a Newton solve of T_rr(lam_r) = 0 whose Jacobian is the consistent tangent
+(jax.jacfwd of the material update).  Two loadings:
+
+* constant true strain rate ``strain_rate_1_s``: lam_z = exp(-rate * t);
+* constant ram speed ``ram_speed_mm_s`` on a specimen of height ``height_mm``:
+  lam_z = (H - v t) / H (the nominal strain rate v/H falls behind the true one).
+
+Everything is a pure function; `uniaxial_compression` is jit-compiled once per law and
+number of steps and can be vmapped over rates or parameters.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxform.kinematics import step_kinematics
+from jaxform.materials.base import MaterialState
+
+NEWTON_ITERS = 30
+NEWTON_RTOL = 1e-12
+
+
+@dataclass(frozen=True)
+class UniaxialResult:
+    """Per-step history (index 0 = initial state). Compression counted positive."""
+
+    time_s: np.ndarray
+    strain: np.ndarray  # true (log) axial strain ln(H/h)
+    stress_MPa: np.ndarray  # -T_zz
+    s_MPa: np.ndarray
+    eqps: np.ndarray
+    newton_iterations: np.ndarray
+    ok: np.ndarray
+
+
+def _axial_stretch(t, rate, speed_mm_s, height_mm):
+    """lam_z(t): exp(-rate t) for a true strain rate, or 1 - v t / H for a ram speed."""
+    by_rate = jnp.exp(-rate * t)
+    by_speed = 1.0 - speed_mm_s * t / height_mm
+    return jnp.where(speed_mm_s > 0.0, by_speed, by_rate)
+
+
+def _lateral_solve(law, params, state, dt, fz, alpha):
+    """Find the lateral stretch ratio (as x = log f_rr) with T_rr = 0; returns x, iters, ok."""
+
+    def trr(x):
+        f = jnp.diag(jnp.stack([jnp.exp(x), jnp.exp(x), fz]))
+        stress, _, ok = law.update(step_kinematics(f, alpha), state, params, dt)
+        return stress[0, 0], ok
+
+    scale = jnp.maximum(jnp.abs(params.G_MPa * jnp.log(fz)), 1e-30)
+
+    def cond(c):
+        x, r, it, done = c
+        return (~done) & (it < NEWTON_ITERS)
+
+    def body(c):
+        x, _, it, _ = c
+        (r, ok), (dr, _) = jax.jvp(trr, (x,), (jnp.ones_like(x),))
+        x_new = x - r / dr
+        done = jnp.abs(r) <= NEWTON_RTOL * scale
+        x_new = jnp.where(done, x, x_new)
+        return x_new, r, it + 1, done | ~ok
+
+    x0 = -0.5 * jnp.log(fz)
+    x, r, it, _ = jax.lax.while_loop(cond, body, (x0, jnp.inf, 0, False))
+    r_final, ok = trr(x)
+    ok = ok & (jnp.abs(r_final) <= 1e3 * NEWTON_RTOL * scale)
+    return x, it, ok
+
+
+def uniaxial_compression(
+    law,
+    params,
+    *,
+    final_strain: float,
+    n_steps: int,
+    strain_rate_1_s: float | jax.Array = 0.0,
+    ram_speed_mm_s: float | jax.Array = 0.0,
+    height_mm: float | jax.Array = 1.0,
+    alpha: float = 0.5,
+) -> dict:
+    """Run the compression in n_steps equal time steps up to true strain final_strain.
+
+    Give either ``strain_rate_1_s`` (> 0) or ``ram_speed_mm_s`` (> 0, with height_mm).
+    Returns a dict of arrays (see UniaxialResult); jit- and vmap-friendly.
+    """
+    rate = jnp.asarray(strain_rate_1_s, dtype=jnp.float64)
+    speed = jnp.asarray(ram_speed_mm_s, dtype=jnp.float64)
+    height = jnp.asarray(height_mm, dtype=jnp.float64)
+    # total time to reach the final true strain
+    t_end_rate = final_strain / jnp.where(rate > 0, rate, 1.0)
+    t_end_speed = height * (1.0 - jnp.exp(-final_strain)) / jnp.where(speed > 0, speed, 1.0)
+    t_end = jnp.where(speed > 0.0, t_end_speed, t_end_rate)
+    dt = t_end / n_steps
+    state0 = law.initial_state(params)
+
+    def step(carry, i):
+        state, lam_z = carry
+        t_new = (i + 1) * dt
+        lam_z_new = _axial_stretch(t_new, rate, speed, height)
+        fz = lam_z_new / lam_z
+        x, iters, ok = _lateral_solve(law, params, state, dt, fz, alpha)
+        f = jnp.diag(jnp.stack([jnp.exp(x), jnp.exp(x), fz]))
+        _, new, ok_m = law.update(step_kinematics(f, alpha), state, params, dt)
+        out = (t_new, -jnp.log(lam_z_new), -new.stress[2, 2], new.s, new.eqps, iters, ok & ok_m)
+        return (new, lam_z_new), out
+
+    _, outs = jax.lax.scan(step, (state0, jnp.asarray(1.0)), jnp.arange(n_steps))
+    t, eps, sig, s, ep, it, ok = outs
+
+    def prepend(x, v):
+        return jnp.concatenate([jnp.asarray([v], dtype=x.dtype), x])
+
+    return dict(
+        time_s=prepend(t, 0.0),
+        strain=prepend(eps, 0.0),
+        stress_MPa=prepend(sig, 0.0),
+        s_MPa=prepend(s, state0.s),
+        eqps=prepend(ep, 0.0),
+        newton_iterations=prepend(it, 0),
+        ok=prepend(ok, True),
+    )
+
+
+def to_result(d: dict) -> UniaxialResult:
+    return UniaxialResult(**{k: np.asarray(v) for k, v in d.items()})
+
+
+__all__ = ["MaterialState", "UniaxialResult", "uniaxial_compression", "to_result"]

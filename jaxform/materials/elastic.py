@@ -1,0 +1,41 @@
+"""Isotropic hypoelasticity: the Anand law's elastic part alone.
+
+Rate form (objective via the rotation-neutralized frame): T_{n+1} = R (T_n + l^e[dE]) R^T.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import jax
+import jax.numpy as jnp
+
+from jaxform.kinematics import StepKinematics
+from jaxform.materials.base import MaterialState, elastic_trial, finish
+
+
+@jax.tree_util.register_dataclass
+@dataclass(frozen=True)
+class ElasticParams:
+    G_MPa: jax.Array  # shear modulus
+    K_MPa: jax.Array  # bulk modulus
+
+
+@dataclass(frozen=True)
+class Hypoelastic:
+    """Isotropic hypoelastic law (no internal variables)."""
+
+    name: str = "elastic"
+
+    def initial_state(self, params: ElasticParams) -> MaterialState:
+        z = jnp.zeros((), dtype=jnp.asarray(params.G_MPa).dtype)
+        return MaterialState(stress=jnp.zeros((3, 3), z.dtype), s=z, eqps=z)
+
+    def shear_modulus(self, params: ElasticParams):
+        return params.G_MPa
+
+    def update(self, kin: StepKinematics, state_old: MaterialState, params: ElasticParams, dt):
+        trial = elastic_trial(state_old.stress, kin.dE, params.G_MPa, params.K_MPa)
+        stress = finish(kin, trial)
+        new = MaterialState(stress=stress, s=state_old.s, eqps=state_old.eqps)
+        return stress, new, kin.ok

@@ -1,0 +1,61 @@
+"""Rate-independent J2 plasticity with linear isotropic hardening.
+
+Yield function: sigma_eq - (sigma_y0 + H * eqps) <= 0.  Return mapping in the
+rotation-neutralized frame with the same kinematics as the Anand law; with linear
+hardening the consistency condition is linear, so the plastic increment is closed form:
+d_eqps = (sigma_trial - sigma_y(eqps_n)) / (3G + H).  H = 0 is perfect plasticity.
+State: ``s`` holds the current yield stress in MPa.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import jax
+import jax.numpy as jnp
+
+from jaxform.kinematics import StepKinematics
+from jaxform.materials.base import (
+    MaterialState,
+    elastic_trial,
+    finish,
+    radial_return,
+    trial_equivalent,
+)
+
+
+@jax.tree_util.register_dataclass
+@dataclass(frozen=True)
+class J2Params:
+    G_MPa: jax.Array
+    K_MPa: jax.Array
+    sigma_y0_MPa: jax.Array  # initial yield stress
+    H_MPa: jax.Array  # linear hardening modulus d(sigma_y)/d(eqps); 0 = perfect plasticity
+
+
+@dataclass(frozen=True)
+class J2Plasticity:
+    name: str = "j2"
+
+    def initial_state(self, params: J2Params) -> MaterialState:
+        y0 = jnp.asarray(params.sigma_y0_MPa)
+        z = jnp.zeros((), y0.dtype)
+        return MaterialState(stress=jnp.zeros((3, 3), y0.dtype), s=y0 + z, eqps=z)
+
+    def shear_modulus(self, params: J2Params):
+        return params.G_MPa
+
+    def update(self, kin: StepKinematics, state_old: MaterialState, params: J2Params, dt):
+        g, h = params.G_MPa, params.H_MPa
+        trial = elastic_trial(state_old.stress, kin.dE, g, params.K_MPa)
+        sig_tr, positive = trial_equivalent(trial)
+        sigma_y = params.sigma_y0_MPa + h * state_old.eqps
+        f_tr = sig_tr - sigma_y
+        plastic = f_tr > 0.0
+        deqps = jnp.where(plastic, f_tr, 0.0) / (3.0 * g + h)
+        sig_new = sig_tr - 3.0 * g * deqps
+        stress_bar = radial_return(trial, sig_new, sig_tr, positive)
+        stress = finish(kin, stress_bar)
+        eqps = state_old.eqps + deqps
+        new = MaterialState(stress=stress, s=params.sigma_y0_MPa + h * eqps, eqps=eqps)
+        return stress, new, kin.ok
