@@ -1,0 +1,180 @@
+"""Degrees of freedom, the fixed sparsity pattern, and global residual/Jacobian assembly.
+
+Unknown vector x = [nodal fields (n_nodes * n_fields) | contact multipliers (n_contact)],
+node a's field k at a * n_fields + k (fields: u_r, u_z[, p]).
+
+Set-up (NumPy, once per scene) builds :class:`Indices`: element dof maps, Dirichlet dofs,
+contact candidates, and the *unique* sparsity pattern holding every entry any element
+or any contact candidate can ever produce, with the map from each raw entry to its
+unique slot.  Contact changes never change the pattern.
+
+In jit: element residuals are vmapped over elements; their Jacobians come from
+``jax.jacfwd`` of the same function (no hand-derived tangent), and are summed into the
+pattern with one segment_sum.  Dirichlet rows become identity rows.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxform.contact import contact_node_terms
+from jaxform.formulations import NOT_FINITE, Formulation, GaussState
+
+
+@jax.tree_util.register_dataclass
+@dataclass(frozen=True)
+class Indices:
+    """Integer set-up arrays, passed into jit as arguments."""
+
+    edofs: jax.Array  # (n_el, 4 * nf)
+    elements: jax.Array  # (n_el, 4) node ids
+    fixed: jax.Array  # (n_fixed,) Dirichlet dofs (value 0)
+    contact_nodes: jax.Array  # (n_c,)
+    contact_dofs: jax.Array  # (n_c, 2) u dofs of the candidates
+    mult_dofs: jax.Array  # (n_c,)
+    rows: jax.Array  # (n_nz,) unique pattern
+    cols: jax.Array
+    slot: jax.Array  # (n_raw,) raw entry -> unique slot
+    bottom_reaction_dofs: jax.Array  # (n,) u_z dofs on the symmetry plane (for checks)
+
+
+@dataclass(frozen=True)
+class Layout:
+    """Static sizes (hashable: part of the compiled program's identity)."""
+
+    n_nodes: int
+    n_fields: int
+    n_contact: int
+    n_elements: int
+    n_nonzeros: int
+
+    @property
+    def n_node_dofs(self) -> int:
+        return self.n_nodes * self.n_fields
+
+    @property
+    def n_dofs(self) -> int:
+        return self.n_node_dofs + self.n_contact
+
+
+def build_indices(mesh, n_fields: int, fixed_dofs: np.ndarray, contact_nodes: np.ndarray,
+                  reaction_dofs: np.ndarray | None = None) -> tuple[Layout, Indices]:
+    nf = n_fields
+    n_nodes = mesh.n_nodes
+    elements = np.asarray(mesh.elements, dtype=np.int64)
+    edofs = (elements[:, :, None] * nf + np.arange(nf)[None, None, :]).reshape(len(elements), -1)
+    n_c = len(contact_nodes)
+    ndof_nodes = n_nodes * nf
+    n = ndof_nodes + n_c
+    cdofs = contact_nodes[:, None] * nf + np.arange(2)[None, :]
+    mdofs = ndof_nodes + np.arange(n_c)
+    # raw entries: element blocks, contact 3x3 blocks (u_r, u_z, lambda), diagonal
+    er = np.repeat(edofs[:, :, None], edofs.shape[1], axis=2).ravel()
+    ec = np.repeat(edofs[:, None, :], edofs.shape[1], axis=1).ravel()
+    cblock = np.column_stack([cdofs, mdofs])  # (n_c, 3)
+    cr = np.repeat(cblock[:, :, None], 3, axis=2).ravel()
+    cc = np.repeat(cblock[:, None, :], 3, axis=1).ravel()
+    dr = np.arange(n)
+    raw_r = np.concatenate([er, cr, dr])
+    raw_c = np.concatenate([ec, cc, dr])
+    keys = raw_r * n + raw_c
+    uniq, slot = np.unique(keys, return_inverse=True)
+    layout = Layout(n_nodes, nf, n_c, len(elements), len(uniq))
+    idx = Indices(
+        edofs=jnp.asarray(edofs, dtype=jnp.int32),
+        elements=jnp.asarray(elements, dtype=jnp.int32),
+        fixed=jnp.asarray(np.asarray(fixed_dofs, dtype=np.int64), dtype=jnp.int32),
+        contact_nodes=jnp.asarray(contact_nodes, dtype=jnp.int32),
+        contact_dofs=jnp.asarray(cdofs, dtype=jnp.int32),
+        mult_dofs=jnp.asarray(mdofs, dtype=jnp.int32),
+        rows=jnp.asarray(uniq // n, dtype=jnp.int32),
+        cols=jnp.asarray(uniq % n, dtype=jnp.int32),
+        slot=jnp.asarray(slot.ravel(), dtype=jnp.int32),
+        bottom_reaction_dofs=jnp.asarray(
+            reaction_dofs if reaction_dofs is not None else np.zeros(0, np.int64),
+            dtype=jnp.int32),
+    )
+    return layout, idx
+
+
+@dataclass(frozen=True)
+class Model:
+    """What the assembly needs besides arrays: formulation, law, sizes (static)."""
+
+    formulation: Formulation
+    law: object
+    layout: Layout
+
+    # -- element level --------------------------------------------------------------
+    def _element_fn(self, params, dt):
+        form, law = self.formulation, self.law
+
+        def fn(dofs_flat, x_ref, gstate):
+            dofs = dofs_flat.reshape(4, form.n_fields)
+            r, gnew, code = form.residual(law, params, dt, x_ref, dofs, gstate)
+            return r.ravel(), (r.ravel(), gnew, code)
+
+        return fn
+
+    def _gather(self, x, idx: Indices):
+        return x[idx.edofs]
+
+    def _nodal_positions(self, x, coords, idx: Indices):
+        nf = self.layout.n_fields
+        u = x[: self.layout.n_node_dofs].reshape(-1, nf)[:, :2]
+        return coords + u
+
+    # -- global ---------------------------------------------------------------------
+    def residual(self, x, gstate: GaussState, coords, t, dt, params, die, c_contact,
+                 idx: Indices):
+        """Global residual; returns (R, new Gauss state, status code, force scale)."""
+        fn = self._element_fn(params, dt)
+        r_e, (_, gnew, ok_e) = jax.vmap(fn)(self._gather(x, idx), coords[idx.elements], gstate)
+        return self._finish_residual(x, r_e, gnew, ok_e, coords, t, die, c_contact, idx)
+
+    def residual_and_jacobian(self, x, gstate, coords, t, dt, params, die, c_contact,
+                              idx: Indices):
+        """(R, Jacobian values on the pattern, new Gauss state, status code, force scale)."""
+        fn = self._element_fn(params, dt)
+        k_e, (r_e, gnew, ok_e) = jax.vmap(jax.jacfwd(fn, has_aux=True))(
+            self._gather(x, idx), coords[idx.elements], gstate
+        )
+        r, gnew, ok, scale = self._finish_residual(x, r_e, gnew, ok_e, coords, t, die,
+                                                   c_contact, idx)
+        # contact blocks
+        pos = self._nodal_positions(x, coords, idx)[idx.contact_nodes]
+        lam = x[idx.mult_dofs]
+
+        def cfun(v):
+            r_u, comp = contact_node_terms(die, v[:2], v[2], t, c_contact)
+            return jnp.concatenate([r_u, comp[None]])
+
+        k_c = jax.vmap(jax.jacfwd(cfun))(jnp.column_stack([pos, lam]))
+        n = self.layout.n_dofs
+        raw = jnp.concatenate([k_e.ravel(), k_c.ravel(), jnp.zeros(n, dtype=x.dtype)])
+        vals = jax.ops.segment_sum(raw, idx.slot, num_segments=self.layout.n_nonzeros)
+        # Dirichlet rows -> identity rows
+        fixed_row = jnp.zeros(n, dtype=bool).at[idx.fixed].set(True)
+        is_fixed = fixed_row[idx.rows]
+        vals = jnp.where(is_fixed, jnp.where(idx.rows == idx.cols, 1.0, 0.0), vals)
+        return r, vals, gnew, ok, scale
+
+    def _finish_residual(self, x, r_e, gnew, ok_e, coords, t, die, c_contact, idx):
+        n = self.layout.n_dofs
+        r = jnp.zeros(n, dtype=x.dtype).at[idx.edofs].add(r_e)
+        pos = self._nodal_positions(x, coords, idx)[idx.contact_nodes]
+        lam = x[idx.mult_dofs]
+        r_u, comp = jax.vmap(lambda p, l: contact_node_terms(die, p, l, t, c_contact))(pos, lam)
+        r = r.at[idx.contact_dofs].add(r_u)
+        r = r.at[idx.mult_dofs].set(comp)
+        r = r.at[idx.fixed].set(x[idx.fixed])
+        nf = self.layout.n_fields
+        r_u_e = r_e.reshape(r_e.shape[0], 4, nf)[:, :, :2]
+        scale = jnp.maximum(jnp.sqrt(jnp.sum(r_u_e**2)), jnp.linalg.norm(lam))
+        code = jnp.max(ok_e)
+        code = jnp.where(jnp.all(jnp.isfinite(r)), code, NOT_FINITE)
+        return r, gnew, code, scale

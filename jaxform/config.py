@@ -1,0 +1,221 @@
+"""TOML scene configs: load, override, validate and resolve defaults.
+
+A scene is a two-level TOML document ``[section] key = value``. :data:`SCHEMA`
+lists every allowed key with its type, default (``None`` = required), allowed
+range or choices and a one-line description; keys carry their unit in the name.
+:func:`load_config` returns a new nested dict with every key present, or raises
+:class:`ConfigError` naming the full dotted key before anything else happens.
+This module does not import JAX.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import tomllib
+from dataclasses import dataclass
+from os import PathLike
+from pathlib import Path
+from typing import Any, Iterable
+
+import tomli_w
+
+__all__ = ["ConfigError", "Field", "SCHEMA", "load_config", "dump_config", "describe_schema"]
+
+
+class ConfigError(ValueError):
+    """An invalid scene config; the message names the dotted key and what is allowed."""
+
+
+@dataclass(frozen=True)
+class Field:
+    """One config key: kind, default (None = required), allowed range or choices, doc."""
+
+    kind: str  # "float" | "int" | "str" | "bool"
+    default: Any = None
+    low: float | None = None
+    high: float | None = None
+    low_inclusive: bool = True
+    high_inclusive: bool = True
+    choices: tuple[str, ...] | None = None
+    doc: str = ""
+
+    def allowed(self) -> str:
+        """Human-readable allowed values: an interval, a choice list or the kind."""
+        if self.choices is not None:
+            return "one of " + ", ".join(repr(c) for c in self.choices)
+        if self.kind in ("float", "int") and (self.low is not None or self.high is not None):
+            lo = "-inf" if self.low is None else _num(self.low)
+            hi = "inf" if self.high is None else _num(self.high)
+            left = "[" if self.low is not None and self.low_inclusive else "("
+            right = "]" if self.high is not None and self.high_inclusive else ")"
+            return f"{left}{lo}, {hi}{right}"
+        return f"any {self.kind}"
+
+
+def _num(x: float) -> str:
+    """Format a bound compactly (``0``, ``1``, ``2000``, ``0.5``)."""
+    return str(int(x)) if float(x).is_integer() and abs(x) < 1e15 else repr(float(x))
+
+
+SCHEMA: dict[str, dict[str, Field]] = {
+    "billet": {
+        "diameter_mm": Field("float", None, 0.0, None, False, False, doc="billet diameter (mm)"),
+        "height_mm": Field("float", None, 0.0, None, False, False, doc="billet height (mm)"),
+    },
+    "mesh": {
+        "nr": Field("int", 10, 1, 2000, doc="elements across the radius of the quarter section"),
+        "nz": Field("int", 10, 1, 2000, doc="elements along the half height of the quarter section"),
+        "element": Field("str", "q1q1", choices=("q1q1", "q1p0", "q4"),
+                         doc="element formulation: stabilized mixed u-p (seed), "
+                             "mean-dilatation F-bar, plain displacement"),
+        "geometry": Field("str", "axisymmetric", choices=("axisymmetric", "plane_strain"),
+                          doc="2-D idealization (plane strain: forces per mm of depth)"),
+        "stabilization": Field("float", 0.1, 0.0, None, True, False,
+                               doc="q1q1 pressure stabilization theta in tau = theta h^2/(2G) "
+                                   "(the thesis used 1e-4)"),
+        "file": Field("str", "", doc="optional gmsh/meshio quadrilateral mesh file replacing "
+                                     "the structured mesh ('' = structured)"),
+    },
+    "material": {
+        "preset": Field("str", "al1100_673K",
+                        doc="material preset name in configs/materials or a .toml path"),
+    },
+    "die": {
+        "speed_mm_s": Field("float", None, 0.0, None, False, False,
+                            doc="ram speed of the top die (mm/s); the bottom die is fixed"),
+        "reduction": Field("float", None, 0.0, 1.0, False, False,
+                           doc="final height reduction (fraction of the initial height)"),
+    },
+    "time": {
+        "dt_s": Field("float", None, 0.0, None, False, False, doc="time step (s)"),
+        "alpha": Field("float", 0.5, 0.0, 1.0,
+                       doc="generalized mid-point parameter of the strain increment"),
+    },
+    "solver": {
+        "max_newton_iterations": Field("int", 25, 1, 1000,
+                                       doc="Newton iterations per step before a cutback"),
+        "rtol": Field("float", 1e-10, 0.0, 1.0, False, False,
+                      doc="relative residual tolerance of Newton"),
+        "max_cutbacks": Field("int", 6, 0, 30, doc="times a failed step may be halved"),
+        "line_search": Field("bool", True, doc="backtracking line search in Newton"),
+        "linear": Field("str", "auto", choices=("auto", "dense", "sparse"),
+                        doc="linear solver backend (auto: dense below 3000 unknowns)"),
+        "chunk_steps": Field("int", 8, 1, 10000,
+                             doc="load steps per compiled chunk (progress is reported between chunks)"),
+    },
+    "output": {
+        "fields": Field("bool", True, doc="write ParaView fields (VTU series)"),
+        "plots": Field("bool", True, doc="write PNG plots"),
+    },
+}
+
+
+def _parse_override(text: str) -> tuple[str, str, Any]:
+    """Split ``section.key=value``; the value is a TOML value, else a bare string."""
+    if "=" not in text:
+        raise ConfigError(f"malformed override {text!r}: expected section.key=value")
+    dotted, raw = (s.strip() for s in text.split("=", 1))
+    section, dot, key = dotted.partition(".")
+    if not dot or not section or not key or "." in key:
+        raise ConfigError(f"malformed override {text!r}: the key must be section.key, "
+                          f"sections: {', '.join(SCHEMA)}")
+    try:
+        value = tomllib.loads(f"v = {raw}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = raw
+    return section, key, value
+
+
+def _check(name: str, f: Field, value: Any) -> Any:
+    """Return ``value`` converted to the field's kind, or raise ConfigError."""
+    if f.kind == "bool":
+        if not isinstance(value, bool):
+            raise ConfigError(f"{name} = {value!r}: must be a bool (true or false)")
+        return value
+    if f.kind == "str":
+        if not isinstance(value, str):
+            raise ConfigError(f"{name} = {value!r}: must be a string, {f.allowed()}")
+        if f.choices is not None and value not in f.choices:
+            raise ConfigError(f"{name} = {value!r}: must be {f.allowed()}")
+        return value
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ConfigError(f"{name} = {value!r}: must be a{'n' if f.kind == 'int' else ''} "
+                          f"{f.kind} in {f.allowed()}")
+    if f.kind == "int" and not isinstance(value, int):
+        raise ConfigError(f"{name} = {value!r}: must be an int in {f.allowed()}")
+    value = int(value) if f.kind == "int" else float(value)
+    ok = not (isinstance(value, float) and math.isnan(value))
+    if f.low is not None:
+        ok = ok and (value >= f.low if f.low_inclusive else value > f.low)
+    if f.high is not None:
+        ok = ok and (value <= f.high if f.high_inclusive else value < f.high)
+    if not ok:
+        raise ConfigError(f"{name} = {value!r}: must lie in {f.allowed()}")
+    return value
+
+
+def load_config(path_or_dict: str | PathLike | dict, overrides: Iterable[str] = ()) -> dict:
+    """Read a TOML scene (path) or nested dict, apply ``section.key=value`` overrides,
+    validate, and return a new nested dict with every schema key (defaults filled in)."""
+    if isinstance(path_or_dict, dict):
+        raw = copy.deepcopy(path_or_dict)
+    else:
+        try:
+            raw = tomllib.loads(Path(path_or_dict).read_text())
+        except tomllib.TOMLDecodeError as exc:
+            raise ConfigError(f"{path_or_dict}: invalid TOML: {exc}") from exc
+    for text in overrides:
+        section, key, value = _parse_override(text)
+        sec = raw.setdefault(section, {})
+        if not isinstance(sec, dict):
+            raise ConfigError(f"{section}: must be a table of keys, not {sec!r}")
+        sec[key] = value
+    for section, table in raw.items():
+        if section not in SCHEMA:
+            raise ConfigError(f"unknown section {section!r}; allowed sections: "
+                              f"{', '.join(SCHEMA)}")
+        if not isinstance(table, dict):
+            raise ConfigError(f"{section}: must be a table of keys "
+                              f"({', '.join(SCHEMA[section])}), not {table!r}")
+        for key in table:
+            if key not in SCHEMA[section]:
+                raise ConfigError(f"unknown key {section}.{key}; allowed keys of [{section}]: "
+                                  f"{', '.join(SCHEMA[section])}")
+    out: dict[str, dict[str, Any]] = {}
+    for section, fields in SCHEMA.items():
+        given = raw.get(section, {})
+        out[section] = {}
+        for key, f in fields.items():
+            name = f"{section}.{key}"
+            if key in given:
+                out[section][key] = _check(name, f, given[key])
+            elif f.default is None:
+                raise ConfigError(f"missing required key {name} ({f.kind} in {f.allowed()}): "
+                                  f"{f.doc}")
+            else:
+                out[section][key] = f.default
+    return out
+
+
+def dump_config(cfg: dict, path: str | PathLike) -> None:
+    """Write a (resolved) config as TOML."""
+    Path(path).write_bytes(tomli_w.dumps(cfg).encode())
+
+
+def describe_schema() -> str:
+    """A Markdown table (key | type | default | allowed | meaning) of every key."""
+    rows = ["| key | type | default | allowed | meaning |", "|---|---|---|---|---|"]
+    for section, fields in SCHEMA.items():
+        for key, f in fields.items():
+            if f.default is None:
+                default = "required"
+            elif f.kind == "bool":
+                default = str(f.default).lower()
+            elif f.kind == "str":
+                default = f'"{f.default}"'
+            else:
+                default = f"{f.default:g}" if f.kind == "float" else str(f.default)
+            cells = [f"`{section}.{key}`", f.kind, default, f.allowed(), f.doc]
+            rows.append("| " + " | ".join(c.replace("|", r"\|") for c in cells) + " |")
+    return "\n".join(rows) + "\n"

@@ -1,0 +1,134 @@
+"""Element residuals: stress divergence of the three quadrilateral formulations.
+
+Contract: ``Formulation.residual(law, params, dt, x_ref, dofs, gstate)`` is a pure
+function of ONE element (vmapped over elements by the assembly), returning
+
+* ``r`` (4, n_fields): nodal residuals, the displacement columns in N (forces), the
+  pressure column (q1q1) scaled by K/h0 so that it is in N as well;
+* the new Gauss-point state (:class:`GaussState`), and a status code: ``OK``,
+  ``LOCAL_SOLVE_FAILED`` (a material update did not converge) or ``INVERTED``
+  (det F <= 0 at a Gauss point).
+
+Formulations (``kind``):
+
+* ``q4``   plain displacement quadrilateral: locks for nearly incompressible flow.
+* ``q1p0`` F-bar / mean dilatation: the material sees F_bar = (J_bar/J)^(1/3) F with
+  J_bar the element's volume ratio; virtual work with the actual F (de Souza Neto et al.
+  1996), so the Jacobian is unsymmetric (jacfwd does not care).
+* ``q1q1`` the seed's stabilized mixed u-p with equal-order (bilinear) pressure: the
+  stress is dev(sigma_material) - p_hat I, and the weak constraint (thesis ch. 5)
+      int q (p_material - p_hat)/K dv - int tau grad q . grad p_hat dv = 0,
+      tau = theta h^2 / (2 G),  h = sqrt(current element area)
+  (Brezzi-Pitkaranta stabilization) removes the spurious pressure modes. The material
+  stores the mixed stress, so p_material = p_hat_n - K tr(dE) in each step.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import jax
+import jax.numpy as jnp
+
+from jaxform import element as el
+from jaxform.kinematics import step_kinematics
+from jaxform.materials.base import MaterialState
+
+KINDS = ("q1q1", "q1p0", "q4")
+
+# status codes, shared with the solver (larger = worse)
+OK = 0
+NEWTON_NOT_CONVERGED = 1
+LOCAL_SOLVE_FAILED = 2
+INVERTED = 3
+NOT_FINITE = 4
+CAUSES = {
+    OK: "converged",
+    NEWTON_NOT_CONVERGED: "Newton did not converge",
+    LOCAL_SOLVE_FAILED: "the local material solve failed",
+    INVERTED: "an element inverted (det F <= 0)",
+    NOT_FINITE: "the residual is not finite",
+}
+
+
+@jax.tree_util.register_dataclass
+@dataclass(frozen=True)
+class GaussState:
+    """State at the Gauss points of the mesh (leading axes: element, Gauss point)."""
+
+    F: jax.Array  # deformation gradient at t_n (F_bar for q1p0), (..., 3, 3)
+    mat: MaterialState
+
+
+@dataclass(frozen=True)
+class Formulation:
+    kind: str = "q1q1"
+    axisymmetric: bool = True
+    theta: float = 0.1  # q1q1 stabilization factor
+    alpha: float = 0.5  # mid-point parameter of the strain increment
+
+    def __post_init__(self):
+        if self.kind not in KINDS:
+            raise ValueError(f"mesh.element = {self.kind!r}: must be one of {KINDS}")
+
+    @property
+    def n_fields(self) -> int:
+        return 3 if self.kind == "q1q1" else 2
+
+    def residual(self, law, params, dt, x_ref, dofs, gstate: GaussState):
+        axi = self.axisymmetric
+        u = dofs[:, :2]
+        dndx, radius, weight, det_ref = el.gauss_geometry(x_ref, axi)
+        f = el.deformation_gradient(u, dndx, radius, axi)
+        det_f = jnp.linalg.det(f)
+        geom_ok = jnp.all(det_f > 0.0) & jnp.all(det_ref > 0.0)
+        if self.kind == "q1p0":
+            jbar = jnp.sum(det_f * weight) / jnp.sum(weight)
+            safe = jnp.where(det_f > 0.0, det_f, 1.0)
+            f_mat = f * (jnp.abs(jbar) / safe)[:, None, None] ** (1.0 / 3.0)
+        else:
+            f_mat = f
+        f_rel = jnp.einsum("gij,gjk->gik", f_mat, jnp.linalg.inv(gstate.F))
+
+        def point(fr, st):
+            return law.update(step_kinematics(fr, self.alpha), st, params, dt)
+
+        sigma, mat_new, ok = jax.vmap(point)(f_rel, gstate.mat)
+        if self.kind == "q1q1":
+            p_hat = el.N_GP @ dofs[:, 2]
+            p_mat = -jnp.trace(sigma, axis1=1, axis2=2) / 3.0
+            eye = jnp.eye(3, dtype=sigma.dtype)
+            sigma = sigma + (p_mat - p_hat)[:, None, None] * eye
+            mat_new = MaterialState(stress=sigma, s=mat_new.s, eqps=mat_new.eqps)
+        r_u = el.virtual_work_residual(el.first_piola(sigma, f), dndx, radius, weight, axi)
+        if self.kind == "q1q1":
+            r_p = self._pressure_residual(law, params, f, dndx, weight, det_ref, p_mat, dofs[:, 2])
+            r = jnp.concatenate([r_u, r_p[:, None]], axis=1)
+        else:
+            r = r_u
+        code = jnp.where(geom_ok, jnp.where(jnp.all(ok), OK, LOCAL_SOLVE_FAILED), INVERTED)
+        return r, GaussState(F=f_mat, mat=mat_new), code
+
+    def _pressure_residual(self, law, params, f, dndx, weight, det_ref, p_mat, p_nodes):
+        g = law.shear_modulus(params)
+        k = params.K_MPa
+        det_f = jnp.linalg.det(f)
+        dv = det_f * weight  # current volume weights
+        area_cur = jnp.sum(jnp.abs(det_f * det_ref))  # in-plane current area (2x2 rule, w=1)
+        h2 = area_cur
+        h0 = jnp.sqrt(jnp.sum(det_ref))
+        tau = self.theta * h2 / (2.0 * g)
+        f2inv = jnp.linalg.inv(f[:, :2, :2])
+        grad_n = jnp.einsum("gaj,gji->gai", dndx, f2inv)  # current gradients of N
+        p_hat = el.N_GP @ p_nodes
+        grad_p = jnp.einsum("gai,a->gi", grad_n, p_nodes)
+        r = jnp.einsum("ga,g,g->a", el.N_GP, (p_mat - p_hat) / k, dv)
+        r = r - tau * jnp.einsum("gai,gi,g->a", grad_n, grad_p, dv)
+        return r * (k / h0)
+
+
+def initial_gauss_state(law, params, n_elements: int) -> GaussState:
+    st = law.initial_state(params)
+    mat = jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (n_elements, 4) + a.shape), st)
+    eye = jnp.broadcast_to(jnp.eye(3), (n_elements, 4, 3, 3))
+    return GaussState(F=eye, mat=mat)

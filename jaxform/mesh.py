@@ -1,0 +1,157 @@
+"""Quadrilateral meshes of 2-D sections (set-up code: NumPy, outside jit).
+
+Coordinates are (r, z) for axisymmetric sections and (x, y) for plane strain, in mm.
+Elements are 4-node quadrilaterals, nodes counter-clockwise.  Named node sets and facet
+sets (pairs of node indices along the boundary) mark where boundary conditions and dies
+act.  For a billet's quarter section (r in [0, R], z in [0, H/2]):
+
+* ``axis``      nodes on r = 0 (u_r = 0)
+* ``symmetry``  nodes on the mid-plane z = 0 (u_z = 0)
+* ``top``       nodes on the die face z = H/2
+* ``side``      nodes on the lateral free surface
+* ``free_surface`` top and side together: every node a die may touch
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Mesh:
+    coords: np.ndarray  # (n_nodes, 2) float64, mm
+    elements: np.ndarray  # (n_elements, 4) int, counter-clockwise
+    node_sets: dict[str, np.ndarray] = field(default_factory=dict)
+    facet_sets: dict[str, np.ndarray] = field(default_factory=dict)
+
+    @property
+    def n_nodes(self) -> int:
+        return self.coords.shape[0]
+
+    @property
+    def n_elements(self) -> int:
+        return self.elements.shape[0]
+
+
+class MeshError(ValueError):
+    pass
+
+
+def _structured(xs: np.ndarray, ys: np.ndarray):
+    """Nodes of an (nx+1) x (ny+1) logical grid and its quads; node id = j*(nx+1) + i."""
+    nx, ny = xs.shape[1] - 1, xs.shape[0] - 1
+    coords = np.column_stack([xs.ravel(), ys.ravel()])
+    i, j = np.meshgrid(np.arange(nx), np.arange(ny))
+    n0 = (j * (nx + 1) + i).ravel()
+    elements = np.column_stack([n0, n0 + 1, n0 + nx + 2, n0 + nx + 1])
+    return coords, elements.astype(np.int64)
+
+
+def _grid_sets(nx: int, ny: int):
+    ids = np.arange((nx + 1) * (ny + 1)).reshape(ny + 1, nx + 1)
+    nodes = {"left": ids[:, 0], "right": ids[:, -1], "bottom": ids[0, :], "top": ids[-1, :]}
+    facets = {k: np.column_stack([v[:-1], v[1:]]) for k, v in nodes.items()}
+    return {k: np.sort(v) for k, v in nodes.items()}, facets
+
+
+def rectangle(width: float, height: float, nx: int, ny: int, origin=(0.0, 0.0)) -> Mesh:
+    """Structured nx x ny mesh of [x0, x0+width] x [y0, y0+height] with sets left/right/bottom/top."""
+    if nx < 1 or ny < 1:
+        raise MeshError(f"mesh size {nx} x {ny}: both counts must be >= 1")
+    if width <= 0 or height <= 0:
+        raise MeshError(f"rectangle {width} x {height} mm: both sides must be > 0")
+    x = origin[0] + np.linspace(0.0, width, nx + 1)
+    y = origin[1] + np.linspace(0.0, height, ny + 1)
+    xs, ys = np.meshgrid(x, y)
+    coords, elements = _structured(xs, ys)
+    nodes, facets = _grid_sets(nx, ny)
+    return Mesh(coords, elements, nodes, facets)
+
+
+def billet_quarter(
+    radius: float,
+    half_height: float,
+    nr: int,
+    nz: int,
+    profile: Callable[[np.ndarray], np.ndarray] | None = None,
+) -> Mesh:
+    """Quarter r-z section of a billet; ``profile(z)`` gives the outer radius at height z (mm).
+
+    Without a profile the section is the rectangle [0, radius] x [0, half_height]; with
+    one the nodes of each row are spread evenly from the axis to profile(z) (a preform).
+    """
+    mesh = rectangle(radius, half_height, nr, nz)
+    coords = mesh.coords.copy()
+    if profile is not None:
+        z = coords[:, 1]
+        outer = np.asarray(profile(z), dtype=float)
+        if np.any(~np.isfinite(outer)) or np.any(outer <= 0):
+            raise MeshError("billet profile: the outer radius must be finite and > 0 at every z")
+        coords[:, 0] = coords[:, 0] / radius * outer
+    n = mesh.node_sets
+    nodes = {
+        "axis": n["left"],
+        "symmetry": n["bottom"],
+        "top": n["top"],
+        "side": n["right"],
+        "free_surface": np.union1d(n["top"], n["right"]),
+    }
+    f = mesh.facet_sets
+    facets = {"axis": f["left"], "symmetry": f["bottom"], "top": f["top"], "side": f["right"]}
+    return Mesh(coords, mesh.elements, nodes, facets)
+
+
+def element_areas(coords: np.ndarray, elements: np.ndarray) -> np.ndarray:
+    """Signed areas (shoelace); positive for counter-clockwise quads."""
+    x, y = coords[elements, 0], coords[elements, 1]
+    return 0.5 * np.sum(x * np.roll(y, -1, axis=1) - np.roll(x, -1, axis=1) * y, axis=1)
+
+
+def read_mesh(path: str | Path, tolerance: float = 1e-9) -> Mesh:
+    """Read a 2-D quadrilateral mesh through meshio (gmsh .msh, .vtu, ...).
+
+    Physical groups / cell sets of line cells become facet and node sets by name; the
+    quads are re-oriented counter-clockwise; the z (third) coordinate must be 0.
+    """
+    import meshio
+
+    m = meshio.read(str(path))
+    pts = np.asarray(m.points, dtype=float)
+    if pts.shape[1] == 3:
+        if np.max(np.abs(pts[:, 2])) > tolerance:
+            raise MeshError(f"{path}: points have nonzero z; a 2-D section is expected")
+        pts = pts[:, :2]
+    quads = [c.data for c in m.cells if c.type == "quad"]
+    if not quads:
+        raise MeshError(f"{path}: no 'quad' cells (only 4-node quadrilaterals are supported)")
+    elements = np.concatenate(quads).astype(np.int64)
+    # keep only the nodes that quads use, renumbered
+    used = np.unique(elements)
+    renum = -np.ones(pts.shape[0], dtype=np.int64)
+    renum[used] = np.arange(used.size)
+    coords = pts[used]
+    elements = renum[elements]
+    flip = element_areas(coords, elements) < 0
+    elements[flip] = elements[flip][:, ::-1]
+    facet_sets: dict[str, np.ndarray] = {}
+    node_sets: dict[str, np.ndarray] = {}
+    line_blocks = {i: c.data for i, c in enumerate(m.cells) if c.type == "line"}
+    for name, per_block in (m.cell_sets or {}).items():
+        if name.startswith("gmsh:"):
+            continue
+        lines = [
+            np.asarray(line_blocks[i])[np.asarray(idx, dtype=np.int64)]
+            for i, idx in enumerate(per_block)
+            if i in line_blocks and idx is not None and len(idx)
+        ]
+        if lines:
+            seg = renum[np.concatenate(lines)]
+            if np.any(seg < 0):
+                raise MeshError(f"{path}: set {name!r} has nodes that belong to no quad")
+            facet_sets[name] = seg
+            node_sets[name] = np.unique(seg)
+    return Mesh(coords, elements, node_sets, facet_sets)

@@ -1,0 +1,306 @@
+"""Load stepping: scenes built from configs, steps with cutback, chunks of lax.scan.
+
+The caller owns the loop (jax-md style): :func:`build_scene` does the set-up once (mesh,
+dofs, pattern, material, dies), :func:`simulate` advances it chunk by chunk through a
+compiled ``lax.scan`` over load steps and hands each chunk to an optional progress
+callback.  Inside a step, a failed Newton solve (no convergence, a failed local
+material solve, an inverted element) halves the step, up to ``solver.max_cutbacks``
+times; when the cutbacks run out the simulation stops, keeping the last converged state,
+and :class:`SimulationError` names the step, the time and the cause.
+
+Upsetting scene (quarter r-z section, symmetry plane z = 0 fixed, axis r = 0): the top
+die moves at half the ram speed relative to the mid-plane; ``stroke_mm`` and
+``force_N`` refer to the whole billet (force = sum of the contact multipliers, which
+already include the 2 pi of axisymmetry).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import partial
+from typing import Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxform import mesh as meshing
+from jaxform.assembly import Indices, Model, build_indices
+from jaxform.contact import FlatDie
+from jaxform.formulations import CAUSES, OK, Formulation, GaussState, initial_gauss_state
+from jaxform.linear import LinearSolver, choose_backend
+from jaxform.materials import load_material
+from jaxform.precision import require_x64
+from jaxform.solver import NewtonSettings, newton
+
+
+@jax.tree_util.register_dataclass
+@dataclass(frozen=True)
+class SimState:
+    x: jax.Array  # unknowns: nodal fields and multipliers
+    gauss: GaussState
+    t: jax.Array  # time (s)
+
+
+@jax.tree_util.register_dataclass
+@dataclass(frozen=True)
+class Inputs:
+    """Everything a design may differentiate, passed to the compiled step as arguments."""
+
+    coords: jax.Array  # initial nodal coordinates (mm)
+    params: object  # material parameters
+    die: FlatDie
+    c_contact: jax.Array  # complementarity scale (N/mm), set-up constant
+
+
+@dataclass(frozen=True)
+class Scene:
+    config: dict
+    mesh: meshing.Mesh
+    model: Model
+    idx: Indices
+    linear: LinearSolver
+    newton: NewtonSettings
+    inputs: Inputs
+    dt: float
+    t_end: float
+    max_cutbacks: int
+    chunk: int
+    symmetric_z: bool = True  # half-height model: stroke = 2 x die travel
+
+    @property
+    def n_steps(self) -> int:
+        return int(math.ceil(self.t_end / self.dt - 1e-9))
+
+    def step_targets(self) -> np.ndarray:
+        k = np.arange(1, self.n_steps + 1)
+        return np.minimum(k * self.dt, self.t_end)
+
+    def initial_state(self) -> SimState:
+        lay = self.model.layout
+        g = initial_gauss_state(self.model.law, self.inputs.params, lay.n_elements)
+        return SimState(x=jnp.zeros(lay.n_dofs), gauss=g, t=jnp.asarray(0.0))
+
+
+class SimulationError(RuntimeError):
+    """A step failed after all cutbacks; ``result`` holds the history up to the last good step."""
+
+    def __init__(self, message: str, result):
+        super().__init__(message)
+        self.result = result
+
+
+def build_scene(cfg: dict) -> Scene:
+    """Set-up of an upsetting scene from a validated config (jaxform.config.load_config)."""
+    require_x64()
+    b, m, d, tm, so = cfg["billet"], cfg["mesh"], cfg["die"], cfg["time"], cfg["solver"]
+    axi = m["geometry"] == "axisymmetric"
+    radius, half_h = 0.5 * b["diameter_mm"], 0.5 * b["height_mm"]
+    if m["file"]:
+        mesh = meshing.read_mesh(m["file"])
+        for name in ("axis", "symmetry", "top", "side"):
+            if name not in mesh.node_sets:
+                raise ValueError(f"mesh.file = {m['file']!r}: needs a physical group {name!r}")
+        free = np.union1d(mesh.node_sets["top"], mesh.node_sets["side"])
+        mesh = meshing.Mesh(mesh.coords, mesh.elements, {**mesh.node_sets, "free_surface": free},
+                            mesh.facet_sets)
+        half_h = float(mesh.coords[mesh.node_sets["top"], 1].max())
+    else:
+        mesh = meshing.billet_quarter(radius, half_h, m["nr"], m["nz"])
+    law, params = load_material(cfg["material"]["preset"])
+    form = Formulation(kind=m["element"], axisymmetric=axi, theta=m["stabilization"],
+                       alpha=tm["alpha"])
+    nf = form.n_fields
+    fixed = np.concatenate([mesh.node_sets["axis"] * nf, mesh.node_sets["symmetry"] * nf + 1])
+    contact = np.asarray(mesh.node_sets["free_surface"], dtype=np.int64)
+    layout, idx = build_indices(mesh, nf, fixed, contact,
+                                reaction_dofs=mesh.node_sets["symmetry"] * nf + 1)
+    model = Model(form, law, layout)
+    areas = meshing.element_areas(mesh.coords, mesh.elements)
+    h = float(np.sqrt(areas.min()))
+    g_mod = float(law.shear_modulus(params))
+    c = g_mod * h * (2.0 * np.pi * radius if axi else 1.0)
+    die = FlatDie(z0_mm=jnp.asarray(half_h), speed_mm_s=jnp.asarray(0.5 * d["speed_mm_s"]))
+    t_end = d["reduction"] * 2.0 * half_h / d["speed_mm_s"]
+    return Scene(
+        config=cfg,
+        mesh=mesh,
+        model=model,
+        idx=idx,
+        linear=choose_backend(so["linear"], layout.n_dofs),
+        newton=NewtonSettings(max_iterations=so["max_newton_iterations"], rtol=so["rtol"],
+                              line_search=so["line_search"]),
+        inputs=Inputs(coords=jnp.asarray(mesh.coords), params=params, die=die,
+                      c_contact=jnp.asarray(c)),
+        dt=tm["dt_s"],
+        t_end=t_end,
+        max_cutbacks=so["max_cutbacks"],
+        chunk=so["chunk_steps"],
+    )
+
+
+# ----------------------------------------------------------------------------------
+# compiled pieces (static: model, linear solver, Newton settings, cutbacks)
+
+
+def _tree_where(c, a, b):
+    return jax.tree_util.tree_map(lambda u, v: jnp.where(c, u, v), a, b)
+
+
+def solve_step(model: Model, linear: LinearSolver, settings: NewtonSettings,
+               state: SimState, t_new, dt, inp: Inputs, idx: Indices, x_guess=None):
+    """One Newton solve from state (at t) to t_new = t + dt. Returns (x, gauss, its, code, hist)."""
+    args = (inp.coords, t_new, dt, inp.params, inp.die, inp.c_contact, idx)
+
+    def residual(x):
+        r, g, code, scale = model.residual(x, state.gauss, *args)
+        return r, g, code, scale
+
+    def residual_and_jacobian(x):
+        return model.residual_and_jacobian(x, state.gauss, *args)
+
+    def lin(vals, b):
+        return linear.solve(idx.rows, idx.cols, vals, b, model.layout.n_dofs)
+
+    x0 = state.x if x_guess is None else x_guess
+    return newton(residual, residual_and_jacobian, lin, x0, settings)
+
+
+def macro_step(model, linear, settings, max_cutbacks, state: SimState, t_target, inp, idx):
+    """Advance to t_target, halving the sub-step on failure. Returns (state, info dict)."""
+    n_hist = settings.max_iterations + 1
+
+    def cond(c):
+        return ~c["done"]
+
+    def body(c):
+        st, h = c["state"], c["h"]
+        x, g, its, code, hist = solve_step(model, linear, settings, st, st.t + h, h, inp, idx)
+        ok = code == OK
+        t_new = jnp.where(ok, st.t + h, st.t)
+        new = _tree_where(ok, SimState(x=x, gauss=g, t=t_new), st)
+        level = jnp.where(ok, c["level"], c["level"] + 1)
+        failed = level > max_cutbacks
+        reached = ok & (t_new >= t_target - 1e-12 * jnp.maximum(1.0, t_target))
+        h_next = jnp.where(ok, jnp.minimum(h, t_target - t_new), 0.5 * h)
+        return dict(
+            state=new, h=h_next, level=level, done=reached | failed,
+            iterations=c["iterations"] + its, cutbacks=c["cutbacks"] + (~ok).astype(jnp.int32),
+            code=jnp.where(failed, code, jnp.where(ok, OK, c["code"])),
+            last_cause=jnp.where(ok, c["last_cause"], code),
+            hist=jnp.where(ok, hist, c["hist"]),
+        )
+
+    init = dict(state=state, h=t_target - state.t, level=jnp.asarray(0), done=jnp.asarray(False),
+                iterations=jnp.asarray(0), cutbacks=jnp.asarray(0, jnp.int32),
+                code=jnp.asarray(OK), last_cause=jnp.asarray(OK),
+                hist=jnp.full(n_hist, jnp.inf))
+    out = jax.lax.while_loop(cond, body, init)
+    info = {k: out[k] for k in ("iterations", "cutbacks", "code", "hist")}
+    return out["state"], info
+
+
+def step_outputs(model: Model, state: SimState, inp: Inputs, idx: Indices, symmetric_z: bool):
+    """Scalars and fields recorded after each step."""
+    lam = state.x[idx.mult_dofs]
+    travel = inp.die.z0_mm - inp.die.position(state.t)
+    return dict(
+        time_s=state.t,
+        stroke_mm=(2.0 if symmetric_z else 1.0) * travel,
+        force_N=jnp.sum(lam),
+        x=state.x,
+        stress=state.gauss.mat.stress,
+        s=state.gauss.mat.s,
+        eqps=state.gauss.mat.eqps,
+    )
+
+
+@partial(jax.jit, static_argnums=(0, 1, 2, 3, 4))
+def run_chunk(model, linear, settings, max_cutbacks, symmetric_z, state: SimState,
+              targets, active, inp: Inputs, idx: Indices):
+    """lax.scan over a chunk of load steps; inactive steps (past the end or after a
+    failure) leave the state unchanged."""
+
+    def step(carry, tk):
+        st, failed = carry
+        t_target, act = tk
+        run = act & ~failed
+
+        def do(st):
+            return macro_step(model, linear, settings, max_cutbacks, st, t_target, inp, idx)
+
+        def skip(st):
+            n_hist = settings.max_iterations + 1
+            return st, dict(iterations=jnp.asarray(0), cutbacks=jnp.asarray(0, jnp.int32),
+                            code=jnp.asarray(OK), hist=jnp.full(n_hist, jnp.inf))
+
+        new, info = jax.lax.cond(run, do, skip, st)
+        failed = failed | (info["code"] != OK)
+        out = step_outputs(model, new, inp, idx, symmetric_z)
+        out.update(info)
+        out["active"] = run
+        return (new, failed), out
+
+    (state, failed), outs = jax.lax.scan(step, (state, jnp.asarray(False)), (targets, active))
+    return state, outs
+
+
+@dataclass
+class Result:
+    """History (one row per converged load step, row 0 = initial state) and fields."""
+
+    history: dict[str, np.ndarray]
+    fields: dict[str, np.ndarray]  # per row: x, stress, s, eqps
+    scene: Scene
+    final_state: SimState
+    newton_histories: np.ndarray  # per step: ||R_k|| / F of the last (sub)step's Newton
+    failure: str | None = None
+
+
+def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Result:
+    """Run the scene to its end; raises SimulationError (with .result) on failure."""
+    require_x64()
+    targets = scene.step_targets()
+    n = len(targets)
+    c = scene.chunk
+    state = scene.initial_state()
+    st_args = (scene.model, scene.linear, scene.newton, scene.max_cutbacks, scene.symmetric_z)
+    init = jax.device_get(step_outputs(scene.model, state, scene.inputs, scene.idx,
+                                       scene.symmetric_z))
+    rows = [dict(init, iterations=0, cutbacks=0, code=OK)]
+    hists = []
+    failure = None
+    for k0 in range(0, n, c):
+        tk = np.full(c, targets[-1])
+        act = np.zeros(c, dtype=bool)
+        m = min(c, n - k0)
+        tk[:m], act[:m] = targets[k0:k0 + m], True
+        state_new, outs = run_chunk(*st_args, state, jnp.asarray(tk), jnp.asarray(act),
+                                    scene.inputs, scene.idx)
+        outs = jax.device_get(outs)
+        for j in range(m):
+            row = {k: v[j] for k, v in outs.items()}
+            if int(row["code"]) != OK:
+                t_fail = float(targets[k0 + j])
+                failure = (f"step {k0 + j + 1} (target time {t_fail:g} s, last converged time "
+                           f"{float(row['time_s']):g} s) failed after {scene.max_cutbacks} "
+                           f"cutbacks: {CAUSES.get(int(row['code']), 'unknown')}")
+                break
+            rows.append(row)
+            hists.append(row["hist"])
+            if progress is not None:
+                progress(dict(step=k0 + j + 1, n_steps=n, **{k: row[k] for k in (
+                    "time_s", "stroke_mm", "force_N", "iterations", "cutbacks")}))
+        state = state_new
+        if failure:
+            break
+    hist_keys = ("time_s", "stroke_mm", "force_N", "iterations", "cutbacks")
+    history = {k: np.array([float(r[k]) for r in rows]) for k in hist_keys}
+    history["newton_iterations"] = history.pop("iterations")
+    fields = {k: np.stack([np.asarray(r[k]) for r in rows]) for k in ("x", "stress", "s", "eqps")}
+    result = Result(history=history, fields=fields, scene=scene, final_state=state,
+                    newton_histories=np.array(hists), failure=failure)
+    if failure:
+        raise SimulationError(failure, result)
+    return result
