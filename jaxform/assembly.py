@@ -178,3 +178,10 @@ class Model:
         code = jnp.max(ok_e)
         code = jnp.where(jnp.all(jnp.isfinite(r)), code, NOT_FINITE)
         return r, gnew, code, scale
+
+
+def internal_forces(model: Model, x, gstate, coords, dt, params, idx: Indices):
+    """Assembled element force vector (no contact, no Dirichlet rows): for reactions."""
+    fn = model._element_fn(params, dt)
+    r_e, _ = jax.vmap(fn)(model._gather(x, idx), coords[idx.elements], gstate)
+    return jnp.zeros(model.layout.n_dofs, dtype=x.dtype).at[idx.edofs].add(r_e)

@@ -1,5 +1,6 @@
 """Command line: the only module that prints.
 
+    jaxform run CONFIG [--set section.key=value ...] --out DIR
     jaxform material-point [--material NAME] [--rates R ...] [--strain E] --out DIR
 """
 
@@ -75,6 +76,42 @@ def _material_point(args) -> int:
     return 0
 
 
+def _run(args) -> int:
+    from jaxform.config import ConfigError
+    from jaxform.driver import run
+    from jaxform.simulate import SimulationError
+
+    t0 = time.perf_counter()
+    first = []
+
+    def progress(p):
+        if not first:
+            first.append(time.perf_counter() - t0)
+        done = p["step"] / p["n_steps"]
+        bar = "#" * int(30 * done) + "." * (30 - int(30 * done))
+        print(f"[{bar}] step {p['step']:4d}/{p['n_steps']} t={p['time_s']:8.3f} s "
+              f"stroke={p['stroke_mm']:7.4f} mm force={p['force_N']:10.3f} N "
+              f"newton={int(p['iterations']):2d} cutbacks={int(p['cutbacks'])}", flush=True)
+
+    try:
+        result = run(args.config, args.set, out_dir=args.out, progress=progress)
+    except ConfigError as err:
+        print(f"config error: {err}", file=sys.stderr)
+        return 2
+    except SimulationError as err:
+        print(f"simulation stopped: {err}", file=sys.stderr)
+        print(f"last converged state written to {args.out}", file=sys.stderr)
+        return 1
+    h = result.history
+    print(f"done: {len(h['time_s']) - 1} steps, {int(h['newton_iterations'].sum())} Newton "
+          f"iterations, {int(h['cutbacks'].sum())} cutbacks, final force {h['force_N'][-1]:.2f} N, "
+          f"{time.perf_counter() - t0:.1f} s wall (first chunk incl. compile "
+          f"{first[0] if first else 0:.1f} s)")
+    print(f"outputs in {args.out}: history.csv, config.toml, fields.pvd, force_stroke.png, "
+          f"deformed_mesh.png, eqps.png")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     from jaxform.precision import enable_x64
 
@@ -82,6 +119,13 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="jaxform", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", required=True)
+
+    rp = sub.add_parser("run", help="run a forging scene from a TOML config")
+    rp.add_argument("config", help="scene config (TOML), e.g. configs/upsetting_seed.toml")
+    rp.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                    help="override a config value (repeatable)")
+    rp.add_argument("--out", default="out/run", help="output folder")
+    rp.set_defaults(func=_run)
 
     mp = sub.add_parser("material-point", help="uniaxial compression of one material point")
     mp.add_argument("--material", default="al1100_673K",

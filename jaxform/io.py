@@ -17,3 +17,55 @@ def write_csv(path: Path, columns: dict[str, np.ndarray], fmt: str = "%.10g") ->
 def read_csv(path: Path) -> dict[str, np.ndarray]:
     data = np.genfromtxt(path, delimiter=",", names=True)
     return {n: np.asarray(data[n]) for n in data.dtype.names}
+
+
+def nodal_fields(scene, x: np.ndarray):
+    """Split an unknown vector into displacement (n, 2), nodal pressure (n,) or None, multipliers."""
+    lay = scene.model.layout
+    nodal = np.asarray(x[: lay.n_node_dofs]).reshape(lay.n_nodes, lay.n_fields)
+    pressure = nodal[:, 2] if lay.n_fields == 3 else None
+    return nodal[:, :2], pressure, np.asarray(x[lay.n_node_dofs:])
+
+
+def write_vtu_series(out_dir: Path, scene, result, every: int = 1) -> Path:
+    """ParaView fields: one VTU per written step and a .pvd time series that indexes them.
+
+    Point data: displacement (mm, 3 components, the third 0), pressure (MPa; nodal for
+    q1q1). Cell data (averages of the 4 Gauss points): Cauchy stress components (MPa),
+    pressure (MPa), equivalent plastic strain, deformation resistance s (MPa).
+    """
+    import meshio
+
+    out_dir = Path(out_dir)
+    fields_dir = out_dir / "fields"
+    fields_dir.mkdir(parents=True, exist_ok=True)
+    coords = np.asarray(scene.mesh.coords)
+    pts = np.column_stack([coords, np.zeros(len(coords))])
+    cells = [("quad", np.asarray(scene.mesh.elements))]
+    entries = []
+    n_rows = result.fields["x"].shape[0]
+    for k in list(range(0, n_rows, every)) + ([n_rows - 1] if (n_rows - 1) % every else []):
+        u, p_nodes, _ = nodal_fields(scene, result.fields["x"][k])
+        stress = result.fields["stress"][k].mean(axis=1)  # (n_el, 3, 3)
+        p_cell = -np.trace(stress, axis1=1, axis2=2) / 3.0
+        point_data = {"displacement": np.column_stack([u, np.zeros(len(u))])}
+        if p_nodes is not None:
+            point_data["pressure"] = p_nodes
+        cell_data = {
+            "stress_11": [stress[:, 0, 0]], "stress_22": [stress[:, 1, 1]],
+            "stress_12": [stress[:, 0, 1]], "stress_33": [stress[:, 2, 2]],
+            "pressure_cell": [p_cell],
+            "eqps": [result.fields["eqps"][k].mean(axis=1)],
+            "s": [result.fields["s"][k].mean(axis=1)],
+        }
+        name = f"step_{k:05d}.vtu"
+        meshio.write(fields_dir / name, meshio.Mesh(pts, cells, point_data=point_data,
+                                                    cell_data=cell_data))
+        entries.append((float(result.history["time_s"][k]), f"fields/{name}"))
+    pvd = out_dir / "fields.pvd"
+    lines = ['<?xml version="1.0"?>',
+             '<VTKFile type="Collection" version="0.1">', "  <Collection>"]
+    lines += [f'    <DataSet timestep="{t:.10g}" part="0" file="{f}"/>' for t, f in entries]
+    lines += ["  </Collection>", "</VTKFile>"]
+    pvd.write_text("\n".join(lines) + "\n")
+    return pvd

@@ -39,6 +39,7 @@ class UniaxialResult:
     eqps: np.ndarray
     newton_iterations: np.ndarray
     ok: np.ndarray
+    lateral_stretch: np.ndarray  # current radius / initial radius
 
 
 def _axial_stretch(t, rate, speed_mm_s, height_mm):
@@ -87,10 +88,13 @@ def uniaxial_compression(
     ram_speed_mm_s: float | jax.Array = 0.0,
     height_mm: float | jax.Array = 1.0,
     alpha: float = 0.5,
+    times_s: jax.Array | None = None,
 ) -> dict:
     """Run the compression in n_steps equal time steps up to true strain final_strain.
 
     Give either ``strain_rate_1_s`` (> 0) or ``ram_speed_mm_s`` (> 0, with height_mm).
+    ``times_s`` (increasing, without 0) replaces the equal steps by these step end times
+    (then final_strain and n_steps are ignored).
     Returns a dict of arrays (see UniaxialResult); jit- and vmap-friendly.
     """
     rate = jnp.asarray(strain_rate_1_s, dtype=jnp.float64)
@@ -100,22 +104,29 @@ def uniaxial_compression(
     t_end_rate = final_strain / jnp.where(rate > 0, rate, 1.0)
     t_end_speed = height * (1.0 - jnp.exp(-final_strain)) / jnp.where(speed > 0, speed, 1.0)
     t_end = jnp.where(speed > 0.0, t_end_speed, t_end_rate)
-    dt = t_end / n_steps
+    if times_s is None:
+        times_s = t_end / n_steps * jnp.arange(1, n_steps + 1)
+    times_s = jnp.asarray(times_s, dtype=jnp.float64)
+    t_prev = jnp.concatenate([jnp.zeros(1), times_s[:-1]])
     state0 = law.initial_state(params)
 
-    def step(carry, i):
-        state, lam_z = carry
-        t_new = (i + 1) * dt
+    def step(carry, tt):
+        state, lam_z, lam_r = carry
+        t_new, t_old = tt
+        dt = t_new - t_old
         lam_z_new = _axial_stretch(t_new, rate, speed, height)
         fz = lam_z_new / lam_z
         x, iters, ok = _lateral_solve(law, params, state, dt, fz, alpha)
         f = jnp.diag(jnp.stack([jnp.exp(x), jnp.exp(x), fz]))
         _, new, ok_m = law.update(step_kinematics(f, alpha), state, params, dt)
-        out = (t_new, -jnp.log(lam_z_new), -new.stress[2, 2], new.s, new.eqps, iters, ok & ok_m)
-        return (new, lam_z_new), out
+        lam_r_new = lam_r * jnp.exp(x)
+        out = (t_new, -jnp.log(lam_z_new), -new.stress[2, 2], new.s, new.eqps, iters, ok & ok_m,
+               lam_r_new)
+        return (new, lam_z_new, lam_r_new), out
 
-    _, outs = jax.lax.scan(step, (state0, jnp.asarray(1.0)), jnp.arange(n_steps))
-    t, eps, sig, s, ep, it, ok = outs
+    one = jnp.asarray(1.0)
+    _, outs = jax.lax.scan(step, (state0, one, one), (times_s, t_prev))
+    t, eps, sig, s, ep, it, ok, lam_r = outs
 
     def prepend(x, v):
         return jnp.concatenate([jnp.asarray([v], dtype=x.dtype), x])
@@ -128,6 +139,7 @@ def uniaxial_compression(
         eqps=prepend(ep, 0.0),
         newton_iterations=prepend(it, 0),
         ok=prepend(ok, True),
+        lateral_stretch=prepend(lam_r, 1.0),
     )
 
 

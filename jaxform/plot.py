@@ -24,3 +24,65 @@ def stress_strain(curves: dict[str, tuple[np.ndarray, np.ndarray]], path: Path, 
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
+
+
+def force_stroke(stroke_mm, force_n, path: Path, title: str, reference=None):
+    fig, ax = plt.subplots(figsize=(6, 4.2))
+    ax.plot(stroke_mm, force_n, "o-", ms=3, label="jaxform")
+    if reference is not None:
+        ax.plot(reference[0], reference[1], "k--", lw=1, label=reference[2])
+    ax.set_xlabel("stroke [mm]")
+    ax.set_ylabel("ram force [N]")
+    ax.set_title(title)
+    ax.grid(True, alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def _quads(coords, elements):
+    from matplotlib.collections import PolyCollection
+
+    return PolyCollection(coords[elements], closed=True)
+
+
+def deformed_mesh(coords0, coords1, elements, path: Path, title: str):
+    """Deformed mesh (blue) over the initial mesh (grey), as thesis Fig. 6.4."""
+    fig, ax = plt.subplots(figsize=(6, 5))
+    for c, style in ((coords0, dict(edgecolor="0.6", facecolor="none", lw=0.8)),
+                     (coords1, dict(edgecolor="tab:blue", facecolor="none", lw=1.0))):
+        pc = _quads(c, elements)
+        pc.set(**style)
+        ax.add_collection(pc)
+    allc = np.vstack([coords0, coords1])
+    ax.set_xlim(allc[:, 0].min() - 0.1, allc[:, 0].max() * 1.05 + 0.1)
+    ax.set_ylim(allc[:, 1].min() - 0.1, allc[:, 1].max() * 1.05 + 0.1)
+    ax.set_aspect("equal")
+    ax.set_xlabel("r [mm]")
+    ax.set_ylabel("z [mm]")
+    ax.set_title(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def cell_contours(coords, elements, values, path: Path, title: str, label: str):
+    """Cell values (e.g. equivalent plastic strain) on the deformed mesh, as thesis Fig. 6.6."""
+    fig, ax = plt.subplots(figsize=(6, 5))
+    pc = _quads(coords, elements)
+    pc.set_array(np.asarray(values))
+    pc.set_cmap("viridis")
+    pc.set_edgecolor("k")
+    pc.set_linewidth(0.2)
+    ax.add_collection(pc)
+    ax.set_xlim(coords[:, 0].min(), coords[:, 0].max() * 1.02)
+    ax.set_ylim(coords[:, 1].min(), coords[:, 1].max() * 1.02)
+    ax.set_aspect("equal")
+    ax.set_xlabel("r [mm]")
+    ax.set_ylabel("z [mm]")
+    ax.set_title(title)
+    fig.colorbar(pc, ax=ax, label=label)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)

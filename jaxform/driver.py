@@ -1,0 +1,68 @@
+"""`jaxform.run`: one call from a config to a history, fields and output files.
+
+config (TOML path or dict) --load_config--> validated dict --build_scene--> Scene
+  --simulate--> Result --write_outputs--> history.csv, config.toml, fields.pvd + VTUs, PNGs
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from jaxform.config import dump_config, load_config
+from jaxform.io import nodal_fields, write_csv, write_vtu_series
+from jaxform.simulate import Result, SimulationError, build_scene, simulate
+
+
+def run(config, overrides=(), out_dir: str | Path | None = None,
+        progress: Callable[[dict], None] | None = None) -> Result:
+    """Validate, build and run a scene; write outputs to out_dir if given.
+
+    On failure after all cutbacks, the outputs of the last converged state are written
+    and SimulationError (with .result) is raised.
+    """
+    cfg = load_config(config, list(overrides))
+    scene = build_scene(cfg)
+    try:
+        result = simulate(scene, progress)
+    except SimulationError as err:
+        if out_dir is not None:
+            write_outputs(out_dir, err.result)
+        raise
+    if out_dir is not None:
+        write_outputs(out_dir, result)
+    return result
+
+
+def write_outputs(out_dir: str | Path, result: Result) -> None:
+    from jaxform import plot
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    scene = result.scene
+    cfg = scene.config
+    h = result.history
+    write_csv(out / "history.csv", {
+        "time_s": h["time_s"], "stroke_mm": h["stroke_mm"], "force_N": h["force_N"],
+        "newton_iterations": h["newton_iterations"], "cutbacks": h["cutbacks"],
+    })
+    dump_config(cfg, out / "config.toml")
+    if result.failure:
+        (out / "FAILED.txt").write_text(result.failure + "\n")
+    if cfg["output"]["fields"]:
+        write_vtu_series(out, scene, result)
+    if cfg["output"]["plots"]:
+        coords0 = np.asarray(scene.mesh.coords)
+        u, _, _ = nodal_fields(scene, result.fields["x"][-1])
+        coords1 = coords0 + u
+        el = np.asarray(scene.mesh.elements)
+        red = 100.0 * h["stroke_mm"][-1] / cfg["billet"]["height_mm"]
+        plot.force_stroke(h["stroke_mm"], h["force_N"], out / "force_stroke.png",
+                          f"{cfg['mesh']['element']}, {cfg['mesh']['nr']}x{cfg['mesh']['nz']}")
+        plot.deformed_mesh(coords0, coords1, el, out / "deformed_mesh.png",
+                           f"initial and deformed mesh, {red:.1f} % reduction")
+        plot.cell_contours(coords1, el, result.fields["eqps"][-1].mean(axis=1),
+                           out / "eqps.png", f"equivalent plastic strain, {red:.1f} % reduction",
+                           "equivalent plastic strain [-]")
