@@ -216,7 +216,7 @@ def step_outputs(model: Model, state: SimState, inp: Inputs, idx: Indices, symme
     )
 
 
-@partial(jax.jit, static_argnums=(0, 1, 2, 3, 4))
+@partial(jax.jit, static_argnums=(0, 1, 2, 4))
 def run_chunk(model, linear, settings, max_cutbacks, symmetric_z, state: SimState,
               targets, active, inp: Inputs, idx: Indices):
     """lax.scan over a chunk of load steps; inactive steps (past the end or after a
@@ -265,7 +265,8 @@ def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Re
     n = len(targets)
     c = scene.chunk
     state = scene.initial_state()
-    st_args = (scene.model, scene.linear, scene.newton, scene.max_cutbacks, scene.symmetric_z)
+    st_args = (scene.model, scene.linear, scene.newton, jnp.asarray(scene.max_cutbacks),
+               scene.symmetric_z)
     init = jax.device_get(step_outputs(scene.model, state, scene.inputs, scene.idx,
                                        scene.symmetric_z))
     rows = [dict(init, iterations=0, cutbacks=0, code=OK)]

@@ -18,23 +18,37 @@ AL1100 = dict(
 )
 
 
-def anand_uniaxial_reference(rate, strains, p=AL1100, rtol=1e-10):
-    """Stress, s and eqps at the given true strains (array, increasing from 0)."""
+def anand_uniaxial_reference(rate, strains, p=AL1100, rtol=1e-10, speed_over_height=None):
+    """Stress, s and eqps at the given true strains (array, increasing from 0).
+
+    With ``speed_over_height = v/H`` (1/s) the loading is a constant ram speed instead:
+    true strain rate v/(H - v t), strain -ln(1 - v t/H).
+    """
     E = 9.0 * p["K"] * p["G"] / (3.0 * p["K"] + p["G"])
 
     def f(sig, s):
         x = np.clip(p["xi"] * sig / s, 0.0, 150.0)
         return p["A"] * np.sinh(x) ** (1.0 / p["m"])
 
+    def strain_rate(t):
+        if speed_over_height is None:
+            return rate
+        return speed_over_height / (1.0 - speed_over_height * t)
+
     def rhs(t, y):
         sig, s, ep = y
+        rate_t = strain_rate(t)
         fr = f(sig, s)
         s_star = p["s_hat"] * (max(fr, 1e-300) / p["A"]) ** p["n"]
         u = 1.0 - s / s_star
         g = p["h0"] * np.sign(u) * abs(u) ** p["a"] * fr
-        return [E * (rate - fr), g, fr]
+        return [E * (rate_t - fr), g, fr]
 
-    t_eval = np.asarray(strains) / rate
+    if speed_over_height is None:
+        t_eval = np.asarray(strains) / rate
+    else:
+        t_eval = -np.expm1(-np.asarray(strains)) / speed_over_height
+        rate = speed_over_height
     sol = solve_ivp(
         rhs, (0.0, t_eval[-1]), [0.0, p["s0"], 0.0], method="Radau", t_eval=t_eval,
         rtol=rtol, atol=[1e-12, 1e-12, 1e-14], first_step=1e-9 / rate,

@@ -1,0 +1,211 @@
+"""Forward upsetting (issue: the seed's open-die upsetting end to end).
+
+References: the material-point update driven with the same time steps (frictionless
+upsetting is exactly homogeneous, errata item 6), SciPy Radau on the uniaxial ODEs,
+central finite differences of the global residual, and the patch test (a distorted mesh
+must reproduce a homogeneous deformation exactly).
+"""
+
+from dataclasses import replace
+from functools import lru_cache
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxform.assembly import internal_forces
+from jaxform.cli import main
+from jaxform.config import load_config
+from jaxform.io import nodal_fields, read_csv
+from jaxform.materialpoint import uniaxial_compression
+from jaxform.simulate import SimulationError, build_scene, simulate
+from reference_ode import anand_uniaxial_reference
+
+BASE = {
+    "billet": {"diameter_mm": 5.0, "height_mm": 7.5},
+    "die": {"speed_mm_s": 0.075, "reduction": 0.563},
+    "time": {"dt_s": 1.0},
+    "output": {"fields": False, "plots": False},
+}
+
+
+def scene(*overrides):
+    return build_scene(load_config(BASE, list(overrides)))
+
+
+@lru_cache(maxsize=None)
+def homogeneous_run(element, geometry="axisymmetric"):
+    sc = scene(f"mesh.element={element}", "mesh.nr=3", "mesh.nz=3", f"mesh.geometry={geometry}")
+    return sc, simulate(sc)
+
+
+def positions(sc, res, k=-1):
+    u, _, _ = nodal_fields(sc, res.fields["x"][k])
+    return np.asarray(sc.inputs.coords) + u
+
+
+@pytest.mark.parametrize("element", ["q1q1", "q1p0", "q4"])
+def test_frictionless_upsetting_is_the_material_point(element):
+    """Force-stroke = material point with the same steps to 1e-6; side straight to 1e-8;
+    within the time-discretization error (2 %, steps of ~1 % strain) of the Radau ODE."""
+    sc, res = homogeneous_run(element)
+    h = res.history
+    law, params = sc.model.law, sc.inputs.params
+    mp = jax.jit(lambda t: uniaxial_compression(
+        law, params, final_strain=1.0, n_steps=1, ram_speed_mm_s=0.075, height_mm=7.5,
+        times_s=t))(jnp.asarray(h["time_s"][1:]))
+    area = np.pi * (2.5 * np.asarray(mp["lateral_stretch"])) ** 2
+    force_mp = np.asarray(mp["stress_MPa"]) * area
+    rel = np.abs(h["force_N"][1:] - force_mp[1:]) / force_mp[1:]
+    assert rel.max() <= 1e-6, rel.max()
+    pos = positions(sc, res)
+    side_r = pos[sc.mesh.node_sets["side"], 0]
+    assert np.ptp(side_r) <= 1e-8 * side_r.mean()
+    # against the exact ODE solution (constant ram speed)
+    strain = np.asarray(mp["strain"])[1:]
+    ref = anand_uniaxial_reference(None, strain, speed_over_height=0.01)[0]
+    stress_fe = h["force_N"][1:] / area[1:]
+    mask = strain > 0.05
+    err = np.max(np.abs(stress_fe[mask] - ref[mask]) / ref[mask])
+    assert err <= 0.02, err
+
+
+def test_die_force_equals_reaction_and_no_penetration():
+    """Sum of multipliers = reaction on the symmetry plane (1e-8 rel.); gaps >= -1e-8 mm."""
+    sc, res = homogeneous_run("q1q1")
+    st = res.final_state
+    # reaction from the converged stresses (state at t_n = converged: dt = 0 step is identity)
+    x = st.x
+    f_int = internal_forces(sc.model, x, st.gauss, sc.inputs.coords, 1e-30, sc.inputs.params,
+                            sc.idx)
+    reaction = float(jnp.sum(f_int[sc.idx.bottom_reaction_dofs]))  # symmetry plane pushes up
+    force = res.history["force_N"][-1]
+    assert abs(reaction - force) <= 1e-8 * force
+    pos = positions(sc, res)
+    z_die = float(sc.inputs.die.position(st.t))
+    gaps = z_die - pos[np.asarray(sc.idx.contact_nodes), 1]
+    assert gaps.min() >= -1e-8
+
+
+@pytest.mark.parametrize("element", ["q1q1", "q1p0"])
+def test_global_jacobian_against_finite_differences(element):
+    """jacfwd-assembled Jacobian vs 4-point central differences (h = 1e-6 x scale of the
+    unknown), contact active: relative error (Frobenius) <= 1e-6 (measured 3e-8 for q1p0)."""
+    sc, res = homogeneous_run(element)  # 3x3 mesh at 56.3 % reduction, compiled once
+    st = res.final_state
+    rng = np.random.default_rng(1)
+    x = st.x + 1e-4 * jnp.asarray(rng.standard_normal(st.x.shape)) * (st.x != 0)
+    args = (st.gauss, sc.inputs.coords, st.t + 0.5, 0.5, sc.inputs.params, sc.inputs.die,
+            sc.inputs.c_contact, sc.idx)
+    r, vals, *_ = sc.model.residual_and_jacobian(x, *args)
+    n = sc.model.layout.n_dofs
+    jac = np.zeros((n, n))
+    jac[np.asarray(sc.idx.rows), np.asarray(sc.idx.cols)] = np.asarray(vals)
+    res_fn = jax.jit(lambda y: sc.model.residual(y, *args)[0])
+    scale = np.maximum(np.abs(np.asarray(x)), 1e-3)
+    fd = np.zeros((n, n))
+    for j in range(n):
+        hj = 1e-6 * scale[j]
+        e = jnp.zeros(n).at[j].set(hj)
+        f = [np.asarray(res_fn(x + k * e)) for k in (2, 1, -1, -2)]
+        fd[:, j] = (-f[0] + 8 * f[1] - 8 * f[2] + f[3]) / (12 * hj)
+    err = np.linalg.norm(jac - fd) / np.linalg.norm(fd)
+    assert err <= 1e-6, err
+    assert np.any(np.asarray(x[sc.idx.mult_dofs]) > 0)  # contact active
+
+
+@pytest.mark.parametrize("geometry", ["axisymmetric", "plane_strain"])
+@pytest.mark.parametrize("element", ["q1q1", "q1p0", "q4"])
+def test_patch_test_distorted_mesh(element, geometry):
+    """A distorted 3x3 mesh under frictionless upsetting deforms homogeneously: every node at
+    (lam_r R, lam_z Z) to 1e-9 mm and every Gauss point at the same stress (1e-8 rel.)."""
+    sc = scene(f"mesh.element={element}", "mesh.nr=3", "mesh.nz=3", f"mesh.geometry={geometry}",
+               "die.reduction=0.1", "time.dt_s=2.0")
+    coords = np.asarray(sc.inputs.coords).copy()
+    interior = np.setdiff1d(np.arange(len(coords)), np.concatenate(
+        [sc.mesh.node_sets[k] for k in ("axis", "symmetry", "top", "side")]))
+    coords[interior] += np.array([[0.21, -0.17], [-0.13, 0.19], [0.16, 0.12], [-0.2, -0.1]])
+    sc = replace(sc, inputs=replace(sc.inputs, coords=jnp.asarray(coords)))
+    res = simulate(sc)
+    pos = positions(sc, res)
+    top = pos[sc.mesh.node_sets["top"], 1].mean() / 3.75
+    side = pos[sc.mesh.node_sets["side"], 0].mean() / 2.5
+    expected = coords * np.array([side, top])
+    assert np.max(np.abs(pos - expected)) <= 1e-9
+    stress = res.fields["stress"][-1].reshape(-1, 3, 3)
+    assert np.max(np.abs(stress - stress[0])) <= 1e-8 * np.max(np.abs(stress[0]))
+
+
+@lru_cache(maxsize=None)
+def seed_run():
+    sc = scene()  # the seed scene: 10x10 q1q1, dt = 1 s
+    return sc, simulate(sc)
+
+
+def test_newton_quadratic_tail_on_seed_scene():
+    """Quadratic tail: for 1e-7 < e_k < 1e-2 (e = ||R||/F; below 1e-7, e_k^2 is under the
+    round-off floor ~1e-14), e_{k+1} <= 10 e_k^2.  Measured on the seed scene: the ratios
+    e_{k+1}/e_k^2 lie between 1e-4 and ~1, e.g. 44 -> 0.48 -> 6.5e-4 -> 4.8e-11."""
+    _, res = seed_run()
+    ratios = []
+    for hist in res.newton_histories:
+        e = hist[np.isfinite(hist)]
+        for a, b in zip(e[:-1], e[1:]):
+            if 1e-7 < a < 1e-2:
+                ratios.append(b / a**2)
+    assert len(ratios) > 20
+    assert max(ratios) <= 10.0, max(ratios)
+    assert res.history["newton_iterations"][1:].max() <= 6
+
+
+def test_cutback_completes_a_step_made_to_fail():
+    """dt = 10 s with 3 Newton iterations allowed: steps fail, are halved, the run completes."""
+    sc = scene("mesh.nr=3", "mesh.nz=3", "time.dt_s=10.0", "solver.max_newton_iterations=3",
+               "solver.chunk_steps=4", "die.reduction=0.3")
+    res = simulate(sc)
+    assert res.history["cutbacks"].sum() > 0
+    assert abs(res.history["stroke_mm"][-1] - 0.3 * 7.5) <= 1e-12
+
+
+def test_impossible_scene_stops_with_message_and_state(tmp_path):
+    code = main(["run", "configs/upsetting_seed.toml", "--out", str(tmp_path),
+                 "--set", "mesh.nr=3", "--set", "mesh.nz=3", "--set", "time.dt_s=20.0",
+                 "--set", "solver.max_newton_iterations=3", "--set", "solver.max_cutbacks=0",
+                 "--set", "solver.chunk_steps=4",
+                 "--set", "output.fields=false", "--set", "output.plots=false"])
+    assert code == 1
+    msg = (tmp_path / "FAILED.txt").read_text()
+    assert "step 1" in msg and "Newton did not converge" in msg and "target time 20 s" in msg
+    table = read_csv(tmp_path / "history.csv")
+    assert np.atleast_1d(table["time_s"])[-1] == 0.0  # last converged state: the initial one
+    with pytest.raises(SimulationError):
+        simulate(scene("mesh.nr=3", "mesh.nz=3", "time.dt_s=20.0", "solver.chunk_steps=4",
+                       "solver.max_newton_iterations=3", "solver.max_cutbacks=0"))
+
+
+def test_bad_config_is_rejected_before_compiling(capsys, tmp_path):
+    for override, key in (("billet.height_mm=-1", "billet.height_mm"),
+                          ("die.reduction=1.0", "die.reduction"),
+                          ("mesh.nr=0", "mesh.nr"), ("mesh.foo=1", "mesh.foo")):
+        assert main(["run", "configs/upsetting_seed.toml", "--set", override,
+                     "--out", str(tmp_path)]) == 2
+        assert key in capsys.readouterr().err
+
+
+def test_seed_scene_outputs(tmp_path):
+    """The CLI's outputs for the seed scene: history columns, resolved config, fields, PNGs."""
+    from jaxform.driver import write_outputs
+
+    _, res = seed_run()
+    write_outputs(tmp_path, replace(res, scene=replace(res.scene, config={
+        **res.scene.config, "output": {"fields": True, "plots": True}})))
+    table = read_csv(tmp_path / "history.csv")
+    for col in ("time_s", "stroke_mm", "force_N", "newton_iterations"):
+        assert col in table
+    assert abs(table["stroke_mm"][-1] - 0.563 * 7.5) <= 1e-9
+    assert table["force_N"][-1] > table["force_N"][1] > 0
+    assert (tmp_path / "config.toml").exists() and (tmp_path / "fields.pvd").exists()
+    assert len(list((tmp_path / "fields").glob("*.vtu"))) == 58
+    for png in ("force_stroke.png", "deformed_mesh.png", "eqps.png"):
+        assert (tmp_path / png).stat().st_size > 5000
