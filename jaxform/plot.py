@@ -16,8 +16,13 @@ def stress_strain(curves: dict[str, tuple[np.ndarray, np.ndarray]], path: Path, 
     fig, ax = plt.subplots(figsize=(6, 4.2))
     for label, (eps, sig) in curves.items():
         ax.plot(eps, sig, label=label)
-    ax.set_xlabel("true strain [-]")
-    ax.set_ylabel("true stress [MPa] (compression positive)")
+    _finish_curve(fig, ax, path, title, "true strain [-]",
+                  "true stress [MPa] (compression positive)")
+
+
+def _finish_curve(fig, ax, path, title, xlabel, ylabel):
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
     ax.set_title(title)
     ax.grid(True, alpha=0.3)
     ax.legend()
@@ -31,14 +36,7 @@ def force_stroke(stroke_mm, force_n, path: Path, title: str, reference=None):
     ax.plot(stroke_mm, force_n, "o-", ms=3, label="jaxform")
     if reference is not None:
         ax.plot(reference[0], reference[1], "k--", lw=1, label=reference[2])
-    ax.set_xlabel("stroke [mm]")
-    ax.set_ylabel("ram force [N]")
-    ax.set_title(title)
-    ax.grid(True, alpha=0.3)
-    ax.legend()
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    _finish_curve(fig, ax, path, title, "stroke [mm]", "ram force [N]")
 
 
 def _quads(coords, elements):
