@@ -100,7 +100,7 @@ SCHEMA: dict[str, dict[str, Field]] = {
         "max_cutbacks": Field("int", 6, 0, 30, doc="times a failed step may be halved"),
         "line_search": Field("bool", True, doc="backtracking line search in Newton"),
         "linear": Field("str", "auto", choices=("auto", "dense", "sparse"),
-                        doc="linear solver backend (auto: dense below 3000 unknowns)"),
+                        doc="linear solver backend (auto: dense LU below 100 unknowns, klujax sparse LU above)"),
         "chunk_steps": Field("int", 8, 1, 10000,
                              doc="load steps per compiled chunk (progress is reported between chunks)"),
     },

@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+
+from jaxform.smallmat import det2, det3, inv2, inv3
 import numpy as np
 
 _G = 1.0 / np.sqrt(3.0)
@@ -46,8 +48,8 @@ def gauss_geometry(x_ref: jax.Array, axisymmetric: bool):
     plane strain) and the reference volume weights dV0 (4,).
     """
     jac = jnp.einsum("gai,aj->gji", DN_GP, x_ref)  # (g, j, i) = dX_j / dxi_i
-    det = jnp.linalg.det(jac)
-    dndx = jnp.einsum("gai,gij->gaj", DN_GP, jnp.linalg.inv(jac))
+    det = det2(jac)
+    dndx = jnp.einsum("gai,gij->gaj", DN_GP, inv2(jac))
     radius = N_GP @ x_ref[:, 0] if axisymmetric else jnp.ones(4)
     weight = det * GAUSS_WEIGHTS * (2.0 * jnp.pi * radius if axisymmetric else 1.0)
     return dndx, radius, weight, det
@@ -77,5 +79,4 @@ def virtual_work_residual(p1: jax.Array, dndx, radius, weight, axisymmetric: boo
 
 def first_piola(cauchy: jax.Array, f: jax.Array) -> jax.Array:
     """P = J sigma F^-T at each Gauss point."""
-    det = jnp.linalg.det(f)
-    return det[:, None, None] * jnp.einsum("gij,gkj->gik", cauchy, jnp.linalg.inv(f))
+    return det3(f)[:, None, None] * jnp.einsum("gij,gkj->gik", cauchy, inv3(f))

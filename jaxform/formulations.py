@@ -33,6 +33,7 @@ import jax.numpy as jnp
 from jaxform import element as el
 from jaxform.kinematics import step_kinematics
 from jaxform.materials.base import MaterialState
+from jaxform.smallmat import det3, inv2, inv3
 
 KINDS = ("q1q1", "q1p0", "q4")
 
@@ -80,7 +81,7 @@ class Formulation:
         u = dofs[:, :2]
         dndx, radius, weight, det_ref = el.gauss_geometry(x_ref, axi)
         f = el.deformation_gradient(u, dndx, radius, axi)
-        det_f = jnp.linalg.det(f)
+        det_f = det3(f)
         geom_ok = jnp.all(det_f > 0.0) & jnp.all(det_ref > 0.0)
         if self.kind == "q1p0":
             jbar = jnp.sum(det_f * weight) / jnp.sum(weight)
@@ -88,10 +89,10 @@ class Formulation:
             f_mat = f * (jnp.abs(jbar) / safe)[:, None, None] ** (1.0 / 3.0)
         else:
             f_mat = f
-        f_rel = jnp.einsum("gij,gjk->gik", f_mat, jnp.linalg.inv(gstate.F))
+        f_rel = jnp.einsum("gij,gjk->gik", f_mat, inv3(gstate.F))
 
         def point(fr, st):
-            return law.update(step_kinematics(fr, self.alpha), st, params, dt)
+            return law.update(step_kinematics(fr, self.alpha, planar=True), st, params, dt)
 
         sigma, mat_new, ok = jax.vmap(point)(f_rel, gstate.mat)
         if self.kind == "q1q1":
@@ -112,13 +113,13 @@ class Formulation:
     def _pressure_residual(self, law, params, f, dndx, weight, det_ref, p_mat, p_nodes):
         g = law.shear_modulus(params)
         k = params.K_MPa
-        det_f = jnp.linalg.det(f)
+        det_f = det3(f)
         dv = det_f * weight  # current volume weights
         area_cur = jnp.sum(jnp.abs(det_f * det_ref))  # in-plane current area (2x2 rule, w=1)
         h2 = area_cur
         h0 = jnp.sqrt(jnp.sum(det_ref))
         tau = self.theta * h2 / (2.0 * g)
-        f2inv = jnp.linalg.inv(f[:, :2, :2])
+        f2inv = inv2(f[:, :2, :2])
         grad_n = jnp.einsum("gaj,gji->gai", dndx, f2inv)  # current gradients of N
         p_hat = el.N_GP @ p_nodes
         grad_p = jnp.einsum("gai,a->gi", grad_n, p_nodes)

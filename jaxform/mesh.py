@@ -111,6 +111,28 @@ def element_areas(coords: np.ndarray, elements: np.ndarray) -> np.ndarray:
     return 0.5 * np.sum(x * np.roll(y, -1, axis=1) - np.roll(x, -1, axis=1) * y, axis=1)
 
 
+def _named_lines(m) -> dict[str, np.ndarray]:
+    """Named groups of line cells: gmsh physical groups ($PhysicalNames + the
+    'gmsh:physical' tags, any gmsh version) or meshio cell sets (other formats)."""
+    groups: dict[str, list] = {}
+    line_blocks = {i: np.asarray(c.data) for i, c in enumerate(m.cells) if c.type == "line"}
+    tags = m.cell_data.get("gmsh:physical")
+    if tags is not None:
+        names = {int(v[0]): k for k, v in (m.field_data or {}).items() if int(v[1]) == 1}
+        for i, block in line_blocks.items():
+            t = np.asarray(tags[i])
+            for tag, name in names.items():
+                if np.any(t == tag):
+                    groups.setdefault(name, []).append(block[t == tag])
+    for name, per_block in (m.cell_sets or {}).items():
+        if name.startswith("gmsh:") or name in groups:
+            continue
+        for i, sel in enumerate(per_block):
+            if i in line_blocks and sel is not None and len(sel):
+                groups.setdefault(name, []).append(line_blocks[i][np.asarray(sel, dtype=np.int64)])
+    return {k: np.concatenate(v).astype(np.int64) for k, v in groups.items()}
+
+
 def read_mesh(path: str | Path, tolerance: float = 1e-9) -> Mesh:
     """Read a 2-D quadrilateral mesh through meshio (gmsh .msh, .vtu, ...).
 
@@ -139,19 +161,10 @@ def read_mesh(path: str | Path, tolerance: float = 1e-9) -> Mesh:
     elements[flip] = elements[flip][:, ::-1]
     facet_sets: dict[str, np.ndarray] = {}
     node_sets: dict[str, np.ndarray] = {}
-    line_blocks = {i: c.data for i, c in enumerate(m.cells) if c.type == "line"}
-    for name, per_block in (m.cell_sets or {}).items():
-        if name.startswith("gmsh:"):
-            continue
-        lines = [
-            np.asarray(line_blocks[i])[np.asarray(idx, dtype=np.int64)]
-            for i, idx in enumerate(per_block)
-            if i in line_blocks and idx is not None and len(idx)
-        ]
-        if lines:
-            seg = renum[np.concatenate(lines)]
-            if np.any(seg < 0):
-                raise MeshError(f"{path}: set {name!r} has nodes that belong to no quad")
-            facet_sets[name] = seg
-            node_sets[name] = np.unique(seg)
+    for name, seg in _named_lines(m).items():
+        seg = renum[seg]
+        if np.any(seg < 0):
+            raise MeshError(f"{path}: set {name!r} has nodes that belong to no quad")
+        facet_sets[name] = seg
+        node_sets[name] = np.unique(seg)
     return Mesh(coords, elements, node_sets, facet_sets)

@@ -159,6 +159,19 @@ def test_newton_quadratic_tail_on_seed_scene():
     assert res.history["newton_iterations"][1:].max() <= 6
 
 
+def test_sparse_and_dense_backends_agree_on_seed_scene():
+    """klujax (auto above 100 unknowns) and dense LU: same history to 1e-10 relative."""
+    sc, res = seed_run()
+    assert sc.linear.backend == "sparse"
+    dense = simulate(scene("solver.linear=dense"))
+    assert dense.scene.linear.backend == "dense"
+    f_s, f_d = res.history["force_N"][1:], dense.history["force_N"][1:]
+    assert np.max(np.abs(f_s - f_d) / np.abs(f_d)) <= 1e-10
+    assert np.array_equal(res.history["newton_iterations"], dense.history["newton_iterations"])
+    u_s, u_d = res.fields["x"][-1], dense.fields["x"][-1]
+    assert np.max(np.abs(u_s - u_d)) <= 1e-10 * np.max(np.abs(u_d))
+
+
 def test_cutback_completes_a_step_made_to_fail():
     """dt = 10 s with 3 Newton iterations allowed: steps fail, are halved, the run completes."""
     sc = scene("mesh.nr=3", "mesh.nz=3", "time.dt_s=10.0", "solver.max_newton_iterations=3",
