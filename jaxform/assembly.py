@@ -1,7 +1,8 @@
 """Degrees of freedom, the fixed sparsity pattern, and global residual/Jacobian assembly.
 
-Unknown vector x = [nodal fields (n_nodes * n_fields) | contact multipliers (n_contact)],
-node a's field k at a * n_fields + k (fields: u_r, u_z[, p]).
+Unknown vector x = [nodal fields (n_nodes * n_fields) | contact multipliers (2 n_contact)],
+node a's field k at a * n_fields + k (fields: u_r, u_z[, p]); candidate i's normal and
+tangential multipliers at n_nodes * n_fields + 2 i + (0, 1).
 
 Set-up (NumPy, once per scene) builds :class:`Indices`: element dof maps, Dirichlet dofs,
 contact candidates, and the *unique* sparsity pattern holding every entry any element
@@ -21,7 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxform.contact import contact_node_terms
+from jaxform.contact import ContactLaw, ContactStep
 from jaxform.formulations import NOT_FINITE, Formulation, GaussState
 
 
@@ -35,7 +36,9 @@ class Indices:
     fixed: jax.Array  # (n_fixed,) Dirichlet dofs (value 0)
     contact_nodes: jax.Array  # (n_c,)
     contact_dofs: jax.Array  # (n_c, 2) u dofs of the candidates
-    mult_dofs: jax.Array  # (n_c,)
+    mult_dofs: jax.Array  # (n_c, 2) normal and tangential multipliers
+    contact_facets: jax.Array  # (n_f, 2) free-surface facets, as indices into contact_nodes
+    contact_fixed_r: jax.Array  # (n_c,) bool: the candidate's u_r is a Dirichlet dof
     rows: jax.Array  # (n_nz,) unique pattern
     cols: jax.Array
     slot: jax.Array  # (n_raw,) raw entry -> unique slot
@@ -58,26 +61,28 @@ class Layout:
 
     @property
     def n_dofs(self) -> int:
-        return self.n_node_dofs + self.n_contact
+        return self.n_node_dofs + 2 * self.n_contact
 
 
 def build_indices(mesh, n_fields: int, fixed_dofs: np.ndarray, contact_nodes: np.ndarray,
-                  reaction_dofs: np.ndarray | None = None) -> tuple[Layout, Indices]:
+                  reaction_dofs: np.ndarray | None = None,
+                  contact_facets: np.ndarray | None = None) -> tuple[Layout, Indices]:
+    """contact_facets: (n_f, 2) node pairs of the free surface (for contact areas)."""
     nf = n_fields
     n_nodes = mesh.n_nodes
     elements = np.asarray(mesh.elements, dtype=np.int64)
     edofs = (elements[:, :, None] * nf + np.arange(nf)[None, None, :]).reshape(len(elements), -1)
     n_c = len(contact_nodes)
     ndof_nodes = n_nodes * nf
-    n = ndof_nodes + n_c
+    n = ndof_nodes + 2 * n_c
     cdofs = contact_nodes[:, None] * nf + np.arange(2)[None, :]
-    mdofs = ndof_nodes + np.arange(n_c)
+    mdofs = ndof_nodes + np.arange(2 * n_c).reshape(n_c, 2)
     # raw entries: element blocks, contact 3x3 blocks (u_r, u_z, lambda), diagonal
     er = np.repeat(edofs[:, :, None], edofs.shape[1], axis=2).ravel()
     ec = np.repeat(edofs[:, None, :], edofs.shape[1], axis=1).ravel()
-    cblock = np.column_stack([cdofs, mdofs])  # (n_c, 3)
-    cr = np.repeat(cblock[:, :, None], 3, axis=2).ravel()
-    cc = np.repeat(cblock[:, None, :], 3, axis=1).ravel()
+    cblock = np.column_stack([cdofs, mdofs])  # (n_c, 4): u_r, u_z, lambda_n, lambda_t
+    cr = np.repeat(cblock[:, :, None], 4, axis=2).ravel()
+    cc = np.repeat(cblock[:, None, :], 4, axis=1).ravel()
     dr = np.arange(n)
     raw_r = np.concatenate([er, cr, dr])
     raw_c = np.concatenate([ec, cc, dr])
@@ -91,6 +96,8 @@ def build_indices(mesh, n_fields: int, fixed_dofs: np.ndarray, contact_nodes: np
         contact_nodes=jnp.asarray(contact_nodes, dtype=jnp.int32),
         contact_dofs=jnp.asarray(cdofs, dtype=jnp.int32),
         mult_dofs=jnp.asarray(mdofs, dtype=jnp.int32),
+        contact_facets=jnp.asarray(_local_facets(contact_nodes, contact_facets), jnp.int32),
+        contact_fixed_r=jnp.asarray(np.isin(cdofs[:, 0], np.asarray(fixed_dofs))),
         rows=jnp.asarray(uniq // n, dtype=jnp.int32),
         cols=jnp.asarray(uniq % n, dtype=jnp.int32),
         slot=jnp.asarray(slot.ravel(), dtype=jnp.int32),
@@ -101,13 +108,25 @@ def build_indices(mesh, n_fields: int, fixed_dofs: np.ndarray, contact_nodes: np
     return layout, idx
 
 
+def _local_facets(contact_nodes, facets) -> np.ndarray:
+    if facets is None or len(facets) == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    local = -np.ones(int(max(contact_nodes.max(), np.max(facets))) + 1, dtype=np.int64)
+    local[contact_nodes] = np.arange(len(contact_nodes))
+    out = local[np.asarray(facets, dtype=np.int64)]
+    if np.any(out < 0):
+        raise ValueError("contact facets must join contact candidate nodes")
+    return out
+
+
 @dataclass(frozen=True)
 class Model:
-    """What the assembly needs besides arrays: formulation, law, sizes (static)."""
+    """What the assembly needs besides arrays: formulation, law, contact law, sizes (static)."""
 
     formulation: Formulation
     law: object
     layout: Layout
+    contact: ContactLaw = ContactLaw()
 
     # -- element level --------------------------------------------------------------
     def _element_fn(self, params, dt):
@@ -123,37 +142,48 @@ class Model:
     def _gather(self, x, idx: Indices):
         return x[idx.edofs]
 
-    def _nodal_positions(self, x, coords, idx: Indices):
+    def nodal_positions(self, x, coords, idx: Indices):
         nf = self.layout.n_fields
         u = x[: self.layout.n_node_dofs].reshape(-1, nf)[:, :2]
         return coords + u
 
     # -- global ---------------------------------------------------------------------
     def residual(self, x, gstate: GaussState, coords, t, dt, params, die, c_contact,
-                 idx: Indices):
+                 cstep: ContactStep, idx: Indices):
         """Global residual; returns (R, new Gauss state, status code, force scale)."""
         fn = self._element_fn(params, dt)
         r_e, (_, gnew, ok_e) = jax.vmap(fn)(self._gather(x, idx), coords[idx.elements], gstate)
-        return self._finish_residual(x, r_e, gnew, ok_e, coords, t, die, c_contact, idx)
+        return self._finish_residual(x, r_e, gnew, ok_e, coords, t, die, c_contact, cstep, idx)
+
+    def _contact_fn(self, die, t, c_contact, cstep):
+        def fn(v, k):  # v = (x_r, x_z, lambda_n, lambda_t) of candidate k
+            r_u, comp = self.contact.pair_terms(die, v[:2], v[2:], t, c_contact, cstep, k)
+            return jnp.concatenate([r_u, comp])
+
+        return fn
+
+    def _contact_vars(self, x, coords, idx):
+        pos = self.nodal_positions(x, coords, idx)[idx.contact_nodes]
+        return jnp.concatenate([pos, x[idx.mult_dofs]], axis=1)
+
+    def contact_report(self, x, coords, t, die, c_contact, cstep: ContactStep, idx: Indices):
+        """Per candidate at a converged x: (status 0/1/2, normal, tangent, slip increment)."""
+        v = self._contact_vars(x, coords, idx)
+        return jax.vmap(lambda vk, k: self.contact.pair_status(
+            die, vk[:2], vk[2:], t, c_contact, cstep, k))(v, jnp.arange(self.layout.n_contact))
 
     def residual_and_jacobian(self, x, gstate, coords, t, dt, params, die, c_contact,
-                              idx: Indices):
+                              cstep: ContactStep, idx: Indices):
         """(R, Jacobian values on the pattern, new Gauss state, status code, force scale)."""
         fn = self._element_fn(params, dt)
         k_e, (r_e, gnew, ok_e) = jax.vmap(jax.jacfwd(fn, has_aux=True))(
             self._gather(x, idx), coords[idx.elements], gstate
         )
         r, gnew, ok, scale = self._finish_residual(x, r_e, gnew, ok_e, coords, t, die,
-                                                   c_contact, idx)
-        # contact blocks
-        pos = self._nodal_positions(x, coords, idx)[idx.contact_nodes]
-        lam = x[idx.mult_dofs]
-
-        def cfun(v):
-            r_u, comp = contact_node_terms(die, v[:2], v[2], t, c_contact)
-            return jnp.concatenate([r_u, comp[None]])
-
-        k_c = jax.vmap(jax.jacfwd(cfun))(jnp.column_stack([pos, lam]))
+                                                   c_contact, cstep, idx)
+        # contact blocks (4 x 4 per candidate)
+        k_c = jax.vmap(jax.jacfwd(self._contact_fn(die, t, c_contact, cstep)))(
+            self._contact_vars(x, coords, idx), jnp.arange(self.layout.n_contact))
         n = self.layout.n_dofs
         raw = jnp.concatenate([k_e.ravel(), k_c.ravel(), jnp.zeros(n, dtype=x.dtype)])
         vals = jax.ops.segment_sum(raw, idx.slot, num_segments=self.layout.n_nonzeros)
@@ -163,14 +193,14 @@ class Model:
         vals = jnp.where(is_fixed, jnp.where(idx.rows == idx.cols, 1.0, 0.0), vals)
         return r, vals, gnew, ok, scale
 
-    def _finish_residual(self, x, r_e, gnew, ok_e, coords, t, die, c_contact, idx):
+    def _finish_residual(self, x, r_e, gnew, ok_e, coords, t, die, c_contact, cstep, idx):
         n = self.layout.n_dofs
         r = jnp.zeros(n, dtype=x.dtype).at[idx.edofs].add(r_e)
-        pos = self._nodal_positions(x, coords, idx)[idx.contact_nodes]
         lam = x[idx.mult_dofs]
-        r_u, comp = jax.vmap(lambda p, l: contact_node_terms(die, p, l, t, c_contact))(pos, lam)
-        r = r.at[idx.contact_dofs].add(r_u)
-        r = r.at[idx.mult_dofs].set(comp)
+        rc = jax.vmap(self._contact_fn(die, t, c_contact, cstep))(
+            self._contact_vars(x, coords, idx), jnp.arange(self.layout.n_contact))
+        r = r.at[idx.contact_dofs].add(rc[:, :2])
+        r = r.at[idx.mult_dofs].set(rc[:, 2:])
         r = r.at[idx.fixed].set(x[idx.fixed])
         nf = self.layout.n_fields
         r_u_e = r_e.reshape(r_e.shape[0], 4, nf)[:, :, :2]

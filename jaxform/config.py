@@ -31,7 +31,7 @@ class ConfigError(ValueError):
 class Field:
     """One config key: kind, default (None = required), allowed range or choices, doc."""
 
-    kind: str  # "float" | "int" | "str" | "bool"
+    kind: str  # "float" | "int" | "str" | "bool" | "floats" (list) | "points" (list of [a, b])
     default: Any = None
     low: float | None = None
     high: float | None = None
@@ -63,6 +63,13 @@ SCHEMA: dict[str, dict[str, Field]] = {
         "diameter_mm": Field("float", None, 0.0, None, False, False, doc="billet diameter (mm)"),
         "height_mm": Field("float", None, 0.0, None, False, False, doc="billet height (mm)"),
     },
+    "ring": {
+        "outer_diameter_mm": Field("float", None, 0.0, None, False, False,
+                                   doc="ring outer diameter (mm)"),
+        "inner_diameter_mm": Field("float", None, 0.0, None, False, False,
+                                   doc="ring inner diameter (mm), < outer"),
+        "height_mm": Field("float", None, 0.0, None, False, False, doc="ring height (mm)"),
+    },
     "mesh": {
         "nr": Field("int", 10, 1, 2000, doc="elements across the radius of the quarter section"),
         "nz": Field("int", 10, 1, 2000, doc="elements along the half height of the quarter section"),
@@ -83,9 +90,32 @@ SCHEMA: dict[str, dict[str, Field]] = {
     },
     "die": {
         "speed_mm_s": Field("float", None, 0.0, None, False, False,
-                            doc="ram speed of the top die (mm/s); the bottom die is fixed"),
+                            doc="ram speed (mm/s): the dies close at this speed (each moves at "
+                                "half of it towards the mid-plane); required unless a path "
+                                "table is given"),
         "reduction": Field("float", None, 0.0, 1.0, False, False,
-                           doc="final height reduction (fraction of the initial height)"),
+                           doc="final height reduction (fraction of the initial height); the "
+                               "run ends when the ram stroke reaches it"),
+        "profile_mm": Field("points", [], doc="top-die profile as [r_mm, z_mm] points at t = 0, "
+                            "walked with the workpiece on the right (from the axis outward for "
+                            "a top die); [] = flat die on the billet's top face"),
+        "profile_kind": Field("str", "polyline", choices=("polyline", "spline"),
+                              doc="straight segments between the points, or the Catmull-Rom "
+                                  "spline through them"),
+        "path_time_s": Field("floats", [], doc="die path table: times (s), starting at 0 "
+                             "([] = constant speed)"),
+        "path_travel_mm": Field("floats", [], doc="die path table: downward travel of the top "
+                                "die relative to the mid-plane at those times (mm), starting "
+                                "at 0 (the ram stroke is twice it)"),
+        "closed": Field("bool", False, doc="the profile closes a cavity with the mid-plane: "
+                        "report die_fill (material volume / cavity volume) in the history"),
+    },
+    "friction": {
+        "model": Field("str", "none", choices=("none", "coulomb", "shear", "sticking"),
+                       doc="die-workpiece friction law"),
+        "mu": Field("float", 0.0, 0.0, 10.0, doc="Coulomb coefficient (friction.model = coulomb)"),
+        "m": Field("float", 0.0, 0.0, 1.0, doc="shear friction factor, tau = m sigma_eq/sqrt(3) "
+                   "(friction.model = shear)"),
     },
     "time": {
         "dt_s": Field("float", None, 0.0, None, False, False, doc="time step (s)"),
@@ -107,8 +137,13 @@ SCHEMA: dict[str, dict[str, Field]] = {
     "output": {
         "fields": Field("bool", True, doc="write ParaView fields (VTU series)"),
         "plots": Field("bool", True, doc="write PNG plots"),
+        "profile_strokes_mm": Field("floats", [], doc="ram strokes (mm) at which the contact "
+                                    "pressure/slip profile is plotted ([] = 25/50/75/100 %)"),
     },
 }
+
+# Exactly one workpiece section: a solid billet or a ring.
+WORKPIECES = ("billet", "ring")
 
 
 def _parse_override(text: str) -> tuple[str, str, Any]:
@@ -129,6 +164,8 @@ def _parse_override(text: str) -> tuple[str, str, Any]:
 
 def _check(name: str, f: Field, value: Any) -> Any:
     """Return ``value`` converted to the field's kind, or raise ConfigError."""
+    if f.kind in ("floats", "points"):
+        return _check_list(name, f, value)
     if f.kind == "bool":
         if not isinstance(value, bool):
             raise ConfigError(f"{name} = {value!r}: must be a bool (true or false)")
@@ -153,6 +190,64 @@ def _check(name: str, f: Field, value: Any) -> Any:
     if not ok:
         raise ConfigError(f"{name} = {value!r}: must lie in {f.allowed()}")
     return value
+
+
+def _is_num(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _check_list(name: str, f: Field, value: Any) -> list:
+    if not isinstance(value, list):
+        raise ConfigError(f"{name} = {value!r}: must be a list ({f.doc})")
+    if f.kind == "floats":
+        if not all(_is_num(v) for v in value):
+            raise ConfigError(f"{name} = {value!r}: must be a list of finite numbers")
+        return [float(v) for v in value]
+    if not all(isinstance(p, list) and len(p) == 2 and all(_is_num(v) for v in p)
+               for p in value):
+        raise ConfigError(f"{name} = {value!r}: must be a list of [r_mm, z_mm] pairs of finite "
+                          f"numbers")
+    return [[float(a), float(b)] for a, b in value]
+
+
+def _cross_checks(raw: dict, out: dict) -> None:
+    """Rules that involve several keys."""
+    given = [w for w in WORKPIECES if w in raw]
+    if len(given) != 1:
+        raise ConfigError(f"give exactly one workpiece section, [billet] or [ring] "
+                          f"(found {', '.join(given) or 'none'})")
+    if "ring" in out:
+        r = out["ring"]
+        if r["inner_diameter_mm"] >= r["outer_diameter_mm"]:
+            raise ConfigError(f"ring.inner_diameter_mm = {r['inner_diameter_mm']!r}: must be "
+                              f"< ring.outer_diameter_mm = {r['outer_diameter_mm']!r}")
+    d = out["die"]
+    if len(d["path_time_s"]) != len(d["path_travel_mm"]):
+        raise ConfigError("die.path_time_s and die.path_travel_mm must have the same length")
+    if d["path_time_s"]:
+        t, s = d["path_time_s"], d["path_travel_mm"]
+        if len(t) < 2 or t[0] != 0.0 or s[0] != 0.0:
+            raise ConfigError("die.path_time_s / die.path_travel_mm: at least 2 rows, starting "
+                              "at time 0 s with travel 0 mm")
+        if any(b <= a for a, b in zip(t, t[1:])) or any(b < a for a, b in zip(s, s[1:])):
+            raise ConfigError("die.path_time_s must increase and die.path_travel_mm must not "
+                              "decrease")
+    elif d["speed_mm_s"] is None:
+        f = SCHEMA["die"]["speed_mm_s"]
+        raise ConfigError(f"missing required key die.speed_mm_s (float in {f.allowed()}): "
+                          f"{f.doc}")
+    if d["profile_mm"] and len(d["profile_mm"]) < 2:
+        raise ConfigError("die.profile_mm: needs at least 2 [r_mm, z_mm] points (or [] for a "
+                          "flat die)")
+    fr = out["friction"]
+    if fr["model"] == "coulomb" and "mu" not in raw.get("friction", {}):
+        raise ConfigError("friction.model = 'coulomb' needs friction.mu (float in [0, 10])")
+    if fr["model"] == "shear" and "m" not in raw.get("friction", {}):
+        raise ConfigError("friction.model = 'shear' needs friction.m (float in [0, 1])")
+
+
+# keys that may be left out even though they have no default (checked in _cross_checks)
+_CONDITIONAL = {("die", "speed_mm_s")}
 
 
 def load_config(path_or_dict: str | PathLike | dict, overrides: Iterable[str] = ()) -> dict:
@@ -184,23 +279,27 @@ def load_config(path_or_dict: str | PathLike | dict, overrides: Iterable[str] = 
                                   f"{', '.join(SCHEMA[section])}")
     out: dict[str, dict[str, Any]] = {}
     for section, fields in SCHEMA.items():
+        if section in WORKPIECES and section not in raw:
+            continue
         given = raw.get(section, {})
         out[section] = {}
         for key, f in fields.items():
             name = f"{section}.{key}"
             if key in given:
                 out[section][key] = _check(name, f, given[key])
-            elif f.default is None:
+            elif f.default is None and (section, key) not in _CONDITIONAL:
                 raise ConfigError(f"missing required key {name} ({f.kind} in {f.allowed()}): "
                                   f"{f.doc}")
             else:
-                out[section][key] = f.default
+                out[section][key] = copy.deepcopy(f.default)
+    _cross_checks(raw, out)
     return out
 
 
 def dump_config(cfg: dict, path: str | PathLike) -> None:
-    """Write a (resolved) config as TOML."""
-    Path(path).write_bytes(tomli_w.dumps(cfg).encode())
+    """Write a (resolved) config as TOML (keys whose value is unset are left out)."""
+    clean = {s: {k: v for k, v in t.items() if v is not None} for s, t in cfg.items()}
+    Path(path).write_bytes(tomli_w.dumps(clean).encode())
 
 
 def describe_schema() -> str:
@@ -214,6 +313,8 @@ def describe_schema() -> str:
                 default = str(f.default).lower()
             elif f.kind == "str":
                 default = f'"{f.default}"'
+            elif f.kind in ("floats", "points"):
+                default = "[]"
             else:
                 default = f"{f.default:g}" if f.kind == "float" else str(f.default)
             cells = [f"`{section}.{key}`", f.kind, default, f.allowed(), f.doc]

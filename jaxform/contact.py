@@ -1,19 +1,34 @@
-"""Rigid dies and the contact conditions at the workpiece's candidate nodes.
+"""Contact conditions between workpiece nodes and a rigid die: normal and friction.
 
-Frictionless normal contact with Lagrange multipliers, solved exactly in the global
-Newton (semismooth Newton on the Fischer-free "min" complementarity function):
+Each candidate node i carries two multipliers: lambda_n (normal force the die puts on
+the node, N) and lambda_t (tangential force along the die tangent t, N).  The die pushes
+the node with lambda_n n + lambda_t t, so the node's force residual gains
+-(lambda_n n + lambda_t t).  Both conditions are nonsmooth equations C = 0 solved exactly
+by the global (semismooth) Newton; c > 0 (N/mm, from G times the element size) changes
+only the path of the iterations, never the converged answer, and is not a user penalty.
 
-    gap g_i >= 0,   lambda_i >= 0,   lambda_i g_i = 0
-    <=>  C_i = lambda_i - max(0, lambda_i - c g_i) = 0     for any c > 0.
+Normal (gap g >= 0, lambda_n >= 0, lambda_n g = 0):
+    C_n = lambda_n - max(0, lambda_n - c g).
+The node is *active* where lambda_n - c g > 0.
 
-c only changes the path of the iterations, not the converged answer; it is set from the
-stiffness scale of the mesh (G times a length, N/mm), never tuned by the user.
-lambda_i is the total normal force (N) the die puts on node i; the die force is their sum.
-The die pushes node i along the die normal n (pointing into the workpiece), so the
-residual of node i's forces gains - lambda_i n.
+Tangential, with s the slip increment of the step (relative tangential displacement of
+the node against the die, mm) and the trial z = lambda_t - c s:
+    inactive node:            C_t = lambda_t                    (no contact, no friction)
+    active, |z| <= b (stick): C_t = c s                         (no slip)
+    active, |z| >  b (slip):  C_t = lambda_t - b z / |z|        (|lambda_t| = b, opposing slip)
+with the friction bound b of the law (the radial return of thesis Sec. 5.4 in force form):
+    ``none``      b = 0 (C_t = lambda_t everywhere: frictionless);
+    ``coulomb``   b = mu max(0, lambda_n - c g)  (= mu lambda_n at convergence);
+    ``shear``     b = m (sigma_eq / sqrt 3) A    (constant friction factor; sigma_eq the
+                  nodal flow stress and A the node's contact area, both taken at the start
+                  of the step: lagged by one step, see :func:`shear_bounds`);
+    ``sticking``  b = infinity (an active node never slips).
 
-A die moves rigidly along a prescribed path; the flat die here is the plane
-z = z0 - v t with normal (0, -1) (the top die of an upsetting scene).
+Candidates whose tangential motion a Dirichlet condition fixes (nodes on the axis of an
+axisymmetric section, where the die tangent is radial) get C_t = lambda_t: the
+condition holds there already and a friction equation would make the system singular.
+
+Status of a converged node: 0 open, 1 stick, 2 slip (:func:`pair_status`).
 """
 
 from __future__ import annotations
@@ -23,28 +38,111 @@ from dataclasses import dataclass
 import jax
 import jax.numpy as jnp
 
+FRICTION_MODELS = ("none", "coulomb", "shear", "sticking")
+OPEN, STICK, SLIP = 0, 1, 2
+
 
 @jax.tree_util.register_dataclass
 @dataclass(frozen=True)
-class FlatDie:
-    """Flat rigid top die: the plane z = z0_mm - speed_mm_s * t, pressing down."""
+class ContactStep:
+    """Per-step constants of the contact conditions (from the state at t_n)."""
 
-    z0_mm: jax.Array
-    speed_mm_s: jax.Array
-
-    def position(self, t):
-        return self.z0_mm - self.speed_mm_s * t
-
-    def gap_and_normal(self, x_node: jax.Array, t):
-        """Signed gap (mm, > 0 open) of a node at current position x_node (2,), and n."""
-        g = self.position(t) - x_node[1]
-        n = jnp.array([0.0, -1.0], dtype=x_node.dtype)
-        return g, n
+    x_old: jax.Array  # (n_c, 2) positions of the candidate nodes at t_n (mm)
+    t_old: jax.Array  # t_n (s)
+    shear_bound: jax.Array  # (n_c,) m sigma_eq/sqrt(3) A at t_n (N); 0 unless 'shear'
+    frictionless: jax.Array  # (n_c,) bool: tangential motion prescribed (e.g. on the axis)
 
 
-def contact_node_terms(die, x_node, lam, t, c):
-    """(force residual on the node (2,), complementarity residual C) for one candidate."""
-    g, n = die.gap_and_normal(x_node, t)
-    r_u = -lam * n
-    comp = lam - jnp.maximum(0.0, lam - c * g)
-    return r_u, comp
+def _parts(friction, die, x, lam, t, c, step_x_old, step_t_old, shear_bound):
+    g, n, tan = die.gap(x, t)
+    die_move = die.offset(t) - die.offset(step_t_old)
+    slip = jnp.dot(x - step_x_old - die_move, tan)
+    lam_n, lam_t = lam[0], lam[1]
+    trial_n = lam_n - c * g
+    active = trial_n > 0.0
+    z = lam_t - c * slip
+    if friction == "coulomb":
+        bound = die.mu * jnp.maximum(0.0, trial_n)
+    elif friction == "shear":
+        bound = shear_bound
+    elif friction == "sticking":
+        bound = jnp.asarray(jnp.inf)  # only compared, never multiplied
+    else:
+        bound = 0.0
+    az = jnp.abs(z)
+    stick = az <= bound
+    return dict(g=g, n=n, tan=tan, slip=slip, lam_n=lam_n, lam_t=lam_t, trial_n=trial_n,
+                active=active, z=z, az=az, bound=bound, stick=stick)
+
+
+@dataclass(frozen=True)
+class ContactLaw:
+    """Strategy: the friction model (static); coefficients live in the die pytree."""
+
+    friction: str = "none"
+
+    def __post_init__(self):
+        if self.friction not in FRICTION_MODELS:
+            raise ValueError(f"friction.model = {self.friction!r}: must be one of "
+                             f"{', '.join(FRICTION_MODELS)}")
+
+    def pair_terms(self, die, x, lam, t, c, step: ContactStep, k):
+        """Candidate k at position x with multipliers lam = (lambda_n, lambda_t):
+        (force residual on the node (2,), complementarity residuals (2,))."""
+        p = _parts(self.friction, die, x, lam, t, c, step.x_old[k], step.t_old,
+                   step.shear_bound[k])
+        r_u = -(p["lam_n"] * p["n"] + p["lam_t"] * p["tan"])
+        c_n = p["lam_n"] - jnp.maximum(0.0, p["trial_n"])
+        if self.friction == "none":
+            c_t = p["lam_t"]
+            return r_u, jnp.stack([c_n, c_t])
+        elif self.friction == "sticking":  # no infinite bound in the arithmetic (NaN-free VJP)
+            c_t = jnp.where(p["active"], c * p["slip"], p["lam_t"])
+        else:
+            safe = jnp.where(p["stick"], 1.0, p["az"])
+            slip_eq = p["lam_t"] - p["bound"] * p["z"] / safe
+            c_t = jnp.where(p["active"], jnp.where(p["stick"], c * p["slip"], slip_eq),
+                            p["lam_t"])
+        # where a Dirichlet condition fixes the tangential motion, friction has nothing to act on
+        c_t = jnp.where(step.frictionless[k], p["lam_t"], c_t)
+        return r_u, jnp.stack([c_n, c_t])
+
+    def pair_status(self, die, x, lam, t, c, step: ContactStep, k):
+        """(status OPEN/STICK/SLIP, normal n, tangent t, slip increment) at convergence."""
+        p = _parts(self.friction, die, x, lam, t, c, step.x_old[k], step.t_old,
+                   step.shear_bound[k])
+        in_contact = p["lam_n"] > 0.0
+        if self.friction == "none":
+            sticks = jnp.asarray(False)
+        else:
+            sticks = p["stick"] | step.frictionless[k]  # a fixed node cannot slip
+        status = jnp.where(in_contact, jnp.where(sticks, STICK, SLIP), OPEN)
+        return status, p["n"], p["tan"], p["slip"]
+
+
+def tributary_areas(pos, facets, axisymmetric: bool):
+    """Contact area (mm^2) of each candidate node: integral of its shape function over the
+    adjacent free-surface facets (x 2 pi r for axisymmetry; per mm depth in plane strain).
+
+    pos: (n_c, 2) current positions; facets: (n_f, 2) local candidate indices."""
+    a, b = pos[facets[:, 0]], pos[facets[:, 1]]
+    length = jnp.sqrt(jnp.sum((b - a) ** 2, axis=1))
+    if axisymmetric:
+        wa = 2.0 * jnp.pi * length * (2.0 * a[:, 0] + b[:, 0]) / 6.0
+        wb = 2.0 * jnp.pi * length * (a[:, 0] + 2.0 * b[:, 0]) / 6.0
+    else:
+        wa = wb = 0.5 * length
+    area = jnp.zeros(pos.shape[0], dtype=pos.dtype)
+    return area.at[facets[:, 0]].add(wa).at[facets[:, 1]].add(wb)
+
+
+def nodal_average(values_el, elements, n_nodes: int):
+    """Average of element values (n_el,) over the elements around each node."""
+    total = jnp.zeros(n_nodes, values_el.dtype).at[elements].add(values_el[:, None])
+    count = jnp.zeros(n_nodes, values_el.dtype).at[elements].add(1.0)
+    return total / jnp.maximum(count, 1.0)
+
+
+def shear_bounds(m_factor, sigma_eq_nodes, areas):
+    """b = m sigma_eq / sqrt(3) A per candidate (N)."""
+    return m_factor * sigma_eq_nodes / jnp.sqrt(3.0) * areas

@@ -13,7 +13,8 @@ import numpy as np
 
 from jaxform.config import dump_config, load_config
 from jaxform.io import nodal_fields, write_csv, write_vtu_series
-from jaxform.simulate import Result, SimulationError, build_scene, simulate
+from jaxform.scenes import build_scene
+from jaxform.simulate import Result, SimulationError, simulate
 
 
 def run(config, overrides=(), out_dir: str | Path | None = None,
@@ -44,10 +45,10 @@ def write_outputs(out_dir: str | Path, result: Result) -> None:
     scene = result.scene
     cfg = scene.config
     h = result.history
-    write_csv(out / "history.csv", {
-        "time_s": h["time_s"], "stroke_mm": h["stroke_mm"], "force_N": h["force_N"],
-        "newton_iterations": h["newton_iterations"], "cutbacks": h["cutbacks"],
-    })
+    cols = {k: h[k] for k in ("time_s", "stroke_mm", "force_N", "newton_iterations",
+                              "cutbacks", "friction_work_Nmm")}
+    cols.update({k: h[k] for k in ("inner_diameter_mm", "outer_diameter_mm", "die_fill") if k in h})
+    write_csv(out / "history.csv", cols)
     dump_config(cfg, out / "config.toml")
     if result.failure:
         (out / "FAILED.txt").write_text(result.failure + "\n")
@@ -58,11 +59,30 @@ def write_outputs(out_dir: str | Path, result: Result) -> None:
         u, _, _ = nodal_fields(scene, result.fields["x"][-1])
         coords1 = coords0 + u
         el = np.asarray(scene.mesh.elements)
-        red = 100.0 * h["stroke_mm"][-1] / cfg["billet"]["height_mm"]
+        height = cfg["billet" if "billet" in cfg else "ring"]["height_mm"]
+        red = 100.0 * h["stroke_mm"][-1] / height
         plot.force_stroke(h["stroke_mm"], h["force_N"], out / "force_stroke.png",
-                          f"{cfg['mesh']['element']}, {cfg['mesh']['nr']}x{cfg['mesh']['nz']}")
+                          f"{cfg['mesh']['element']}, {cfg['mesh']['nr']}x{cfg['mesh']['nz']}, "
+                          f"friction {cfg['friction']['model']}")
         plot.deformed_mesh(coords0, coords1, el, out / "deformed_mesh.png",
                            f"initial and deformed mesh, {red:.1f} % reduction")
         plot.cell_contours(coords1, el, result.fields["eqps"][-1].mean(axis=1),
                            out / "eqps.png", f"equivalent plastic strain, {red:.1f} % reduction",
                            "equivalent plastic strain [-]")
+        _contact_plot(out / "contact_profile.png", result)
+
+
+def _contact_plot(path: Path, result: Result) -> None:
+    """Contact pressure and shear traction along the die at chosen strokes."""
+    from jaxform import plot
+    from jaxform.postprocess import contact_profile
+
+    h, f = result.history, result.fields
+    strokes = result.scene.config["output"]["profile_strokes_mm"] or [
+        q * h["stroke_mm"][-1] for q in (0.25, 0.5, 0.75, 1.0)]
+    profiles = {}
+    for s in strokes:
+        k = int(np.argmin(np.abs(h["stroke_mm"] - s)))
+        profiles[float(h["stroke_mm"][k])] = contact_profile(
+            result.scene, f["x"][k], f["slip_mm"][k], f["contact_status"][k])
+    plot.contact_profiles(profiles, path)

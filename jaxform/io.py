@@ -27,11 +27,28 @@ def nodal_fields(scene, x: np.ndarray):
     return nodal[:, :2], pressure, np.asarray(x[lay.n_node_dofs:])
 
 
+def _contact_point_data(scene, result, k: int, n_nodes: int) -> dict:
+    """Contact fields on the nodes (0 away from the candidates): pressure, shear traction
+    (MPa), status (0 open, 1 stick, 2 slip), accumulated slip (mm)."""
+    from jaxform.postprocess import contact_profile
+
+    cp = contact_profile(scene, result.fields["x"][k], result.fields["slip_mm"][k],
+                         result.fields["contact_status"][k])
+    nodes = np.asarray(scene.idx.contact_nodes)
+    out = {}
+    for name, key in (("contact_pressure", "pressure_MPa"), ("contact_shear", "shear_MPa"),
+                      ("contact_status", "status"), ("contact_slip", "slip_mm")):
+        v = np.zeros(n_nodes)
+        v[nodes] = cp[key]
+        out[name] = v
+    return out
+
+
 def write_vtu_series(out_dir: Path, scene, result, every: int = 1) -> Path:
     """ParaView fields: one VTU per written step and a .pvd time series that indexes them.
 
     Point data: displacement (mm, 3 components, the third 0), pressure (MPa; nodal for
-    q1q1). Cell data (averages of the 4 Gauss points): Cauchy stress components (MPa),
+    q1q1), contact pressure / shear traction (MPa), contact status and slip (mm). Cell data (averages of the 4 Gauss points): Cauchy stress components (MPa),
     pressure (MPa), equivalent plastic strain, deformation resistance s (MPa).
     """
     import meshio
@@ -51,6 +68,7 @@ def write_vtu_series(out_dir: Path, scene, result, every: int = 1) -> Path:
         point_data = {"displacement": np.column_stack([u, np.zeros(len(u))])}
         if p_nodes is not None:
             point_data["pressure"] = p_nodes
+        point_data.update(_contact_point_data(scene, result, k, len(u)))
         cell_data = {
             "stress_11": [stress[:, 0, 0]], "stress_22": [stress[:, 1, 1]],
             "stress_12": [stress[:, 0, 1]], "stress_33": [stress[:, 2, 2]],

@@ -84,3 +84,39 @@ def cell_contours(coords, elements, values, path: Path, title: str, label: str):
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
+
+
+def contact_profiles(profiles: dict, path: Path):
+    """profiles: stroke (mm) -> contact_profile dict; pressure and shear vs radius of the
+    nodes in contact, slipping nodes filled, sticking nodes open."""
+    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(6.5, 6), sharex=True)
+    for stroke, p in profiles.items():
+        on = p["status"] > 0
+        order = np.argsort(p["r_mm"][on])
+        r = p["r_mm"][on][order]
+        line, = ax1.plot(r, p["pressure_MPa"][on][order], "-", label=f"stroke {stroke:.2f} mm")
+        ax2.plot(r, p["shear_MPa"][on][order], "-", color=line.get_color())
+        slip = p["status"][on][order] == 2
+        ax2.plot(r[slip], p["shear_MPa"][on][order][slip], "o", ms=3, color=line.get_color())
+        ax2.plot(r[~slip], p["shear_MPa"][on][order][~slip], "o", ms=4, mfc="none",
+                 color=line.get_color())
+    ax1.set_ylabel("contact pressure [MPa]")
+    ax2.set_ylabel("shear traction [MPa]")
+    ax2.set_xlabel("r [mm] (filled: slip, open: stick)")
+    ax1.legend(fontsize=8)
+    for ax in (ax1, ax2):
+        ax.grid(True, alpha=0.3)
+    ax1.set_title("contact along the die")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def calibration_chart(curves: dict, path: Path):
+    """Ring-test calibration chart: curves m -> (height reduction %, inner diameter change %)."""
+    fig, ax = plt.subplots(figsize=(6, 4.5))
+    for m, (red, did) in curves.items():
+        ax.plot(red, did, "-", label=f"m = {m:g}")
+    ax.axhline(0.0, color="k", lw=0.6)
+    _finish_curve(fig, ax, path, "6:3:2 ring: friction calibration", "height reduction [%]",
+                  "change of inner diameter [%]")

@@ -1,17 +1,17 @@
-"""Load stepping: scenes built from configs, steps with cutback, chunks of lax.scan.
+"""Load stepping: steps with cutback, chunks of lax.scan, the run's history.
 
-The caller owns the loop (jax-md style): :func:`build_scene` does the set-up once (mesh,
-dofs, pattern, material, dies), :func:`simulate` advances it chunk by chunk through a
+The caller owns the loop (jax-md style): :func:`jaxform.scenes.build_scene` does the
+set-up once (mesh, dofs, pattern, material, dies), :func:`simulate` advances it chunk by chunk through a
 compiled ``lax.scan`` over load steps and hands each chunk to an optional progress
 callback.  Inside a step, a failed Newton solve (no convergence, a failed local
 material solve, an inverted element) halves the step, up to ``solver.max_cutbacks``
 times; when the cutbacks run out the simulation stops, keeping the last converged state,
 and :class:`SimulationError` names the step, the time and the cause.
 
-Upsetting scene (quarter r-z section, symmetry plane z = 0 fixed, axis r = 0): the top
-die moves at half the ram speed relative to the mid-plane; ``stroke_mm`` and
-``force_N`` refer to the whole billet (force = sum of the contact multipliers, which
-already include the 2 pi of axisymmetry).
+Scenes are half-height models (symmetry plane z = 0): the top die travels d(t) towards
+the mid-plane, ``stroke_mm`` = 2 d(t) and ``force_N`` refer to the whole workpiece (the
+z-component of the contact multipliers, which already include the 2 pi of axisymmetry).
+Each converged step also accumulates the friction work (N mm) and each candidate's slip.
 """
 
 from __future__ import annotations
@@ -26,11 +26,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxform import mesh as meshing
-from jaxform.assembly import Indices, Model, build_indices
-from jaxform.contact import FlatDie
-from jaxform.formulations import CAUSES, OK, Formulation, GaussState, initial_gauss_state
-from jaxform.linear import LinearSolver, choose_backend
-from jaxform.materials import load_material
+from jaxform.assembly import Indices, Model
+from jaxform.contact import ContactStep, nodal_average, shear_bounds, tributary_areas
+from jaxform.dies import RigidDie
+from jaxform.formulations import CAUSES, OK, GaussState, initial_gauss_state
+from jaxform.linear import LinearSolver
 from jaxform.precision import require_x64
 from jaxform.solver import NewtonSettings, newton
 
@@ -42,6 +42,9 @@ class SimState:
     gauss: GaussState
     t: jax.Array  # time (s)
     x_rate: jax.Array  # (x - x_previous) / dt of the last converged step: the predictor
+    friction_work: jax.Array  # work dissipated by friction so far (N mm = mJ)
+    slip_mm: jax.Array  # (n_c,) accumulated |slip| of each contact candidate (mm)
+    contact_status: jax.Array  # (n_c,) 0 open, 1 stick, 2 slip at the last converged step
 
 
 @jax.tree_util.register_dataclass
@@ -51,12 +54,14 @@ class Inputs:
 
     coords: jax.Array  # initial nodal coordinates (mm)
     params: object  # material parameters
-    die: FlatDie
+    die: RigidDie  # profile, path and friction coefficients
     c_contact: jax.Array  # complementarity scale (N/mm), set-up constant
 
 
 @dataclass(frozen=True)
 class Scene:
+    """A set-up scene (built by jaxform.scenes.build_scene): the caller runs it."""
+
     config: dict
     mesh: meshing.Mesh
     model: Model
@@ -68,6 +73,7 @@ class Scene:
     t_end: float
     max_cutbacks: int
     chunk: int
+    kind: str = "billet"  # workpiece: 'billet' or 'ring'
     symmetric_z: bool = True  # half-height model: stroke = 2 x die travel
 
     @property
@@ -82,7 +88,10 @@ class Scene:
         lay = self.model.layout
         g = initial_gauss_state(self.model.law, self.inputs.params, lay.n_elements)
         z = jnp.zeros(lay.n_dofs)
-        return SimState(x=z, gauss=g, t=jnp.asarray(0.0), x_rate=z)
+        zc = jnp.zeros(lay.n_contact)
+        return SimState(x=z, gauss=g, t=jnp.asarray(0.0), x_rate=z,
+                        friction_work=jnp.asarray(0.0), slip_mm=zc,
+                        contact_status=jnp.zeros(lay.n_contact, jnp.int32))
 
 
 class SimulationError(RuntimeError):
@@ -93,55 +102,6 @@ class SimulationError(RuntimeError):
         self.result = result
 
 
-def build_scene(cfg: dict) -> Scene:
-    """Set-up of an upsetting scene from a validated config (jaxform.config.load_config)."""
-    require_x64()
-    b, m, d, tm, so = cfg["billet"], cfg["mesh"], cfg["die"], cfg["time"], cfg["solver"]
-    axi = m["geometry"] == "axisymmetric"
-    radius, half_h = 0.5 * b["diameter_mm"], 0.5 * b["height_mm"]
-    if m["file"]:
-        mesh = meshing.read_mesh(m["file"])
-        for name in ("axis", "symmetry", "top", "side"):
-            if name not in mesh.node_sets:
-                raise ValueError(f"mesh.file = {m['file']!r}: needs a physical group {name!r}")
-        free = np.union1d(mesh.node_sets["top"], mesh.node_sets["side"])
-        mesh = meshing.Mesh(mesh.coords, mesh.elements, {**mesh.node_sets, "free_surface": free},
-                            mesh.facet_sets)
-        half_h = float(mesh.coords[mesh.node_sets["top"], 1].max())
-    else:
-        mesh = meshing.billet_quarter(radius, half_h, m["nr"], m["nz"])
-    law, params = load_material(cfg["material"]["preset"])
-    form = Formulation(kind=m["element"], axisymmetric=axi, theta=m["stabilization"],
-                       alpha=tm["alpha"])
-    nf = form.n_fields
-    fixed = np.concatenate([mesh.node_sets["axis"] * nf, mesh.node_sets["symmetry"] * nf + 1])
-    contact = np.asarray(mesh.node_sets["free_surface"], dtype=np.int64)
-    layout, idx = build_indices(mesh, nf, fixed, contact,
-                                reaction_dofs=mesh.node_sets["symmetry"] * nf + 1)
-    model = Model(form, law, layout)
-    areas = meshing.element_areas(mesh.coords, mesh.elements)
-    h = float(np.sqrt(areas.min()))
-    g_mod = float(law.shear_modulus(params))
-    c = g_mod * h * (2.0 * np.pi * radius if axi else 1.0)
-    die = FlatDie(z0_mm=jnp.asarray(half_h), speed_mm_s=jnp.asarray(0.5 * d["speed_mm_s"]))
-    t_end = d["reduction"] * 2.0 * half_h / d["speed_mm_s"]
-    return Scene(
-        config=cfg,
-        mesh=mesh,
-        model=model,
-        idx=idx,
-        linear=choose_backend(so["linear"], layout.n_dofs),
-        newton=NewtonSettings(max_iterations=so["max_newton_iterations"], rtol=so["rtol"],
-                              line_search=so["line_search"]),
-        inputs=Inputs(coords=jnp.asarray(mesh.coords), params=params, die=die,
-                      c_contact=jnp.asarray(c)),
-        dt=tm["dt_s"],
-        t_end=t_end,
-        max_cutbacks=so["max_cutbacks"],
-        chunk=so["chunk_steps"],
-    )
-
-
 # ----------------------------------------------------------------------------------
 # compiled pieces (static: model, linear solver, Newton settings, cutbacks)
 
@@ -150,10 +110,29 @@ def _tree_where(c, a, b):
     return jax.tree_util.tree_map(lambda u, v: jnp.where(c, u, v), a, b)
 
 
+def contact_step(model: Model, state: SimState, inp: Inputs, idx: Indices) -> ContactStep:
+    """The contact conditions' constants for a step starting from ``state``."""
+    pos = model.nodal_positions(state.x, inp.coords, idx)[idx.contact_nodes]
+    if model.contact.friction == "shear":
+        sig = state.gauss.mat.stress
+        dev = sig - jnp.trace(sig, axis1=-2, axis2=-1)[..., None, None] / 3.0 * jnp.eye(3)
+        eq_el = jnp.sqrt(1.5 * jnp.sum(dev * dev, axis=(-2, -1))).mean(axis=1)
+        eq_nodes = nodal_average(eq_el, idx.elements, model.layout.n_nodes)[idx.contact_nodes]
+        areas = tributary_areas(pos, idx.contact_facets, model.formulation.axisymmetric)
+        bound = shear_bounds(inp.die.m, eq_nodes, areas)
+    else:
+        bound = jnp.zeros(model.layout.n_contact, dtype=pos.dtype)
+    return ContactStep(x_old=pos, t_old=state.t, shear_bound=bound,
+                       frictionless=idx.contact_fixed_r)
+
+
 def solve_step(model: Model, linear: LinearSolver, settings: NewtonSettings,
                state: SimState, t_new, dt, inp: Inputs, idx: Indices, x_guess=None):
-    """One Newton solve from state (at t) to t_new = t + dt. Returns (x, gauss, its, code, hist)."""
-    args = (inp.coords, t_new, dt, inp.params, inp.die, inp.c_contact, idx)
+    """One Newton solve from state (at t) to t_new = t + dt.
+
+    Returns (x, gauss, its, code, hist, cstep)."""
+    cstep = contact_step(model, state, inp, idx)
+    args = (inp.coords, t_new, dt, inp.params, inp.die, inp.c_contact, cstep, idx)
 
     def residual(x):
         r, g, code, scale = model.residual(x, state.gauss, *args)
@@ -165,8 +144,10 @@ def solve_step(model: Model, linear: LinearSolver, settings: NewtonSettings,
     def lin(vals, b):
         return linear.solve(idx.rows, idx.cols, vals, b, model.layout.n_dofs)
 
-    x0 = state.x if x_guess is None else x_guess
-    return newton(residual, residual_and_jacobian, lin, x0, settings)
+    if x_guess is None:
+        return newton(residual, residual_and_jacobian, lin, state.x, settings) + (cstep,)
+    return newton(residual, residual_and_jacobian, lin, x_guess, settings,
+                  x_fallback=state.x) + (cstep,)
 
 
 def macro_step(model, linear, settings, max_cutbacks, state: SimState, t_target, inp, idx):
@@ -178,12 +159,20 @@ def macro_step(model, linear, settings, max_cutbacks, state: SimState, t_target,
 
     def body(c):
         st, h = c["state"], c["h"]
-        # predictor: the last step's rate, extrapolated (exact for steady motion)
-        x, g, its, code, hist = solve_step(model, linear, settings, st, st.t + h, h, inp, idx,
-                                           x_guess=st.x + h * st.x_rate)
+        # predictor: the last step's rate, extrapolated (exact for steady motion); not
+        # after a failure in this step (the rate may be what failed), and never an invalid one
+        use_rate = (c["level"] == 0).astype(st.x.dtype)
+        x, g, its, code, hist, cstep = solve_step(model, linear, settings, st, st.t + h, h, inp,
+                                                  idx, x_guess=st.x + use_rate * h * st.x_rate)
         ok = code == OK
         t_new = jnp.where(ok, st.t + h, st.t)
-        new = _tree_where(ok, SimState(x=x, gauss=g, t=t_new, x_rate=(x - st.x) / h), st)
+        status, _, _, slip = model.contact_report(x, inp.coords, st.t + h, inp.die,
+                                                  inp.c_contact, cstep, idx)
+        lam_t = x[idx.mult_dofs[:, 1]]
+        conv = SimState(x=x, gauss=g, t=t_new, x_rate=(x - st.x) / h,
+                        friction_work=st.friction_work - jnp.sum(lam_t * slip),
+                        slip_mm=st.slip_mm + jnp.abs(slip), contact_status=status)
+        new = _tree_where(ok, conv, st)
         level = jnp.where(ok, c["level"], c["level"] + 1)
         failed = level > max_cutbacks
         reached = ok & (t_new >= t_target - 1e-12 * jnp.maximum(1.0, t_target))
@@ -205,18 +194,28 @@ def macro_step(model, linear, settings, max_cutbacks, state: SimState, t_target,
     return out["state"], info
 
 
+def die_force(model: Model, x, inp: Inputs, t, idx: Indices):
+    """Ram force (N, positive in compression): minus the z-component of the force the die
+    puts on the workpiece, lambda_n n + lambda_t t summed over the candidates."""
+    pos = model.nodal_positions(x, inp.coords, idx)[idx.contact_nodes]
+    _, n, tan = jax.vmap(lambda p: inp.die.gap(p, t))(pos)
+    lam = x[idx.mult_dofs]
+    return -jnp.sum(lam[:, 0] * n[:, 1] + lam[:, 1] * tan[:, 1])
+
+
 def step_outputs(model: Model, state: SimState, inp: Inputs, idx: Indices, symmetric_z: bool):
     """Scalars and fields recorded after each step."""
-    lam = state.x[idx.mult_dofs]
-    travel = inp.die.z0_mm - inp.die.position(state.t)
     return dict(
         time_s=state.t,
-        stroke_mm=(2.0 if symmetric_z else 1.0) * travel,
-        force_N=jnp.sum(lam),
+        stroke_mm=(2.0 if symmetric_z else 1.0) * inp.die.travel(state.t),
+        force_N=die_force(model, state.x, inp, state.t, idx),
+        friction_work_Nmm=state.friction_work,
         x=state.x,
         stress=state.gauss.mat.stress,
         s=state.gauss.mat.s,
         eqps=state.gauss.mat.eqps,
+        slip_mm=state.slip_mm,
+        contact_status=state.contact_status,
     )
 
 
@@ -300,10 +299,14 @@ def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Re
         state = state_new
         if failure:
             break
-    hist_keys = ("time_s", "stroke_mm", "force_N", "iterations", "cutbacks")
+    hist_keys = ("time_s", "stroke_mm", "force_N", "iterations", "cutbacks", "friction_work_Nmm")
     history = {k: np.array([float(r[k]) for r in rows]) for k in hist_keys}
     history["newton_iterations"] = history.pop("iterations")
-    fields = {k: np.stack([np.asarray(r[k]) for r in rows]) for k in ("x", "stress", "s", "eqps")}
+    fields = {k: np.stack([np.asarray(r[k]) for r in rows])
+              for k in ("x", "stress", "s", "eqps", "slip_mm", "contact_status")}
+    from jaxform.postprocess import extra_history  # host-side columns (ring diameters, fill)
+
+    history.update(extra_history(scene, fields["x"], history["time_s"]))
     result = Result(history=history, fields=fields, scene=scene, final_state=state,
                     newton_histories=np.array(hists), failure=failure)
     if failure:

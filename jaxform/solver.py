@@ -27,8 +27,10 @@ class NewtonSettings:
     max_backtracks: int = 10
 
 
-def newton(residual, residual_and_jacobian, linear_solve, x0, settings: NewtonSettings):
-    """Solve R(x) = 0 from x0.
+def newton(residual, residual_and_jacobian, linear_solve, x0, settings: NewtonSettings,
+           x_fallback=None):
+    """Solve R(x) = 0 from x0 (or from x_fallback if x0 is not a valid state, e.g. a
+    predictor that inverts an element).
 
     residual(x) -> (R, aux, code, scale); residual_and_jacobian(x) -> (R, vals, aux, code,
     scale); linear_solve(vals, b) -> solution.  Returns (x, aux, iterations, code,
@@ -36,6 +38,10 @@ def newton(residual, residual_and_jacobian, linear_solve, x0, settings: NewtonSe
     """
     s = settings
     r0, aux0, code0, scale0 = residual(x0)
+    if x_fallback is not None:
+        x0, r0, aux0, code0, scale0 = jax.lax.cond(
+            code0 == OK, lambda: (x0, r0, aux0, code0, scale0),
+            lambda: (x_fallback,) + tuple(residual(x_fallback)))
     n0 = jnp.linalg.norm(r0)
     hist0 = jnp.full(s.max_iterations + 1, jnp.inf).at[0].set(n0 / scale0)
     conv0 = (code0 == OK) & (n0 <= s.rtol * scale0)

@@ -22,9 +22,9 @@ def _with(section, key, value):
 
 def test_minimal_fills_defaults():
     cfg = load_config(MINIMAL)
-    assert set(cfg) == set(SCHEMA)
-    for section, fields in SCHEMA.items():
-        assert set(cfg[section]) == set(fields)
+    assert set(cfg) == set(SCHEMA) - {"ring"}  # one workpiece section: the billet
+    for section in cfg:
+        assert set(cfg[section]) == set(SCHEMA[section])
     assert cfg["mesh"]["nr"] == 10 and cfg["mesh"]["element"] == "q1q1"
     assert cfg["solver"]["line_search"] is True
     assert cfg["billet"]["diameter_mm"] == 20.0
@@ -140,3 +140,27 @@ def test_describe_schema_mentions_every_key():
     for section, fields in SCHEMA.items():
         for key in fields:
             assert f"`{section}.{key}`" in text
+
+
+def test_ring_or_billet_exactly_one():
+    ring = {"ring": {"outer_diameter_mm": 18.0, "inner_diameter_mm": 9.0, "height_mm": 6.0},
+            **{k: v for k, v in MINIMAL.items() if k != "billet"}}
+    assert load_config(ring)["ring"]["height_mm"] == 6.0
+    with pytest.raises(ConfigError, match=r"exactly one workpiece"):
+        load_config({**ring, "billet": MINIMAL["billet"]})
+    with pytest.raises(ConfigError, match=r"ring.inner_diameter_mm"):
+        load_config(ring, ["ring.inner_diameter_mm=20.0"])
+
+
+def test_friction_and_die_keys_are_checked():
+    with pytest.raises(ConfigError, match=r"friction.model = 'coulomb' needs friction.mu"):
+        load_config(MINIMAL, ["friction.model=coulomb"])
+    with pytest.raises(ConfigError, match=r"friction.m = 1.5: must lie in \[0, 1\]"):
+        load_config(MINIMAL, ["friction.model=shear", "friction.m=1.5"])
+    with pytest.raises(ConfigError, match=r"die.profile_mm"):
+        load_config(MINIMAL, ["die.profile_mm=[[0.0, 1.0], [1.0]]"])
+    with pytest.raises(ConfigError, match=r"die.path_time_s must increase"):
+        load_config(MINIMAL, ["die.path_time_s=[0.0, 2.0, 1.0]",
+                              "die.path_travel_mm=[0.0, 1.0, 2.0]"])
+    cfg = load_config(MINIMAL, ["die.path_time_s=[0.0, 10.0]", "die.path_travel_mm=[0.0, 1.0]"])
+    assert cfg["die"]["path_travel_mm"] == [0.0, 1.0]

@@ -11,7 +11,8 @@ import pytest
 
 from jaxform.config import load_config
 from jaxform.mesh import MeshError, billet_quarter, read_mesh
-from jaxform.simulate import build_scene, simulate
+from jaxform.scenes import build_scene
+from jaxform.simulate import simulate
 
 SETS = ("axis", "symmetry", "top", "side")
 

@@ -19,7 +19,8 @@ from jaxform.cli import main
 from jaxform.config import load_config
 from jaxform.io import nodal_fields, read_csv
 from jaxform.materialpoint import uniaxial_compression
-from jaxform.simulate import SimulationError, build_scene, simulate
+from jaxform.scenes import build_scene
+from jaxform.simulate import SimulationError, simulate
 from reference_ode import anand_uniaxial_reference
 
 BASE = {

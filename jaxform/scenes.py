@@ -1,0 +1,145 @@
+"""Scene set-up from a validated config: workpiece mesh, boundary sets, die, contact.
+
+config --load_config--> dict --build_scene--> :class:`jaxform.simulate.Scene`
+
+Workpieces (exactly one section in the config), always a half-height model with the
+symmetry plane z = 0 (u_z = 0) and the top die pressing down on it:
+
+* ``[billet]`` solid cylinder (axisymmetric) or block (plane strain): section
+  [0, D/2] x [0, H/2]; the axis r = 0 has u_r = 0; candidates for contact: top + side.
+* ``[ring]`` ring of outer/inner diameter D_o, D_i and height H: section
+  [D_i/2, D_o/2] x [0, H/2]; candidates: top + outer + inner (both sides can fold onto
+  the die).
+* ``mesh.file`` replaces the generated section by a gmsh/meshio mesh whose physical
+  groups name the sets: ``symmetry`` and ``top`` required, ``axis``, ``side``, ``inner``,
+  ``outer`` optional.
+
+Die: ``die.profile_mm`` (or a flat die on the top face), moved along the path table or at
+half the ram speed (the mid-plane is fixed, so the top die travels half the stroke).
+The run ends when the ram stroke reaches ``die.reduction`` x the workpiece height.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+
+from jaxform import mesh as meshing
+from jaxform.assembly import Model, build_indices
+from jaxform.config import ConfigError
+from jaxform.contact import ContactLaw
+from jaxform.dies import DieError, catmull_rom, check_profile, make_die, time_at_travel
+from jaxform.formulations import Formulation
+from jaxform.linear import choose_backend
+from jaxform.materials import load_material
+from jaxform.precision import require_x64
+from jaxform.simulate import Inputs, Scene
+from jaxform.solver import NewtonSettings
+
+FREE_SETS = ("top", "side", "outer", "inner")
+
+
+def workpiece_mesh(cfg: dict) -> tuple[meshing.Mesh, str]:
+    m = cfg["mesh"]
+    kind = "ring" if "ring" in cfg else "billet"
+    if m["file"]:
+        try:
+            mesh = meshing.read_mesh(m["file"])
+        except (OSError, meshing.MeshError) as err:
+            raise ConfigError(f"mesh.file = {m['file']!r}: {err}") from err
+        for name in ("symmetry", "top"):
+            if name not in mesh.node_sets:
+                raise ConfigError(f"mesh.file = {m['file']!r}: needs a physical group {name!r} "
+                                  f"(line cells); found {sorted(mesh.node_sets)}")
+        return mesh, kind
+    if kind == "billet":
+        b = cfg["billet"]
+        return meshing.billet_quarter(0.5 * b["diameter_mm"], 0.5 * b["height_mm"],
+                                      m["nr"], m["nz"]), kind
+    r = cfg["ring"]
+    ri, ro = 0.5 * r["inner_diameter_mm"], 0.5 * r["outer_diameter_mm"]
+    rect = meshing.rectangle(ro - ri, 0.5 * r["height_mm"], m["nr"], m["nz"], origin=(ri, 0.0))
+    rename = {"left": "inner", "right": "outer", "bottom": "symmetry", "top": "top"}
+    return meshing.Mesh(rect.coords, rect.elements,
+                        {rename[k]: v for k, v in rect.node_sets.items()},
+                        {rename[k]: v for k, v in rect.facet_sets.items()}), kind
+
+
+def die_profile(cfg: dict, top_z: float) -> np.ndarray:
+    d = cfg["die"]
+    if not d["profile_mm"]:
+        return np.array([[0.0, top_z], [1.0, top_z]])  # flat, extended both ways
+    try:
+        pts = check_profile(np.asarray(d["profile_mm"]), "die.profile_mm")
+        if d["profile_kind"] == "spline":
+            pts = check_profile(catmull_rom(pts), "die.profile_mm (sampled spline)")
+    except DieError as err:
+        raise ConfigError(str(err)) from err
+    if d["closed"] and abs(pts[0, 0]) > 1e-9:
+        raise ConfigError(f"die.closed = true: die.profile_mm must start on the axis (r = 0), "
+                          f"got r = {pts[0, 0]:g} mm")
+    return pts
+
+
+def die_path(cfg: dict, half_height: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """(times, travel of the top die, end time) for a run to the configured reduction."""
+    d = cfg["die"]
+    target = d["reduction"] * half_height  # top-die travel; the ram stroke is twice it
+    if d["path_time_s"]:
+        times, travel = np.asarray(d["path_time_s"]), np.asarray(d["path_travel_mm"])
+        try:
+            t_end = time_at_travel(times, travel, target, "die.path_travel_mm")
+        except DieError as err:
+            raise ConfigError(str(err)) from err
+        return times, travel, t_end
+    v = 0.5 * d["speed_mm_s"]
+    t_end = target / v
+    return np.array([0.0, t_end]), np.array([0.0, v * t_end]), t_end
+
+
+def build_scene(cfg: dict) -> Scene:
+    """Set-up of a forging scene from a validated config (jaxform.config.load_config)."""
+    require_x64()
+    m, tm, so, fr = cfg["mesh"], cfg["time"], cfg["solver"], cfg["friction"]
+    axi = m["geometry"] == "axisymmetric"
+    mesh, kind = workpiece_mesh(cfg)
+    top_z = float(mesh.coords[mesh.node_sets["top"], 1].max())
+    law, params = load_material(cfg["material"]["preset"])
+    form = Formulation(kind=m["element"], axisymmetric=axi, theta=m["stabilization"],
+                       alpha=tm["alpha"])
+    nf = form.n_fields
+    fixed = [mesh.node_sets["symmetry"] * nf + 1]
+    if "axis" in mesh.node_sets:
+        fixed.append(mesh.node_sets["axis"] * nf)
+    present = [s for s in FREE_SETS if s in mesh.node_sets]
+    contact = np.unique(np.concatenate([mesh.node_sets[s] for s in present])).astype(np.int64)
+    facets = np.concatenate([mesh.facet_sets[s] for s in present if s in mesh.facet_sets])
+    layout, idx = build_indices(mesh, nf, np.concatenate(fixed), contact,
+                                reaction_dofs=mesh.node_sets["symmetry"] * nf + 1,
+                                contact_facets=facets)
+    model = Model(form, law, layout, ContactLaw(fr["model"]))
+    areas = meshing.element_areas(mesh.coords, mesh.elements)
+    if np.any(areas <= 0):
+        raise ConfigError("mesh: an element has non-positive area (check mesh.file or the "
+                          "billet profile)")
+    h = float(np.sqrt(areas.min()))
+    r_out = float(mesh.coords[:, 0].max())
+    c = float(law.shear_modulus(params)) * h * (2.0 * np.pi * r_out if axi else 1.0)
+    times, travel, t_end = die_path(cfg, top_z)
+    die = make_die(die_profile(cfg, top_z), times, travel, mu=fr["mu"], m=fr["m"])
+    return Scene(
+        config=cfg,
+        mesh=mesh,
+        model=model,
+        idx=idx,
+        linear=choose_backend(so["linear"], layout.n_dofs),
+        newton=NewtonSettings(max_iterations=so["max_newton_iterations"], rtol=so["rtol"],
+                              line_search=so["line_search"]),
+        inputs=Inputs(coords=jnp.asarray(mesh.coords), params=params, die=die,
+                      c_contact=jnp.asarray(c)),
+        dt=tm["dt_s"],
+        t_end=t_end,
+        max_cutbacks=so["max_cutbacks"],
+        chunk=so["chunk_steps"],
+        kind=kind,
+    )
