@@ -213,7 +213,8 @@ def test_seed_scene_outputs(tmp_path):
 
     _, res = seed_run()
     write_outputs(tmp_path, replace(res, scene=replace(res.scene, config={
-        **res.scene.config, "output": {"fields": True, "plots": True}})))
+        **res.scene.config, "output": {**res.scene.config["output"], "fields": True,
+                                       "plots": True}})))
     table = read_csv(tmp_path / "history.csv")
     for col in ("time_s", "stroke_mm", "force_N", "newton_iterations"):
         assert col in table
@@ -221,5 +222,5 @@ def test_seed_scene_outputs(tmp_path):
     assert table["force_N"][-1] > table["force_N"][1] > 0
     assert (tmp_path / "config.toml").exists() and (tmp_path / "fields.pvd").exists()
     assert len(list((tmp_path / "fields").glob("*.vtu"))) == 58
-    for png in ("force_stroke.png", "deformed_mesh.png", "eqps.png"):
+    for png in ("force_stroke.png", "deformed_mesh.png", "eqps.png", "contact_profile.png"):
         assert (tmp_path / png).stat().st_size > 5000
