@@ -130,17 +130,6 @@ def check_profile(points: np.ndarray, key: str) -> np.ndarray:
     return p
 
 
-def check_path(times, travel, key: str) -> tuple[np.ndarray, np.ndarray]:
-    t, d = np.asarray(times, dtype=float), np.asarray(travel, dtype=float)
-    if t.shape != d.shape or t.ndim != 1 or t.size < 2:
-        raise DieError(f"{key}: path_time_s and path_travel_mm must be lists of equal length >= 2")
-    if t[0] != 0.0 or d[0] != 0.0:
-        raise DieError(f"{key}: the path must start at time 0 s with travel 0 mm")
-    if np.any(np.diff(t) <= 0) or np.any(np.diff(d) < 0):
-        raise DieError(f"{key}: path_time_s must increase and path_travel_mm must not decrease")
-    return t, d
-
-
 def time_at_travel(times: np.ndarray, travel: np.ndarray, target: float, key: str) -> float:
     """Inverse of the path table (the end time of a run that stops at ``target`` mm)."""
     if target > travel[-1] + 1e-12:

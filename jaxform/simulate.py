@@ -31,6 +31,7 @@ from jaxform.contact import ContactStep, nodal_average, shear_bounds, tributary_
 from jaxform.dies import RigidDie
 from jaxform.formulations import CAUSES, OK, GaussState, initial_gauss_state
 from jaxform.linear import LinearSolver
+from jaxform.postprocess import extra_history
 from jaxform.precision import require_x64
 from jaxform.solver import NewtonSettings, newton
 
@@ -304,8 +305,6 @@ def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Re
     history["newton_iterations"] = history.pop("iterations")
     fields = {k: np.stack([np.asarray(r[k]) for r in rows])
               for k in ("x", "stress", "s", "eqps", "slip_mm", "contact_status")}
-    from jaxform.postprocess import extra_history  # host-side columns (ring diameters, fill)
-
     history.update(extra_history(scene, fields["x"], history["time_s"]))
     result = Result(history=history, fields=fields, scene=scene, final_state=state,
                     newton_histories=np.array(hists), failure=failure)

@@ -9,10 +9,9 @@ friction; central finite differences of the global residual.
 
 from functools import lru_cache
 
-import jax
 import jax.numpy as jnp
 import numpy as np
-import pytest
+from fd_check import jacobian_fd_error
 
 from jaxform.config import load_config
 from jaxform.postprocess import positions
@@ -85,19 +84,7 @@ def test_jacobian_with_friction_stick_and_slip():
     x = st.x + 0.2 * st.x_rate
     args = (st.gauss, sc.inputs.coords, st.t + 0.2, 0.2, sc.inputs.params, sc.inputs.die,
             sc.inputs.c_contact, cstep, sc.idx)
-    _, vals, *_ = sc.model.residual_and_jacobian(x, *args)
-    n = sc.model.layout.n_dofs
-    jac = np.zeros((n, n))
-    jac[np.asarray(sc.idx.rows), np.asarray(sc.idx.cols)] = np.asarray(vals)
-    res_fn = jax.jit(lambda y: sc.model.residual(y, *args)[0])
-    scale = np.maximum(np.abs(np.asarray(x)), 1e-3)
-    fd = np.zeros((n, n))
-    for j in range(n):
-        hj = 1e-7 * scale[j]
-        e = jnp.zeros(n).at[j].set(hj)
-        f = [np.asarray(res_fn(x + k * e)) for k in (2, 1, -1, -2)]
-        fd[:, j] = (-f[0] + 8 * f[1] - 8 * f[2] + f[3]) / (12 * hj)
-    err = np.linalg.norm(jac - fd) / np.linalg.norm(fd)
+    err = jacobian_fd_error(sc, x, args, h_rel=1e-7)
     assert err <= 1e-6, err
 
 

@@ -13,6 +13,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from fd_check import jacobian_fd_error
 
 from jaxform.assembly import internal_forces
 from jaxform.cli import main
@@ -99,19 +100,7 @@ def test_global_jacobian_against_finite_differences(element):
     x = st.x + 1e-4 * jnp.asarray(rng.standard_normal(st.x.shape)) * (st.x != 0)
     args = (st.gauss, sc.inputs.coords, st.t + 0.5, 0.5, sc.inputs.params, sc.inputs.die,
             sc.inputs.c_contact, contact_step(sc.model, st, sc.inputs, sc.idx), sc.idx)
-    r, vals, *_ = sc.model.residual_and_jacobian(x, *args)
-    n = sc.model.layout.n_dofs
-    jac = np.zeros((n, n))
-    jac[np.asarray(sc.idx.rows), np.asarray(sc.idx.cols)] = np.asarray(vals)
-    res_fn = jax.jit(lambda y: sc.model.residual(y, *args)[0])
-    scale = np.maximum(np.abs(np.asarray(x)), 1e-3)
-    fd = np.zeros((n, n))
-    for j in range(n):
-        hj = 1e-6 * scale[j]
-        e = jnp.zeros(n).at[j].set(hj)
-        f = [np.asarray(res_fn(x + k * e)) for k in (2, 1, -1, -2)]
-        fd[:, j] = (-f[0] + 8 * f[1] - 8 * f[2] + f[3]) / (12 * hj)
-    err = np.linalg.norm(jac - fd) / np.linalg.norm(fd)
+    err = jacobian_fd_error(sc, x, args, h_rel=1e-6)
     assert err <= 1e-6, err
     assert np.any(np.asarray(x[sc.idx.mult_dofs[:, 0]]) > 0)  # contact active
 
