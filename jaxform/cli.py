@@ -2,6 +2,8 @@
 
     jaxform run CONFIG [--set section.key=value ...] --out DIR
     jaxform material-point [--material NAME] [--rates R ...] [--strain E] --out DIR
+    jaxform taylor-test CONFIG [--set section.key=value ...] [--groups G ...]
+    jaxform design CONFIG [--set section.key=value ...] --out DIR
 """
 
 from __future__ import annotations
@@ -112,6 +114,64 @@ def _run(args) -> int:
     return 0
 
 
+def _taylor(args) -> int:
+    from jaxform.design.driver import run_taylor
+    from jaxform.design.taylor import format_table
+
+    t0 = time.perf_counter()
+    rows, code = _guarded("taylor-test", lambda: run_taylor(args.config, args.set,
+                                                            groups=args.groups, h=args.h))
+    if code:
+        return code
+    print(format_table(rows))
+    min_rate = min(r.min_rate for r in rows)
+    print(f"({time.perf_counter() - t0:.1f} s; groups: {', '.join(r.group for r in rows)}; "
+          f"pass: every rate >= 1.9)")
+    print(f"min_rate={min_rate:.4f}")
+    return 0 if min_rate >= 1.9 else 1
+
+
+def _guarded(command: str, fn):
+    """(fn(), 0), or (None, exit status) with the reason printed: 2 for a config error,
+    1 for a run that failed."""
+    from jaxform.config import ConfigError
+    from jaxform.gradients import GradientRunError
+    from jaxform.simulate import SimulationError
+
+    try:
+        return fn(), 0
+    except ConfigError as err:
+        print(f"config error: {err}", file=sys.stderr)
+        return None, 2
+    except (SimulationError, GradientRunError) as err:
+        print(f"{command}: the run failed: {err}", file=sys.stderr)
+        return None, 1
+
+
+def _design(args) -> int:
+    from jaxform.design.driver import run_design
+
+    t0 = time.perf_counter()
+
+    def progress(it, val, gnorm, design):
+        print(f"iteration {it:3d}: objective {val:.8g}  |projected grad| {gnorm:.3e}  "
+              f"({time.perf_counter() - t0:.1f} s)", flush=True)
+
+    out, code = _guarded("design", lambda: run_design(args.config, args.set, out_dir=args.out,
+                                                      progress=progress))
+    if code:
+        return code
+    problem, hist = out
+    final = problem.physical(hist.designs[-1])
+    print(f"done ({hist.stop_reason}): objective {hist.objective[0]:.6g} -> "
+          f"{hist.objective[-1]:.6g} in {len(hist.objective) - 1} iterations, "
+          f"{hist.evaluations} gradient evaluations, {hist.rejected} rejected trials, "
+          f"{time.perf_counter() - t0:.1f} s")
+    print("design: " + ", ".join(f"{k} = {v:.6g}" for k, v in final.items()))
+    print(f"outputs in {args.out}: design_history.csv, objective.png, shapes.png, config.toml")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     from jaxform.precision import enable_x64
 
@@ -140,6 +200,23 @@ def main(argv: list[str] | None = None) -> int:
     mp.add_argument("--steps", type=int, default=1000, help="number of equal steps")
     mp.add_argument("--out", default="out/material_point", help="output folder")
     mp.set_defaults(func=_material_point)
+
+    tp = sub.add_parser("taylor-test", help="check the scene's gradients (Taylor remainders)")
+    tp.add_argument("config", help="scene config (TOML)")
+    tp.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                    help="override a config value (repeatable)")
+    tp.add_argument("--groups", nargs="+", default=None,
+                    help="design groups to test (default: every group of the scene)")
+    tp.add_argument("--h", type=float, nargs="+", default=[1.0, 0.5, 0.25, 0.125],
+                    help="decreasing step sizes (multiples of the random direction)")
+    tp.set_defaults(func=_taylor)
+
+    dp = sub.add_parser("design", help="gradient-based design from the config's [design]")
+    dp.add_argument("config", help="scene config (TOML) with a [design] section")
+    dp.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                    help="override a config value (repeatable)")
+    dp.add_argument("--out", default="out/design", help="output folder")
+    dp.set_defaults(func=_design)
 
     args = parser.parse_args(argv)
     return args.func(args)

@@ -31,7 +31,7 @@ class ConfigError(ValueError):
 class Field:
     """One config key: kind, default (None = required), allowed range or choices, doc."""
 
-    kind: str  # "float" | "int" | "str" | "bool" | "floats" (list) | "points" (list of [a, b])
+    kind: str  # "float" | "int" | "str" | "bool" | "floats" | "strs" (lists) | "points" (list of [a, b])
     default: Any = None
     low: float | None = None
     high: float | None = None
@@ -140,6 +140,43 @@ SCHEMA: dict[str, dict[str, Field]] = {
         "profile_strokes_mm": Field("floats", [], doc="ram strokes (mm) at which the contact "
                                     "pressure/slip profile is plotted ([] = 25/50/75/100 %)"),
     },
+    "design": {
+        "objective": Field("str", "forging_work", choices=(
+            "forging_work", "peak_force", "side_straightness", "shape_target", "force_misfit",
+            "eqps_spread", "die_fill"),
+            doc="design objective (jaxform design / taylor-test), a function of the run: "
+                "force integral over stroke (N mm), peak ram force (N), mean squared "
+                "deviation of the final side from straight (mm^2), of chosen nodes from "
+                "target positions (mm^2), force-stroke misfit against a target curve, "
+                "variance of eqps, 1 - die fill"),
+        "variables": Field("strs", ["material"], choices=(
+            "material", "friction", "speed", "preform", "die"),
+            doc="design variable groups jaxform design optimizes"),
+        "material_params": Field("strs", ["s0_MPa", "h0_MPa", "s_hat_MPa"],
+                                 doc="material parameters of the 'material' group (names "
+                                     "of the law's parameters)"),
+        "material_start_factor": Field("float", 1.0, 0.0, None, False, True,
+                                       doc="the design starts from the material parameters "
+                                           "times this (e.g. 0.7 to identify from 30 % off)"),
+        "preform_modes": Field("int", 3, 1, 20, doc="cosine modes of the preform profile"),
+        "preform_amplitude_max": Field("float", 0.2, 0.0, 0.9, False, True,
+                                       doc="bound on each preform mode amplitude (fraction "
+                                           "of the radius)"),
+        "die_points": Field("floats", [], doc="indices of die.profile_mm points whose z is "
+                            "a design variable ([] = all)"),
+        "die_offset_max_mm": Field("float", 1.0, 0.0, None, False, True,
+                                   doc="bound on each die point's vertical offset (mm)"),
+        "bound_factor": Field("float", 2.0, 1.0, None, False, True,
+                              doc="material parameters and ram speed stay within "
+                                  "[p0 / factor, p0 * factor]"),
+        "target_csv": Field("str", "", doc="target for force_misfit (CSV with stroke_mm, "
+                            "force_N) or shape_target (CSV with node, r_mm, z_mm)"),
+        "optimizer": Field("str", "lbfgs", choices=("lbfgs", "adam"),
+                           doc="optax optimizer (L-BFGS with zoom line search, or Adam)"),
+        "iterations": Field("int", 20, 1, 10000, doc="optimizer iterations"),
+        "learning_rate": Field("float", 0.05, 0.0, None, False, False,
+                               doc="Adam step size in the scaled design variables"),
+    },
 }
 
 # Exactly one workpiece section: a solid billet or a ring.
@@ -164,7 +201,7 @@ def _parse_override(text: str) -> tuple[str, str, Any]:
 
 def _check(name: str, f: Field, value: Any) -> Any:
     """Return ``value`` converted to the field's kind, or raise ConfigError."""
-    if f.kind in ("floats", "points"):
+    if f.kind in ("floats", "strs", "points"):
         return _check_list(name, f, value)
     if f.kind == "bool":
         if not isinstance(value, bool):
@@ -203,6 +240,14 @@ def _check_list(name: str, f: Field, value: Any) -> list:
         if not all(_is_num(v) for v in value):
             raise ConfigError(f"{name} = {value!r}: must be a list of finite numbers")
         return [float(v) for v in value]
+    if f.kind == "strs":
+        if not all(isinstance(v, str) for v in value):
+            raise ConfigError(f"{name} = {value!r}: must be a list of strings")
+        bad = [v for v in value if f.choices is not None and v not in f.choices]
+        if bad:
+            raise ConfigError(f"{name} = {value!r}: {bad[0]!r} is not allowed; each entry must "
+                              f"be {f.allowed()}")
+        return list(value)
     if not all(isinstance(p, list) and len(p) == 2 and all(_is_num(v) for v in p)
                for p in value):
         raise ConfigError(f"{name} = {value!r}: must be a list of [r_mm, z_mm] pairs of finite "
@@ -313,8 +358,9 @@ def describe_schema() -> str:
                 default = str(f.default).lower()
             elif f.kind == "str":
                 default = f'"{f.default}"'
-            elif f.kind in ("floats", "points"):
-                default = "[]"
+            elif f.kind in ("floats", "strs", "points"):
+                default = "[" + ", ".join(f'"{v}"' if isinstance(v, str) else f"{v:g}"
+                                          for v in f.default) + "]"
             else:
                 default = f"{f.default:g}" if f.kind == "float" else str(f.default)
             cells = [f"`{section}.{key}`", f.kind, default, f.allowed(), f.doc]

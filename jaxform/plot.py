@@ -120,3 +120,41 @@ def calibration_chart(curves: dict, path: Path):
     ax.axhline(0.0, color="k", lw=0.6)
     _finish_curve(fig, ax, path, "6:3:2 ring: friction calibration", "height reduction [%]",
                   "change of inner diameter [%]")
+
+
+def design_objective(objective, path: Path, title: str, unit: str):
+    """Objective against optimizer iteration (log scale when it spans decades)."""
+    fig, ax = plt.subplots(figsize=(6, 4.2))
+    obj = np.asarray(objective)
+    ax.plot(np.arange(len(obj)), obj, "o-", label="objective")
+    if np.all(obj > 0) and obj.max() > 20 * obj.min():
+        ax.set_yscale("log")
+    _finish_curve(fig, ax, path, title, "iteration", f"objective [{unit}]")
+
+
+def _outline(coords, elements):
+    """Boundary edges of a quad mesh (edges used by one element only)."""
+    e = np.asarray(elements)
+    edges = np.concatenate([e[:, [0, 1]], e[:, [1, 2]], e[:, [2, 3]], e[:, [3, 0]]])
+    key = np.sort(edges, axis=1)
+    _, inv, count = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    return edges[count[inv.ravel()] == 1]
+
+
+def design_shapes(shapes: dict, elements, path: Path, title: str):
+    """shapes: label -> (n_nodes, 2) positions; outlines drawn over each other."""
+    fig, ax = plt.subplots(figsize=(6, 5))
+    styles = ["k--", "C0-", "C1-", "C3-", "C2--"]
+    for (label, pos), style in zip(shapes.items(), styles):
+        pos = np.asarray(pos)
+        for k, (a, b) in enumerate(_outline(pos, elements)):
+            ax.plot(pos[[a, b], 0], pos[[a, b], 1], style, lw=1.2,
+                    label=label if k == 0 else None)
+    ax.set_aspect("equal")
+    ax.set_xlabel("r [mm]")
+    ax.set_ylabel("z [mm]")
+    ax.set_title(title)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)

@@ -30,10 +30,11 @@ from jaxform.assembly import Indices, Model
 from jaxform.contact import ContactStep, nodal_average, shear_bounds, tributary_areas
 from jaxform.dies import RigidDie
 from jaxform.formulations import CAUSES, OK, GaussState, initial_gauss_state
+from jaxform.kinematics import deviator, safe_norm_eq
 from jaxform.linear import LinearSolver
 from jaxform.postprocess import extra_history
 from jaxform.precision import require_x64
-from jaxform.solver import NewtonSettings, newton
+from jaxform.solver import NewtonSettings, solve_implicit
 
 
 @jax.tree_util.register_dataclass
@@ -116,8 +117,9 @@ def contact_step(model: Model, state: SimState, inp: Inputs, idx: Indices) -> Co
     pos = model.nodal_positions(state.x, inp.coords, idx)[idx.contact_nodes]
     if model.contact.friction == "shear":
         sig = state.gauss.mat.stress
-        dev = sig - jnp.trace(sig, axis1=-2, axis2=-1)[..., None, None] / 3.0 * jnp.eye(3)
-        eq_el = jnp.sqrt(1.5 * jnp.sum(dev * dev, axis=(-2, -1))).mean(axis=1)
+        eq_gp, _ = jnp.vectorize(lambda t: safe_norm_eq(deviator(t)),
+                                 signature="(3,3)->(),()")(sig)
+        eq_el = eq_gp.mean(axis=1)
         eq_nodes = nodal_average(eq_el, idx.elements, model.layout.n_nodes)[idx.contact_nodes]
         areas = tributary_areas(pos, idx.contact_facets, model.formulation.axisymmetric)
         bound = shear_bounds(inp.die.m, eq_nodes, areas)
@@ -127,28 +129,52 @@ def contact_step(model: Model, state: SimState, inp: Inputs, idx: Indices) -> Co
                        frictionless=idx.contact_fixed_r)
 
 
+def _step_residual(model: Model, x, args):
+    gauss, coords, t, dt, params, die, c_contact, cstep, idx = args
+    return model.residual(x, gauss, coords, t, dt, params, die, c_contact, cstep, idx)
+
+
+def _step_residual_and_jacobian(model: Model, x, args):
+    gauss, coords, t, dt, params, die, c_contact, cstep, idx = args
+    return model.residual_and_jacobian(x, gauss, coords, t, dt, params, die, c_contact,
+                                       cstep, idx)
+
+
+def _step_linear(model: Model, linear: LinearSolver, vals, b, args, transpose: bool):
+    idx = args[-1]
+    solve = linear.solve_transpose if transpose else linear.solve
+    return solve(idx.rows, idx.cols, vals, b, model.layout.n_dofs)
+
+
 def solve_step(model: Model, linear: LinearSolver, settings: NewtonSettings,
                state: SimState, t_new, dt, inp: Inputs, idx: Indices, x_guess=None):
-    """One Newton solve from state (at t) to t_new = t + dt.
+    """One Newton solve from state (at t) to t_new = t + dt, starting from x_guess (or
+    state.x; state.x also when the guess is not a valid state).
 
-    Returns (x, gauss, its, code, hist, cstep)."""
+    Differentiable (reverse mode) in ``state`` and ``inp`` by the implicit function theorem
+    (:func:`jaxform.solver.solve_implicit`).  Returns (x, gauss, its, code, hist, cstep)."""
     cstep = contact_step(model, state, inp, idx)
-    args = (inp.coords, t_new, dt, inp.params, inp.die, inp.c_contact, cstep, idx)
+    args = (state.gauss, inp.coords, t_new, dt, inp.params, inp.die, inp.c_contact, cstep, idx)
+    x_fallback = jax.lax.stop_gradient(state.x)
+    x0 = x_fallback if x_guess is None else jax.lax.stop_gradient(x_guess)
+    x, g, its, code, hist = solve_implicit(
+        partial(_step_residual, model), partial(_step_residual_and_jacobian, model),
+        partial(_step_linear, model, linear), settings, x0, x_fallback, args)
+    return x, g, its, code, hist, cstep
 
-    def residual(x):
-        r, g, code, scale = model.residual(x, state.gauss, *args)
-        return r, g, code, scale
 
-    def residual_and_jacobian(x):
-        return model.residual_and_jacobian(x, state.gauss, *args)
-
-    def lin(vals, b):
-        return linear.solve(idx.rows, idx.cols, vals, b, model.layout.n_dofs)
-
-    if x_guess is None:
-        return newton(residual, residual_and_jacobian, lin, state.x, settings) + (cstep,)
-    return newton(residual, residual_and_jacobian, lin, x_guess, settings,
-                  x_fallback=state.x) + (cstep,)
+def converged_state(model: Model, state: SimState, x, gauss, t_new, inp: Inputs,
+                    cstep: ContactStep, idx: Indices) -> SimState:
+    """The state after a converged step from ``state`` to (x, gauss) at t_new: the rate for
+    the next predictor, the friction work and slip of the step, the contact status."""
+    status, _, _, slip = model.contact_report(x, inp.coords, t_new, inp.die, inp.c_contact,
+                                              cstep, idx)
+    lam_t = x[idx.mult_dofs[:, 1]]
+    return SimState(x=x, gauss=gauss, t=t_new,
+                    x_rate=jax.lax.stop_gradient((x - state.x) / (t_new - state.t)),
+                    friction_work=state.friction_work - jnp.sum(lam_t * slip),
+                    slip_mm=state.slip_mm + jnp.abs(slip),
+                    contact_status=status.astype(state.contact_status.dtype))
 
 
 def macro_step(model, linear, settings, max_cutbacks, state: SimState, t_target, inp, idx):
@@ -167,12 +193,7 @@ def macro_step(model, linear, settings, max_cutbacks, state: SimState, t_target,
                                                   idx, x_guess=st.x + use_rate * h * st.x_rate)
         ok = code == OK
         t_new = jnp.where(ok, st.t + h, st.t)
-        status, _, _, slip = model.contact_report(x, inp.coords, st.t + h, inp.die,
-                                                  inp.c_contact, cstep, idx)
-        lam_t = x[idx.mult_dofs[:, 1]]
-        conv = SimState(x=x, gauss=g, t=t_new, x_rate=(x - st.x) / h,
-                        friction_work=st.friction_work - jnp.sum(lam_t * slip),
-                        slip_mm=st.slip_mm + jnp.abs(slip), contact_status=status)
+        conv = converged_state(model, st, x, g, st.t + h, inp, cstep, idx)
         new = _tree_where(ok, conv, st)
         level = jnp.where(ok, c["level"], c["level"] + 1)
         failed = level > max_cutbacks

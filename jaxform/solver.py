@@ -7,11 +7,22 @@ the step (the larger of the root-sum-square of the element force vectors and the
 the contact forces), so the test is relative to the forces actually carried.
 
 Failures are status codes (see jaxform.formulations): the caller cuts the step back.
+
+:func:`solve_implicit` is the same Newton solve, differentiated by the implicit function
+theorem instead of through its iterations: at the converged x*, R(x*, a) = 0 gives
+dx*/da = -J^-1 dR/da, so a reverse pass needs one solve with the transposed Jacobian
+of the converged step (y = J^-T xbar) and one VJP of the residual with respect to the
+arguments (abar = -y^T dR/da).  The solve's auxiliary output (the new Gauss state,
+aux = G(x*, a)) is differentiated too: xbar gains (dG/dx)^T auxbar before the solve and
+abar gains (dG/da)^T auxbar.  Where R is only piecewise smooth (contact and friction
+switch between branches at an active-set change), the derivative is that of the branch
+active at x*: exact away from a switch, one-sided at it.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 
 import jax
 import jax.numpy as jnp
@@ -83,3 +94,50 @@ def newton(residual, residual_and_jacobian, linear_solve, x0, settings: NewtonSe
     x, aux, it, code, rn, conv, hist = jax.lax.while_loop(cond, body, init)
     code = jnp.where(conv, OK, jnp.where(code == OK, NEWTON_NOT_CONVERGED, code))
     return x, aux, it, code, hist
+
+
+@partial(jax.custom_vjp, nondiff_argnums=(0, 1, 2, 3))
+def solve_implicit(fn, fn_jac, linear, settings: NewtonSettings, x0, x_fallback, args):
+    """Newton from x0 (x_fallback if x0 is invalid) on fn(., args) = 0, differentiable in
+    ``args`` by the implicit function theorem (x0 and x_fallback get no derivative).
+
+    fn(x, args) -> (R, aux, code, scale); fn_jac(x, args) -> (R, vals, aux, code, scale);
+    linear(vals, b, args, transpose) -> solution of J y = b (or J^T y = b).  Returns
+    (x, aux, iterations, code, history) like :func:`newton`.  The functions must be
+    hashable and close over no traced value: everything traced goes through ``args``.
+    """
+    return newton(lambda x: fn(x, args), lambda x: fn_jac(x, args),
+                  lambda vals, b: linear(vals, b, args, False), x0, settings,
+                  x_fallback=x_fallback)
+
+
+def _solve_implicit_fwd(fn, fn_jac, linear, settings, x0, x_fallback, args):
+    out = solve_implicit(fn, fn_jac, linear, settings, x0, x_fallback, args)
+    return out, (out[0], x0, x_fallback, args)
+
+
+def _solve_implicit_bwd(fn, fn_jac, linear, settings, res, cot):
+    x, x0, x_fallback, args = res
+    x_bar, aux_bar = cot[0], cot[1]
+
+    def r_and_aux(x, a):
+        r, aux, _, _ = fn(x, a)
+        return r, aux
+
+    (r, aux), vjp = jax.vjp(r_and_aux, x, args)
+    zero_r = jnp.zeros_like(r)
+    xg_bar, ag_bar = vjp((zero_r, aux_bar))  # through the Gauss-state output
+    _, vals, _, _, _ = fn_jac(x, args)
+    y = linear(vals, x_bar + xg_bar, args, True)  # J^T y = xbar
+    _, ar_bar = vjp((-y, jax.tree_util.tree_map(jnp.zeros_like, aux)))
+    a_bar = jax.tree_util.tree_map(_add_cotangents, ag_bar, ar_bar)
+    return jnp.zeros_like(x0), jnp.zeros_like(x_fallback), a_bar
+
+
+def _add_cotangents(u, v):
+    if getattr(u, "dtype", None) == jax.dtypes.float0:
+        return u
+    return u + v
+
+
+solve_implicit.defvjp(_solve_implicit_fwd, _solve_implicit_bwd)

@@ -1,0 +1,126 @@
+"""Design objectives: pure functions of a differentiable run (:class:`Trajectory`).
+
+Each objective is a small immutable object holding its set-up constants (node or element
+sets, targets) with ``__call__(traj, inputs) -> scalar`` (``inputs`` = the run's inputs) (traceable, differentiable) and a
+``unit``/``describe`` for reports.  Built from a scene and the config by
+:func:`jaxform.design.problem.build_objective`.
+
+* :class:`SideStraightness`  mean squared deviation (mm^2) of the final free-side radii
+  from their mean: 0 for a straight cylindrical side (preform design against bulging).
+* :class:`ShapeTarget`       mean squared distance (mm^2) of chosen final node positions
+  from target positions.
+* :class:`PeakForce`         the largest ram force of the history (N).
+* :class:`ForgingWork`       integral of force over stroke (N mm, trapezoid rule).
+* :class:`ForceMisfit`       relative L2 misfit of the force-stroke curve against a target
+  curve (material identification): sum (F(s_i) - F_i)^2 / sum F_i^2 at the target
+  strokes, F(s) interpolated linearly in the run's history.
+* :class:`EqpsSpread`        variance of the element-mean equivalent plastic strain over
+  a set of elements.
+* :class:`UnfilledCavity`    1 - material volume / cavity volume at the end (0 = filled):
+  the cavity enclosed by the die profile, the axis and the mid-plane.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import jax.numpy as jnp
+import numpy as np
+
+from jaxform.design.parametrize import workpiece_volume
+
+
+class _Identity:
+    def __hash__(self):  # set-up arrays inside: identity is enough
+        return id(self)
+
+
+@dataclass(frozen=True, eq=False)
+class SideStraightness(_Identity):
+    side_nodes: np.ndarray
+    unit = "mm^2"
+
+    def __call__(self, traj, inputs):
+        r = traj.positions[self.side_nodes, 0]
+        return jnp.mean((r - jnp.mean(r)) ** 2)
+
+
+@dataclass(frozen=True, eq=False)
+class ShapeTarget(_Identity):
+    nodes: np.ndarray
+    target_mm: np.ndarray  # (len(nodes), 2)
+    unit = "mm^2"
+
+    def __call__(self, traj, inputs):
+        d = traj.positions[self.nodes] - jnp.asarray(self.target_mm)
+        return jnp.mean(jnp.sum(d * d, axis=1))
+
+
+@dataclass(frozen=True, eq=False)
+class PeakForce(_Identity):
+    unit = "N"
+
+    def __call__(self, traj, inputs):
+        return jnp.max(traj.force_N)
+
+
+@dataclass(frozen=True, eq=False)
+class ForgingWork(_Identity):
+    unit = "N mm"
+
+    def __call__(self, traj, inputs):
+        s, f = traj.stroke_mm, traj.force_N
+        return jnp.sum(0.5 * (f[1:] + f[:-1]) * (s[1:] - s[:-1]))
+
+
+@dataclass(frozen=True, eq=False)
+class ForceMisfit(_Identity):
+    stroke_mm: np.ndarray
+    force_N: np.ndarray
+    unit = "-"
+
+    def __call__(self, traj, inputs):
+        f = jnp.interp(jnp.asarray(self.stroke_mm), traj.stroke_mm, traj.force_N)
+        target = jnp.asarray(self.force_N)
+        return jnp.sum((f - target) ** 2) / jnp.sum(target**2)
+
+
+@dataclass(frozen=True, eq=False)
+class EqpsSpread(_Identity):
+    elements: np.ndarray  # element ids of the region
+    unit = "-"
+
+    def __call__(self, traj, inputs):
+        e = jnp.mean(traj.gauss.mat.eqps[self.elements], axis=1)
+        return jnp.var(e)
+
+
+def cavity_volume(points, travel, axisymmetric: bool):
+    """Volume (or area) between a die profile moved down by ``travel``, the axis r = 0 and
+    the mid-plane z = 0 (traceable; the part of the profile below z = 0 is clipped by
+    clamping, exact for profiles that cross z = 0 only at their last segment)."""
+    pts = points - jnp.stack([0.0, travel])[None, :]
+    pts = pts.at[:, 1].set(jnp.maximum(pts[:, 1], 0.0))
+    poly = jnp.concatenate([jnp.zeros((1, 2), pts.dtype), pts,
+                            jnp.stack([pts[-1, 0], 0.0])[None, :]], axis=0)
+    x, y = poly[:, 0], poly[:, 1]
+    xn, yn = jnp.roll(x, -1), jnp.roll(y, -1)
+    cross = x * yn - xn * y
+    if axisymmetric:
+        return jnp.abs(2.0 * jnp.pi * jnp.sum(cross * (x + xn)) / 6.0)
+    return jnp.abs(0.5 * jnp.sum(cross))
+
+
+@dataclass(frozen=True, eq=False)
+class UnfilledCavity(_Identity):
+    """1 - die fill at the end of the run."""
+
+    elements: np.ndarray
+    axisymmetric: bool
+    unit = "-"
+
+    def __call__(self, traj, inputs):
+        die = inputs.die
+        vol = workpiece_volume(traj.positions, self.elements, self.axisymmetric)
+        cav = cavity_volume(die.points, die.travel(traj.time_s[-1]), self.axisymmetric)
+        return 1.0 - vol / cav

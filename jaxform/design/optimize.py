@@ -1,0 +1,134 @@
+"""Bounded gradient-based design loops with optax: L-BFGS or Adam.
+
+The caller owns nothing here but the problem: :func:`optimize` runs on the host, one
+compiled gradient evaluation per trial design, and
+
+* keeps every design inside its box bounds (projection after each step, optax's
+  ``projection_box``);
+* L-BFGS: optax's two-loop recursion (``scale_by_lbfgs``) gives the direction, a
+  backtracking (Armijo) line search on the projected path picks the step; the first
+  step is limited to a quarter of the bound box so that a large gradient cannot throw
+  the design across it;
+* Adam: optax's ``adam`` with the configured step size;
+* a trial design whose run fails (:class:`GradientRunError`: a load step did not
+  converge) is treated as a rejected step and the step is halved, so one bad trial
+  never ends the loop;
+* stops after ``iterations`` accepted steps, or when the line search cannot decrease the
+  objective (a stationary point within the bounds).
+
+Returns the history: per iteration the objective, the norm of the projected gradient and
+the design.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from jaxform.gradients import GradientRunError
+
+
+@dataclass(frozen=True)
+class OptimizerSettings:
+    method: str = "lbfgs"  # 'lbfgs' | 'adam'
+    iterations: int = 20
+    learning_rate: float = 0.05  # Adam
+    max_backtracks: int = 8
+    armijo: float = 1e-4
+
+
+@dataclass
+class DesignHistory:
+    objective: list[float] = field(default_factory=list)
+    grad_norm: list[float] = field(default_factory=list)
+    designs: list[dict] = field(default_factory=list)
+    evaluations: int = 0
+    rejected: int = 0
+    stop_reason: str = ""
+
+
+def _flat(tree):
+    return np.concatenate([np.ravel(np.asarray(v)) for v in jax.tree_util.tree_leaves(tree)])
+
+
+def _projected_grad_norm(u, g, lo, hi):
+    """Norm of the gradient components that can still move the design (KKT measure)."""
+    uf, gf, lf, hf = (_flat(t) for t in (u, g, lo, hi))
+    free = ~(((uf <= lf) & (gf > 0)) | ((uf >= hf) & (gf < 0)))
+    return float(np.linalg.norm(gf[free]))
+
+
+def optimize(problem, settings: OptimizerSettings = OptimizerSettings(), design=None,
+             progress: Callable[[int, float, float, dict], None] | None = None) -> DesignHistory:
+    """Minimize ``problem``'s objective from ``design`` (default: its start)."""
+    if settings.method not in ("lbfgs", "adam"):
+        raise ValueError(f"design.optimizer = {settings.method!r}: must be 'lbfgs' or 'adam'")
+    lo, hi = problem.bounds()
+    project = jax.jit(lambda u: optax.projections.projection_box(u, lo, hi))
+    u = project(problem.start if design is None else design)
+    hist = DesignHistory()
+
+    def evaluate(u):
+        hist.evaluations += 1
+        val, g, _ = problem.value_and_grad(u)
+        return float(val), g
+
+    val, g = evaluate(u)
+    record(hist, u, val, g, lo, hi, progress)
+    if settings.method == "adam":
+        opt = optax.adam(settings.learning_rate)
+    else:
+        opt = optax.scale_by_lbfgs()
+    state = opt.init(u)
+    width = jax.tree_util.tree_map(lambda a, b: b - a, lo, hi)
+    for _ in range(settings.iterations):
+        updates, state_new = opt.update(g, state, u)
+        if settings.method == "lbfgs":
+            updates = jax.tree_util.tree_map(lambda d: -d, updates)
+            # first / any step: no component moves by more than a quarter of its box
+            ratio = max(float(jnp.max(jnp.abs(d) / (0.25 * w)))
+                        for d, w in zip(jax.tree_util.tree_leaves(updates),
+                                        jax.tree_util.tree_leaves(width)))
+            if ratio > 1.0:
+                updates = jax.tree_util.tree_map(lambda d: d / ratio, updates)
+        step, accepted = 1.0, False
+        for _ in range(settings.max_backtracks + 1):
+            trial = project(jax.tree_util.tree_map(lambda a, d: a + step * d, u, updates))
+            move = jax.tree_util.tree_map(lambda a, b: a - b, trial, u)
+            decrease = float(sum(jnp.vdot(gi, mi) for gi, mi in zip(
+                jax.tree_util.tree_leaves(g), jax.tree_util.tree_leaves(move))))
+            try:
+                val_t, g_t = evaluate(trial)
+            except GradientRunError:
+                hist.rejected += 1
+                step *= 0.5
+                continue
+            ok = np.isfinite(val_t) and (
+                settings.method == "adam" or val_t <= val + settings.armijo * decrease)
+            if ok:
+                accepted = True
+                break
+            hist.rejected += 1
+            step *= 0.5
+        if not accepted:
+            hist.stop_reason = "line search found no decrease (stationary within the bounds)"
+            break
+        u, val, g, state = trial, val_t, g_t, state_new
+        record(hist, u, val, g, lo, hi, progress)
+    else:
+        hist.stop_reason = f"{settings.iterations} iterations"
+    return hist
+
+
+def record(hist, u, val, g, lo, hi, progress):
+    gn = _projected_grad_norm(u, g, lo, hi)
+    hist.objective.append(val)
+    hist.grad_norm.append(gn)
+    hist.designs.append({k: np.asarray(v) for k, v in u.items()})
+    if progress is not None:
+        progress(len(hist.objective) - 1, val, gn, u)

@@ -1,0 +1,204 @@
+"""Design parametrizations: small immutable maps from design variables to run inputs.
+
+A parametrization (a *group*) owns one array of dimensionless design variables ``u``
+and maps it onto the inputs of a differentiable run:
+
+    group.apply(u, inputs, times) -> (inputs, times)      pure, traceable
+    group.initial()                -> u0 (the scene as configured)
+    group.bounds()                 -> (lo, hi) box bounds on u
+    group.physical(u)              -> {name: value} in the config's units (for CSVs)
+
+Groups compose left to right (:func:`apply_all`).  The design pytree is a dict
+``{group.name: u}``.
+
+* :class:`MaterialParams`  ``u_i = log(p_i / p0_i)`` of chosen parameters (positive,
+  scale-free): e.g. Anand's s0, h0, s_hat for identification.
+* :class:`Friction`        the friction coefficient itself (mu or m).
+* :class:`RamSpeed`        ``u = log(v / v0)``: the die path table's times and the step
+  schedule are divided by v/v0 (same strokes, reached sooner or later).
+* :class:`PreformCosine`   the billet's lateral profile r(z) = R0 c (1 + sum_k a_k
+  cos(k pi z / H)), k = 1..n, every node moved radially in proportion, with c chosen so
+  that the *discrete* volume of the mesh is that of the cylinder (constant volume).
+* :class:`DieProfile`      vertical offsets (mm) of chosen die profile points.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import jax.numpy as jnp
+import numpy as np
+
+
+def _revolved_areas(pos, elements, axisymmetric: bool):
+    """Volume (axisymmetric, 2 pi r dA) or area of each quadrilateral (shoelace/Pappus)."""
+    p = pos[elements]  # (n_el, 4, 2)
+    x, y = p[..., 0], p[..., 1]
+    xn, yn = jnp.roll(x, -1, axis=1), jnp.roll(y, -1, axis=1)
+    cross = x * yn - xn * y
+    if axisymmetric:
+        return 2.0 * jnp.pi * jnp.sum(cross * (x + xn), axis=1) / 6.0
+    return 0.5 * jnp.sum(cross, axis=1)
+
+
+def workpiece_volume(pos, elements, axisymmetric: bool):
+    """Material volume (mm^3; mm^2 per mm depth in plane strain) of a mesh at ``pos``."""
+    return jnp.sum(_revolved_areas(pos, elements, axisymmetric))
+
+
+@dataclass(frozen=True)
+class MaterialParams:
+    names: tuple[str, ...]
+    p0: tuple[float, ...]
+    bound_log: float = float(np.log(2.0))  # |log(p/p0)| <= this
+    name: str = "material"
+
+    def initial(self):
+        return jnp.zeros(len(self.names))
+
+    def bounds(self):
+        b = jnp.full(len(self.names), self.bound_log)
+        return -b, b
+
+    def values(self, u):
+        return jnp.asarray(self.p0) * jnp.exp(u)
+
+    def apply(self, u, inputs, times):
+        v = self.values(u)
+        params = replace(inputs.params, **{n: v[i] for i, n in enumerate(self.names)})
+        return replace(inputs, params=params), times
+
+    def physical(self, u):
+        v = np.asarray(self.values(u))
+        return {n: float(v[i]) for i, n in enumerate(self.names)}
+
+
+@dataclass(frozen=True)
+class Friction:
+    key: str  # 'mu' (Coulomb) or 'm' (shear factor)
+    value0: float
+    high: float  # 10 for mu, 1 for m
+    name: str = "friction"
+
+    def initial(self):
+        return jnp.asarray([self.value0])
+
+    def bounds(self):
+        return jnp.zeros(1), jnp.full(1, self.high)
+
+    def apply(self, u, inputs, times):
+        return replace(inputs, die=replace(inputs.die, **{self.key: u[0]})), times
+
+    def physical(self, u):
+        return {f"friction_{self.key}": float(u[0])}
+
+
+@dataclass(frozen=True)
+class RamSpeed:
+    speed0_mm_s: float
+    bound_log: float = float(np.log(4.0))
+    name: str = "speed"
+
+    def initial(self):
+        return jnp.zeros(1)
+
+    def bounds(self):
+        return jnp.full(1, -self.bound_log), jnp.full(1, self.bound_log)
+
+    def apply(self, u, inputs, times):
+        slow = jnp.exp(-u[0])  # time scale factor v0 / v
+        die = replace(inputs.die, path_time_s=inputs.die.path_time_s * slow)
+        return replace(inputs, die=die), times * slow
+
+    def physical(self, u):
+        return {"speed_mm_s": float(self.speed0_mm_s * np.exp(float(u[0])))}
+
+
+@dataclass(frozen=True)
+class PreformCosine:
+    n_modes: int
+    height_mm: float  # half height of the modelled section (z from 0 to H)
+    radius_mm: float  # R0
+    elements: np.ndarray  # (n_el, 4) for the volume
+    axisymmetric: bool = True
+    amplitude_max: float = 0.2
+    name: str = "preform"
+
+    def __hash__(self):  # arrays are set-up constants; identity is enough
+        return id(self)
+
+    def initial(self):
+        return jnp.zeros(self.n_modes)
+
+    def bounds(self):
+        b = jnp.full(self.n_modes, self.amplitude_max)
+        return -b, b
+
+    def profile(self, u, z):
+        """Unscaled profile factor 1 + sum_k a_k cos(k pi z / H) at heights z."""
+        k = jnp.arange(1, self.n_modes + 1)
+        return 1.0 + jnp.sum(u[None, :] * jnp.cos(jnp.pi * k[None, :] * z[:, None]
+                                                   / self.height_mm), axis=1)
+
+    def shape(self, u, coords):
+        coords = jnp.asarray(coords)
+        moved = coords.at[:, 0].multiply(self.profile(u, coords[:, 1]))
+        if self.axisymmetric:  # every radius times c scales the volume by c^2
+            v0 = workpiece_volume(coords, self.elements, True)
+            c = jnp.sqrt(v0 / workpiece_volume(moved, self.elements, True))
+        else:  # plane strain: the area scales by c
+            c = (workpiece_volume(coords, self.elements, False)
+                 / workpiece_volume(moved, self.elements, False))
+        return moved.at[:, 0].multiply(c)
+
+    def apply(self, u, inputs, times):
+        return replace(inputs, coords=self.shape(u, inputs.coords)), times
+
+    def physical(self, u):
+        return {f"preform_a{k + 1}": float(u[k]) for k in range(self.n_modes)}
+
+
+@dataclass(frozen=True)
+class DieProfile:
+    points: tuple[int, ...]  # indices into the die profile
+    offset_max_mm: float = 1.0
+    name: str = "die"
+
+    def initial(self):
+        return jnp.zeros(len(self.points))
+
+    def bounds(self):
+        b = jnp.full(len(self.points), self.offset_max_mm)
+        return -b, b
+
+    def apply(self, u, inputs, times):
+        pts = inputs.die.points.at[jnp.asarray(self.points), 1].add(u)
+        return replace(inputs, die=replace(inputs.die, points=pts)), times
+
+    def physical(self, u):
+        return {f"die_dz{i}_mm": float(u[k]) for k, i in enumerate(self.points)}
+
+
+def apply_all(groups, design: dict, inputs, times):
+    """Apply every group's variables (``design[group.name]``) in order."""
+    for g in groups:
+        inputs, times = g.apply(design[g.name], inputs, times)
+    return inputs, times
+
+
+def initial_design(groups) -> dict:
+    return {g.name: g.initial() for g in groups}
+
+
+def design_bounds(groups) -> tuple[dict, dict]:
+    lo, hi = {}, {}
+    for g in groups:
+        lo[g.name], hi[g.name] = g.bounds()
+    return lo, hi
+
+
+def physical_values(groups, design: dict) -> dict:
+    out = {}
+    for g in groups:
+        out.update(g.physical(np.asarray(design[g.name])))
+    return out

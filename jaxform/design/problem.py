@@ -1,0 +1,207 @@
+"""A design problem: a scene, design variable groups, an objective, a step schedule.
+
+    config --build_scene--> Scene --build_problem(scene, groups=...)--> DesignProblem
+    problem.value(design) -> (J, trajectory)
+    problem.value_and_grad(design) -> (J, dJ/d design, trajectory)
+
+The design is a dict ``{group name: array}`` (see :mod:`jaxform.design.parametrize`).
+The step schedule is fixed when the problem is built: the scene's steps, split where the
+forward run of the initial design needed a cutback (:func:`jaxform.gradients.schedule`).
+Both functions are compiled once per problem; a step that fails raises
+:class:`jaxform.gradients.GradientRunError`.
+"""
+
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxform.config import ConfigError
+from jaxform.design import objectives as obj
+from jaxform.design import parametrize as par
+from jaxform.gradients import check, schedule, trajectory
+from jaxform.simulate import Scene
+
+GROUPS = ("material", "friction", "speed", "preform", "die")
+
+
+@dataclass(frozen=True, eq=False)
+class DesignProblem:
+    scene: Scene
+    groups: tuple
+    objective: object
+    times: np.ndarray  # the fixed step schedule (s)
+    start: dict  # initial design
+    single_program: bool = False  # value() runs the gradient program too: one compile
+    # instead of two (pays off for small scenes and tests; more run time per value)
+
+    def run_inputs(self, design):
+        return par.apply_all(self.groups, design, self.scene.inputs, jnp.asarray(self.times))
+
+    def _j(self, design):
+        inputs, times = self.run_inputs(design)
+        traj = trajectory(self.scene, inputs, times)
+        return self.objective(traj, inputs), traj
+
+    @cached_property
+    def _value(self):
+        return jax.jit(self._j)
+
+    @cached_property
+    def _value_and_grad(self):
+        return jax.jit(jax.value_and_grad(self._j, has_aux=True))
+
+    def value(self, design):
+        if self.single_program:
+            (val, traj), _ = self._value_and_grad(design)
+        else:
+            val, traj = self._value(design)
+        check(traj)
+        return val, traj
+
+    def value_and_grad(self, design):
+        (val, traj), grad = self._value_and_grad(design)
+        check(traj)
+        return val, grad, traj
+
+    def bounds(self):
+        return par.design_bounds(self.groups)
+
+    def physical(self, design) -> dict:
+        return par.physical_values(self.groups, design)
+
+
+# ----------------------------------------------------------------------------------
+# from a config
+
+
+def available_groups(scene: Scene) -> tuple[str, ...]:
+    """The design variable groups that make sense for ``scene``."""
+    cfg = scene.config
+    names = ["material", "speed"]
+    if cfg["friction"]["model"] in ("coulomb", "shear"):
+        names.insert(1, "friction")
+    if "billet" in cfg and not cfg["mesh"]["file"]:
+        names.append("preform")
+    names.append("die")
+    return tuple(names)
+
+
+def build_group(scene: Scene, name: str):
+    cfg, d = scene.config, scene.config["design"]
+    if name == "material":
+        params = scene.inputs.params
+        for p in d["material_params"]:
+            if not hasattr(params, p):
+                raise ConfigError(f"design.material_params: {p!r} is not a parameter of this "
+                                  f"material; allowed: {', '.join(vars(params))}")
+        return par.MaterialParams(tuple(d["material_params"]),
+                                  tuple(float(getattr(params, p)) for p in d["material_params"]),
+                                  bound_log=float(np.log(d["bound_factor"])))
+    if name == "friction":
+        model = cfg["friction"]["model"]
+        if model not in ("coulomb", "shear"):
+            raise ConfigError(f"design.variables has 'friction' but friction.model = {model!r}: "
+                              f"needs 'coulomb' or 'shear'")
+        key = "mu" if model == "coulomb" else "m"
+        return par.Friction(key, float(cfg["friction"][key]), 10.0 if key == "mu" else 1.0)
+    if name == "speed":
+        speed = cfg["die"]["speed_mm_s"] or float("nan")
+        return par.RamSpeed(speed, bound_log=float(np.log(d["bound_factor"])))
+    if name == "preform":
+        if "billet" not in cfg or cfg["mesh"]["file"]:
+            raise ConfigError("design.variables has 'preform': needs a [billet] section and "
+                              "the structured mesh (mesh.file = '')")
+        b = cfg["billet"]
+        return par.PreformCosine(d["preform_modes"], 0.5 * b["height_mm"], 0.5 * b["diameter_mm"],
+                                 np.asarray(scene.mesh.elements),
+                                 axisymmetric=scene.model.formulation.axisymmetric,
+                                 amplitude_max=d["preform_amplitude_max"])
+    if name == "die":
+        n_pts = int(scene.inputs.die.points.shape[0])
+        pts = d["die_points"] or list(range(n_pts))
+        if any(p != int(p) or not 0 <= p < n_pts for p in pts):
+            raise ConfigError(f"design.die_points = {d['die_points']!r}: must be integer "
+                              f"indices in [0, {n_pts - 1}] of the die profile points")
+        return par.DieProfile(tuple(int(p) for p in pts), offset_max_mm=d["die_offset_max_mm"])
+    raise ConfigError(f"design group {name!r}: must be one of {', '.join(GROUPS)}")
+
+
+def _read_columns(path: str, needed: tuple[str, ...]) -> dict[str, np.ndarray]:
+    try:
+        with open(path, newline="") as fh:
+            rows = list(csv.DictReader(fh))
+    except OSError as err:
+        raise ConfigError(f"design.target_csv = {path!r}: {err}") from err
+    if not rows or any(k not in rows[0] for k in needed):
+        raise ConfigError(f"design.target_csv = {path!r}: needs columns {', '.join(needed)}")
+    return {k: np.array([float(r[k]) for r in rows]) for k in needed}
+
+
+def side_nodes(scene: Scene) -> np.ndarray:
+    sets = scene.mesh.node_sets
+    name = "side" if "side" in sets else "outer"
+    nodes = np.asarray(sets[name])
+    return nodes[np.argsort(np.asarray(scene.mesh.coords)[nodes, 1])]
+
+
+def build_objective(scene: Scene):
+    d = scene.config["design"]
+    name = d["objective"]
+    axi = scene.model.formulation.axisymmetric
+    if name == "forging_work":
+        return obj.ForgingWork()
+    if name == "peak_force":
+        return obj.PeakForce()
+    if name == "side_straightness":
+        return obj.SideStraightness(side_nodes(scene))
+    if name == "eqps_spread":
+        return obj.EqpsSpread(np.arange(scene.model.layout.n_elements))
+    if name == "die_fill":
+        if not scene.config["die"]["closed"]:
+            raise ConfigError("design.objective = 'die_fill' needs die.closed = true")
+        return obj.UnfilledCavity(np.asarray(scene.mesh.elements), axi)
+    if not d["target_csv"]:
+        raise ConfigError(f"design.objective = {name!r} needs design.target_csv")
+    if name == "force_misfit":
+        c = _read_columns(d["target_csv"], ("stroke_mm", "force_N"))
+        keep = c["stroke_mm"] > 0
+        return obj.ForceMisfit(c["stroke_mm"][keep], c["force_N"][keep])
+    c = _read_columns(d["target_csv"], ("node", "r_mm", "z_mm"))
+    nodes = c["node"].astype(int)
+    if np.any(nodes < 0) or np.any(nodes >= scene.mesh.n_nodes):
+        raise ConfigError(f"design.target_csv: node ids must lie in [0, {scene.mesh.n_nodes - 1}]")
+    return obj.ShapeTarget(nodes, np.column_stack([c["r_mm"], c["z_mm"]]))
+
+
+def build_problem(scene: Scene, groups: tuple[str, ...] | None = None,
+                  objective=None, times=None, single_program: bool = False) -> DesignProblem:
+    """A design problem for ``scene``: the groups named (default ``design.variables``),
+    the objective (default ``design.objective``), the schedule (default: from a forward
+    run of the scene, see :func:`jaxform.gradients.schedule`)."""
+    names = tuple(scene.config["design"]["variables"]) if groups is None else tuple(groups)
+    built = tuple(build_group(scene, n) for n in names)
+    start = par.initial_design(built)
+    if "material" in start:
+        start["material"] = start["material"] + np.log(
+            scene.config["design"]["material_start_factor"])
+    objective = build_objective(scene) if objective is None else objective
+    if times is None:
+        inputs, _ = par.apply_all(built, start, scene.inputs, jnp.asarray(scene.step_targets()))
+        times = schedule(scene, inputs)
+    return DesignProblem(scene, built, objective, np.asarray(times), start, single_program)
+
+
+def write_target_shape(path: str | Path, nodes: np.ndarray, positions: np.ndarray) -> None:
+    """Write a shape_target CSV (node, r_mm, z_mm)."""
+    with open(path, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["node", "r_mm", "z_mm"])
+        for n in nodes:
+            w.writerow([int(n), f"{positions[n, 0]:.12g}", f"{positions[n, 1]:.12g}"])

@@ -1,0 +1,173 @@
+"""Differentiable load history: exact gradients of any output of a run.
+
+:func:`trajectory` runs a scene's load steps as one ``lax.scan`` over a *fixed* step
+schedule (no cutback: a while loop cannot be reverse-differentiated), each step the
+implicitly differentiated Newton solve of :func:`jaxform.simulate.solve_step`.  So
+``jax.grad`` of any scalar function of the returned :class:`Trajectory` with respect to
+anything in :class:`jaxform.simulate.Inputs` (initial coordinates = preform shape, die
+profile points and path table = die shape and ram speed schedule, friction coefficients,
+material parameters) and to the step times costs, per step, one transposed solve with
+the converged step's Jacobian and one residual VJP: never a pass back through Newton
+iterations.
+
+Contract
+--------
+* ``trajectory(scene, inputs, times)`` -> :class:`Trajectory`.  Each step starts from
+  the last step's rate (predictor) and, if that solve fails, once more from the last
+  state.  ``times`` (n,) are the
+  step end times (s), increasing from > 0; the scene's own schedule is
+  :meth:`Scene.step_targets`.  Steps that need a cutback in a forward run need a finer
+  schedule here (``dt``): a failed step does not raise inside jit, it leaves its code in
+  ``Trajectory.codes`` and the caller (:func:`value_and_grad`, the design loop) raises
+  :class:`GradientRunError` at the public boundary.
+* Contact and friction switch between smooth branches (open / stick / slip).  The
+  gradient is that of the branch active at the converged solution of each step: exact
+  wherever no node sits exactly on a switch (the common case), one-sided where one does.
+  A finite-difference step that changes the active set sees a kink the gradient does not.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import partial
+from typing import Any, Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxform.formulations import CAUSES, OK, GaussState
+from jaxform.simulate import (
+    Inputs,
+    Scene,
+    SimState,
+    converged_state,
+    die_force,
+    solve_step,
+)
+
+
+@jax.tree_util.register_dataclass
+@dataclass(frozen=True)
+class Trajectory:
+    """A differentiable run: per-step scalars (row 0 = the initial state) and final state."""
+
+    time_s: jax.Array  # (n+1,)
+    stroke_mm: jax.Array  # (n+1,) ram stroke (whole workpiece)
+    force_N: jax.Array  # (n+1,) ram force, compression positive
+    friction_work_Nmm: jax.Array  # (n+1,)
+    x: jax.Array  # final unknowns
+    gauss: GaussState  # final Gauss-point state (stress, s, eqps)
+    positions: jax.Array  # (n_nodes, 2) final nodal positions (mm)
+    coords: jax.Array  # (n_nodes, 2) initial nodal positions (mm)
+    codes: jax.Array  # (n,) status code of each step (0 = converged)
+    iterations: jax.Array  # (n,) Newton iterations of each step
+
+
+class GradientRunError(RuntimeError):
+    """A step of a differentiable run did not converge."""
+
+
+@partial(jax.jit, static_argnums=(0, 1, 2, 3))
+def _trajectory(model, linear, settings, symmetric_z, inputs: Inputs, times, state0, idx):
+    def step(st: SimState, t_new):
+        dt = t_new - st.t
+        guess = st.x + dt * st.x_rate
+        x, g, its, code, _, cstep = solve_step(model, linear, settings, st, t_new, dt, inputs,
+                                               idx, x_guess=guess)
+
+        # like the forward run after a cutback: retry without the rate predictor
+        def retry(_):
+            x2, g2, its2, code2, _, _ = solve_step(model, linear, settings, st, t_new, dt,
+                                                   inputs, idx)
+            return x2, g2, its + its2, code2
+
+        x, g, its, code = jax.lax.cond(code == OK, lambda _: (x, g, its, code), retry, None)
+        new = converged_state(model, st, x, g, t_new, inputs, cstep, idx)
+        out = (t_new, die_force(model, x, inputs, t_new, idx), new.friction_work, code, its)
+        return new, out
+
+    final, (t, force, fw, codes, its) = jax.lax.scan(step, state0, times)
+    zero = jnp.zeros((1,), dtype=t.dtype)
+    t_all = jnp.concatenate([zero, t])
+    f0 = die_force(model, state0.x, inputs, jnp.asarray(0.0, t.dtype), idx)
+    factor = 2.0 if symmetric_z else 1.0
+    return Trajectory(
+        time_s=t_all,
+        stroke_mm=factor * jax.vmap(inputs.die.travel)(t_all),
+        force_N=jnp.concatenate([f0[None], force]),
+        friction_work_Nmm=jnp.concatenate([zero, fw]),
+        x=final.x,
+        gauss=final.gauss,
+        positions=model.nodal_positions(final.x, inputs.coords, idx),
+        coords=inputs.coords,
+        codes=codes,
+        iterations=its,
+    )
+
+
+def trajectory(scene: Scene, inputs: Inputs | None = None, times=None) -> Trajectory:
+    """Run ``scene`` (with ``inputs`` in place of ``scene.inputs``) over the step end
+    times ``times`` (default: the scene's schedule).  Traceable and differentiable."""
+    inputs = scene.inputs if inputs is None else inputs
+    times = jnp.asarray(scene.step_targets() if times is None else times)
+    state0 = initial_state_for(scene, inputs)
+    return _trajectory(scene.model, scene.linear, scene.newton, scene.symmetric_z, inputs,
+                       times, state0, scene.idx)
+
+
+def schedule(scene: Scene, inputs: Inputs | None = None) -> np.ndarray:
+    """A step schedule on which every step converges without cutback: run the scene
+    forward (with cutbacks, :func:`jaxform.simulate.simulate`) and split each load step
+    that needed c cutbacks into 2**c equal sub-steps (the cutback halves the sub-step
+    and never grows it again within a load step, so these are no longer than any sub-step
+    the forward run took)."""
+    from dataclasses import replace
+
+    from jaxform.simulate import simulate
+
+    run = scene if inputs is None else replace(scene, inputs=inputs)
+    h = simulate(run).history
+    t, cuts = h["time_s"], h["cutbacks"].astype(int)
+    pieces = [np.linspace(t[k], t[k + 1], 2 ** cuts[k + 1] + 1)[1:] for k in range(len(t) - 1)]
+    return np.concatenate(pieces)
+
+
+def initial_state_for(scene: Scene, inputs: Inputs) -> SimState:
+    """The scene's initial state for given inputs (the material state depends on params)."""
+    from jaxform.formulations import initial_gauss_state
+
+    st = scene.initial_state()
+    g = initial_gauss_state(scene.model.law, inputs.params, scene.model.layout.n_elements)
+    return SimState(x=st.x, gauss=g, t=st.t, x_rate=st.x_rate, friction_work=st.friction_work,
+                    slip_mm=st.slip_mm, contact_status=st.contact_status)
+
+
+def check(traj: Trajectory) -> None:
+    """Raise :class:`GradientRunError` if a step of ``traj`` failed (outside jit only)."""
+    codes = np.asarray(traj.codes)
+    bad = np.flatnonzero(codes != OK)
+    if bad.size:
+        k = int(bad[0])
+        t = float(np.asarray(traj.time_s)[k + 1])
+        raise GradientRunError(
+            f"differentiable run: step {k + 1} (to t = {t:g} s) failed: "
+            f"{CAUSES.get(int(codes[k]), 'unknown')}; the differentiable run has no cutback, "
+            f"use a smaller time.dt_s (or pass a finer step schedule)")
+
+
+def value_and_grad(objective: Callable[[Any, Trajectory], jax.Array], scene: Scene,
+                   design: Any, to_inputs: Callable[[Any], tuple[Inputs, jax.Array]]):
+    """(J, dJ/d design, trajectory) for ``J = objective(design, trajectory(scene, *to_inputs(design)))``.
+
+    ``to_inputs(design) -> (inputs, times)`` maps the design variables (any pytree) to the
+    run's inputs.  Raises :class:`GradientRunError` when a step fails."""
+
+    def j(d):
+        inputs, times = to_inputs(d)
+        traj = trajectory(scene, inputs, times)
+        return objective(d, traj), traj
+
+    (val, traj), grad = jax.value_and_grad(j, has_aux=True)(design)
+    check(traj)
+    return val, grad, traj
