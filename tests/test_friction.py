@@ -11,6 +11,7 @@ from functools import lru_cache
 
 import jax.numpy as jnp
 import numpy as np
+import pytest
 from fd_check import jacobian_fd_error
 
 from jaxform.config import load_config
@@ -88,6 +89,7 @@ def test_jacobian_with_friction_stick_and_slip():
     assert err <= 1e-6, err
 
 
+@pytest.mark.slow  # its own compiled scene (J2, shear); keeps the default suite near 10 min
 def test_thin_disc_shear_friction_against_slab_formula():
     """D/h = 10 disc of a J2 perfectly plastic solid (100 MPa), m = 0.3, 6 % reduction:
     mean die pressure / sigma_f vs 1 + m D/(3 sqrt 3 h) with the current D and h, 5 %."""
