@@ -12,6 +12,11 @@ Scenes are half-height models (symmetry plane z = 0): the top die travels d(t) t
 the mid-plane, ``stroke_mm`` = 2 d(t) and ``force_N`` refer to the whole workpiece (the
 z-component of the contact multipliers, which already include the 2 pi of axisymmetry).
 Each converged step also accumulates the friction work (N mm) and each candidate's slip.
+
+Scenes without a die (a membrane under a traction load, :mod:`jaxform.loads`) have
+``Inputs.die = None`` and no contact candidates; their ``force_N`` is the magnitude of the
+applied load's resultant at the step (N, per mm of depth in plane strain) and
+``stroke_mm`` is 0.
 """
 
 from __future__ import annotations
@@ -31,6 +36,7 @@ from jaxform.contact import ContactStep, nodal_average, shear_bounds, tributary_
 from jaxform.dies import RigidDie
 from jaxform.formulations import CAUSES, OK, GaussState, initial_gauss_state
 from jaxform.linear import LinearSolver
+from jaxform.loads import FacetLoad, external_forces, total_force
 from jaxform.postprocess import extra_history
 from jaxform.precision import require_x64
 from jaxform.solver import NewtonSettings, newton
@@ -55,8 +61,9 @@ class Inputs:
 
     coords: jax.Array  # initial nodal coordinates (mm)
     params: object  # material parameters
-    die: RigidDie  # profile, path and friction coefficients
+    die: RigidDie | None  # profile, path and friction coefficients (None: no die)
     c_contact: jax.Array  # complementarity scale (N/mm), set-up constant
+    load: FacetLoad | None = None  # traction load on idx.load_facets (None: no load)
 
 
 @dataclass(frozen=True)
@@ -74,7 +81,7 @@ class Scene:
     t_end: float
     max_cutbacks: int
     chunk: int
-    kind: str = "billet"  # workpiece: 'billet' or 'ring'
+    kind: str = "billet"  # workpiece: 'billet', 'ring', 'block' or 'membrane'
     symmetric_z: bool = True  # half-height model: stroke = 2 x die travel
 
     @property
@@ -134,13 +141,14 @@ def solve_step(model: Model, linear: LinearSolver, settings: NewtonSettings,
     Returns (x, gauss, its, code, hist, cstep)."""
     cstep = contact_step(model, state, inp, idx)
     args = (inp.coords, t_new, dt, inp.params, inp.die, inp.c_contact, cstep, idx)
+    f_ext = applied_forces(model, inp, t_new, idx)
 
     def residual(x):
-        r, g, code, scale = model.residual(x, state.gauss, *args)
+        r, g, code, scale = model.residual(x, state.gauss, *args, f_ext=f_ext)
         return r, g, code, scale
 
     def residual_and_jacobian(x):
-        return model.residual_and_jacobian(x, state.gauss, *args)
+        return model.residual_and_jacobian(x, state.gauss, *args, f_ext=f_ext)
 
     def lin(vals, b):
         return linear.solve(idx.rows, idx.cols, vals, b, model.layout.n_dofs)
@@ -195,9 +203,24 @@ def macro_step(model, linear, settings, max_cutbacks, state: SimState, t_target,
     return out["state"], info
 
 
+def applied_forces(model: Model, inp: Inputs, t, idx: Indices):
+    """External nodal forces of the scene's traction load at time t (None without a load)."""
+    if inp.load is None:
+        return None
+    lay = model.layout
+    return external_forces(inp.load, t, inp.coords, idx.load_facets,
+                           model.formulation.axisymmetric, lay.n_fields, lay.n_dofs)
+
+
 def die_force(model: Model, x, inp: Inputs, t, idx: Indices):
     """Ram force (N, positive in compression): minus the z-component of the force the die
-    puts on the workpiece, lambda_n n + lambda_t t summed over the candidates."""
+    puts on the workpiece, lambda_n n + lambda_t t summed over the candidates.  Without a
+    die: the magnitude of the applied load's resultant at t (0 without a load)."""
+    if inp.die is None:
+        if inp.load is None:
+            return jnp.zeros((), dtype=x.dtype)
+        res = total_force(inp.load, inp.coords, idx.load_facets, model.formulation.axisymmetric)
+        return inp.load.factor(t) * jnp.sqrt(jnp.sum(res**2))
     pos = model.nodal_positions(x, inp.coords, idx)[idx.contact_nodes]
     _, n, tan = jax.vmap(lambda p: inp.die.gap(p, t))(pos)
     lam = x[idx.mult_dofs]
@@ -208,7 +231,8 @@ def step_outputs(model: Model, state: SimState, inp: Inputs, idx: Indices, symme
     """Scalars and fields recorded after each step."""
     return dict(
         time_s=state.t,
-        stroke_mm=(2.0 if symmetric_z else 1.0) * inp.die.travel(state.t),
+        stroke_mm=(jnp.zeros_like(state.t) if inp.die is None
+                   else (2.0 if symmetric_z else 1.0) * inp.die.travel(state.t)),
         force_N=die_force(model, state.x, inp, state.t, idx),
         friction_work_Nmm=state.friction_work,
         x=state.x,
