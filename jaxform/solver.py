@@ -72,7 +72,10 @@ def newton(residual, residual_and_jacobian, linear_solve, x0, settings: NewtonSe
             return (k + 1, alpha) + trial(alpha)
 
         lc0 = (0, jnp.asarray(1.0, x.dtype)) + trial(jnp.asarray(1.0, x.dtype))
-        _, _, xt, rt, auxt, codet, scalet = jax.lax.while_loop(ls_cond, ls_body, lc0)
+        if s.line_search:
+            _, _, xt, rt, auxt, codet, scalet = jax.lax.while_loop(ls_cond, ls_body, lc0)
+        else:  # not traced at all: the backtracking loop costs ~5 s of compile time
+            _, _, xt, rt, auxt, codet, scalet = lc0
         rtn = jnp.linalg.norm(rt)
         conv = (codet == OK) & (rtn <= s.rtol * scalet)
         hist = hist.at[it + 1].set(rtn / scalet)
