@@ -12,6 +12,11 @@ unique slot.  Contact changes never change the pattern.
 In jit: element residuals are vmapped over elements; their Jacobians come from
 ``jax.jacfwd`` of the same function (no hand-derived tangent), and are summed into the
 pattern with one segment_sum.  Dirichlet rows become identity rows.
+
+External (dead) loads enter as a given force vector: R = f_int + contact - f_ext
+(:mod:`jaxform.loads`).  A scene without contact candidates (n_contact = 0, e.g. a clamped
+membrane under a traction) has no multipliers and no die: the contact terms are left out
+of the compiled program altogether.
 """
 
 from __future__ import annotations
@@ -43,6 +48,7 @@ class Indices:
     cols: jax.Array
     slot: jax.Array  # (n_raw,) raw entry -> unique slot
     bottom_reaction_dofs: jax.Array  # (n,) u_z dofs on the symmetry plane (for checks)
+    load_facets: jax.Array  # (n_lf, 2) node ids of the facets carrying a traction load
 
 
 @dataclass(frozen=True)
@@ -66,8 +72,10 @@ class Layout:
 
 def build_indices(mesh, n_fields: int, fixed_dofs: np.ndarray, contact_nodes: np.ndarray,
                   reaction_dofs: np.ndarray | None = None,
-                  contact_facets: np.ndarray | None = None) -> tuple[Layout, Indices]:
-    """contact_facets: (n_f, 2) node pairs of the free surface (for contact areas)."""
+                  contact_facets: np.ndarray | None = None,
+                  load_facets: np.ndarray | None = None) -> tuple[Layout, Indices]:
+    """contact_facets: (n_f, 2) node pairs of the free surface (for contact areas);
+    load_facets: (n_lf, 2) node pairs of the boundary carrying a traction load."""
     nf = n_fields
     n_nodes = mesh.n_nodes
     elements = np.asarray(mesh.elements, dtype=np.int64)
@@ -104,6 +112,8 @@ def build_indices(mesh, n_fields: int, fixed_dofs: np.ndarray, contact_nodes: np
         bottom_reaction_dofs=jnp.asarray(
             reaction_dofs if reaction_dofs is not None else np.zeros(0, np.int64),
             dtype=jnp.int32),
+        load_facets=jnp.asarray(np.zeros((0, 2), np.int64) if load_facets is None
+                                else np.asarray(load_facets, dtype=np.int64), dtype=jnp.int32),
     )
     return layout, idx
 
@@ -149,11 +159,13 @@ class Model:
 
     # -- global ---------------------------------------------------------------------
     def residual(self, x, gstate: GaussState, coords, t, dt, params, die, c_contact,
-                 cstep: ContactStep, idx: Indices):
-        """Global residual; returns (R, new Gauss state, status code, force scale)."""
+                 cstep: ContactStep, idx: Indices, f_ext=None):
+        """Global residual; returns (R, new Gauss state, status code, force scale).
+        f_ext: external nodal forces (n_dofs,) at t, or None."""
         fn = self._element_fn(params, dt)
         r_e, (_, gnew, ok_e) = jax.vmap(fn)(self._gather(x, idx), coords[idx.elements], gstate)
-        return self._finish_residual(x, r_e, gnew, ok_e, coords, t, die, c_contact, cstep, idx)
+        return self._finish_residual(x, r_e, gnew, ok_e, coords, t, die, c_contact, cstep, idx,
+                                     f_ext)
 
     def _contact_fn(self, die, t, c_contact, cstep):
         def fn(v, k):  # v = (x_r, x_z, lambda_n, lambda_t) of candidate k
@@ -168,22 +180,29 @@ class Model:
 
     def contact_report(self, x, coords, t, die, c_contact, cstep: ContactStep, idx: Indices):
         """Per candidate at a converged x: (status 0/1/2, normal, tangent, slip increment)."""
+        if self.layout.n_contact == 0:
+            z = jnp.zeros((0, 2), dtype=x.dtype)
+            return jnp.zeros(0, jnp.int32), z, z, jnp.zeros(0, dtype=x.dtype)
         v = self._contact_vars(x, coords, idx)
         return jax.vmap(lambda vk, k: self.contact.pair_status(
             die, vk[:2], vk[2:], t, c_contact, cstep, k))(v, jnp.arange(self.layout.n_contact))
 
     def residual_and_jacobian(self, x, gstate, coords, t, dt, params, die, c_contact,
-                              cstep: ContactStep, idx: Indices):
-        """(R, Jacobian values on the pattern, new Gauss state, status code, force scale)."""
+                              cstep: ContactStep, idx: Indices, f_ext=None):
+        """(R, Jacobian values on the pattern, new Gauss state, status code, force scale).
+        A dead load f_ext adds nothing to the Jacobian."""
         fn = self._element_fn(params, dt)
         k_e, (r_e, gnew, ok_e) = jax.vmap(jax.jacfwd(fn, has_aux=True))(
             self._gather(x, idx), coords[idx.elements], gstate
         )
         r, gnew, ok, scale = self._finish_residual(x, r_e, gnew, ok_e, coords, t, die,
-                                                   c_contact, cstep, idx)
+                                                   c_contact, cstep, idx, f_ext)
         # contact blocks (4 x 4 per candidate)
-        k_c = jax.vmap(jax.jacfwd(self._contact_fn(die, t, c_contact, cstep)))(
-            self._contact_vars(x, coords, idx), jnp.arange(self.layout.n_contact))
+        if self.layout.n_contact:
+            k_c = jax.vmap(jax.jacfwd(self._contact_fn(die, t, c_contact, cstep)))(
+                self._contact_vars(x, coords, idx), jnp.arange(self.layout.n_contact))
+        else:
+            k_c = jnp.zeros((0, 4, 4), dtype=x.dtype)
         n = self.layout.n_dofs
         raw = jnp.concatenate([k_e.ravel(), k_c.ravel(), jnp.zeros(n, dtype=x.dtype)])
         vals = jax.ops.segment_sum(raw, idx.slot, num_segments=self.layout.n_nonzeros)
@@ -193,18 +212,24 @@ class Model:
         vals = jnp.where(is_fixed, jnp.where(idx.rows == idx.cols, 1.0, 0.0), vals)
         return r, vals, gnew, ok, scale
 
-    def _finish_residual(self, x, r_e, gnew, ok_e, coords, t, die, c_contact, cstep, idx):
+    def _finish_residual(self, x, r_e, gnew, ok_e, coords, t, die, c_contact, cstep, idx,
+                         f_ext=None):
         n = self.layout.n_dofs
         r = jnp.zeros(n, dtype=x.dtype).at[idx.edofs].add(r_e)
         lam = x[idx.mult_dofs]
-        rc = jax.vmap(self._contact_fn(die, t, c_contact, cstep))(
-            self._contact_vars(x, coords, idx), jnp.arange(self.layout.n_contact))
-        r = r.at[idx.contact_dofs].add(rc[:, :2])
-        r = r.at[idx.mult_dofs].set(rc[:, 2:])
+        if self.layout.n_contact:
+            rc = jax.vmap(self._contact_fn(die, t, c_contact, cstep))(
+                self._contact_vars(x, coords, idx), jnp.arange(self.layout.n_contact))
+            r = r.at[idx.contact_dofs].add(rc[:, :2])
+            r = r.at[idx.mult_dofs].set(rc[:, 2:])
+        if f_ext is not None:
+            r = r - f_ext
         r = r.at[idx.fixed].set(x[idx.fixed])
         nf = self.layout.n_fields
         r_u_e = r_e.reshape(r_e.shape[0], 4, nf)[:, :, :2]
         scale = jnp.maximum(jnp.sqrt(jnp.sum(r_u_e**2)), jnp.linalg.norm(lam))
+        if f_ext is not None:
+            scale = jnp.maximum(scale, jnp.linalg.norm(f_ext))
         code = jnp.max(ok_e)
         code = jnp.where(jnp.all(jnp.isfinite(r)), code, NOT_FINITE)
         return r, gnew, code, scale

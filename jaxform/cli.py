@@ -109,8 +109,8 @@ def _run(args) -> int:
           f"iterations, {int(h['cutbacks'].sum())} cutbacks, final force {h['force_N'][-1]:.2f} N, "
           f"{time.perf_counter() - t0:.1f} s wall (first chunk incl. compile "
           f"{first[0] if first else 0:.1f} s)")
-    print(f"outputs in {args.out}: history.csv, config.toml, fields.pvd, force_stroke.png, "
-          f"deformed_mesh.png, eqps.png")
+    written = sorted(p.name for p in Path(args.out).iterdir() if p.is_file())
+    print(f"outputs in {args.out}: {', '.join(written)}")
     return 0
 
 

@@ -70,9 +70,47 @@ SCHEMA: dict[str, dict[str, Field]] = {
                                    doc="ring inner diameter (mm), < outer"),
         "height_mm": Field("float", None, 0.0, None, False, False, doc="ring height (mm)"),
     },
+    "block": {
+        "width_mm": Field("float", None, 0.0, None, False, False,
+                          doc="plane-strain block for indentation: modelled half-width from the "
+                              "symmetry line x = 0 (mm)"),
+        "depth_mm": Field("float", None, 0.0, None, False, False,
+                          doc="block depth (mm): frictionless support at y = 0, indented face at "
+                              "y = depth"),
+        "fine_width_mm": Field("float", None, 0.0, None, False, False,
+                               doc="width of the zone of equal elements at the indented face "
+                                   "(mm), <= block.width_mm"),
+        "fine_depth_mm": Field("float", None, 0.0, None, False, False,
+                               doc="depth of the zone of equal elements below the indented face "
+                                   "(mm), <= block.depth_mm"),
+        "growth": Field("float", 1.2, 1.0, 3.0, False, True,
+                        doc="size ratio of neighbouring elements outside the fine zone"),
+    },
+    "membrane": {
+        "corners_mm": Field("points", None,
+                            doc="the 4 corners [x_mm, y_mm] of a convex plane-strain panel, "
+                                "counter-clockwise; edges: bottom 1-2, right 2-3, top 3-4, left 4-1"),
+        "clamped_edge": Field("str", "left", choices=("bottom", "right", "top", "left"),
+                              doc="edge with u = 0"),
+        "tip_mm": Field("floats", [], doc="[x_mm, y_mm] of the point whose displacement the "
+                        "history records as tip_ux_mm, tip_uy_mm (nearest node; [] = corner 3)"),
+    },
+    "load": {
+        "edge": Field("str", "right", choices=("bottom", "right", "top", "left"),
+                      doc="membrane edge carrying a uniform dead traction"),
+        "force_x_N": Field("float", 0.0, doc="x-resultant of the traction (N per mm of depth), "
+                           "spread uniformly over the edge's initial length"),
+        "force_y_N": Field("float", 0.0, doc="y-resultant of the traction (N per mm of depth), "
+                           "spread uniformly over the edge's initial length"),
+        "ramp_time_s": Field("float", 1.0, 0.0, None, False, False,
+                             doc="the load grows linearly from 0 to full over this time (s); "
+                                 "the run ends there"),
+    },
     "mesh": {
-        "nr": Field("int", 10, 1, 2000, doc="elements across the radius of the quarter section"),
-        "nz": Field("int", 10, 1, 2000, doc="elements along the half height of the quarter section"),
+        "nr": Field("int", 10, 1, 2000, doc="elements across the radius of the quarter section "
+                    "(block: across the fine zone; membrane: along edges bottom and top)"),
+        "nz": Field("int", 10, 1, 2000, doc="elements along the half height of the quarter section "
+                    "(block: down the fine zone; membrane: along edges left and right)"),
         "element": Field("str", "q1q1", choices=("q1q1", "q1p0", "q4"),
                          doc="element formulation: stabilized mixed u-p (seed), "
                              "mean-dilatation F-bar, plain displacement"),
@@ -91,11 +129,11 @@ SCHEMA: dict[str, dict[str, Field]] = {
     "die": {
         "speed_mm_s": Field("float", None, 0.0, None, False, False,
                             doc="ram speed (mm/s): the dies close at this speed (each moves at "
-                                "half of it towards the mid-plane); required unless a path "
-                                "table is given"),
+                                "half of it towards the mid-plane; a block's die at all of it); "
+                                "required unless a path table is given"),
         "reduction": Field("float", None, 0.0, 1.0, False, False,
-                           doc="final height reduction (fraction of the initial height); the "
-                               "run ends when the ram stroke reaches it"),
+                           doc="final height reduction (fraction of the initial height; block: "
+                               "of its depth); the run ends when the ram stroke reaches it"),
         "profile_mm": Field("points", [], doc="top-die profile as [r_mm, z_mm] points at t = 0, "
                             "walked with the workpiece on the right (from the axis outward for "
                             "a top die); [] = flat die on the billet's top face"),
@@ -179,8 +217,32 @@ SCHEMA: dict[str, dict[str, Field]] = {
     },
 }
 
-# Exactly one workpiece section: a solid billet or a ring.
-WORKPIECES = ("billet", "ring")
+# Exactly one workpiece section: a solid billet, a ring, an indented block (all pressed by
+# a die) or a membrane (clamped, loaded by a traction; no die).
+WORKPIECES = ("billet", "ring", "block", "membrane")
+# sections that only some workpieces use
+_DIE_SECTIONS = ("die", "friction")
+_LOAD_SECTIONS = ("load",)
+
+
+def _workpiece(raw: dict) -> str:
+    given = [w for w in WORKPIECES if w in raw]
+    if len(given) != 1:
+        raise ConfigError(f"give exactly one workpiece section, "
+                          f"{', '.join(f'[{w}]' for w in WORKPIECES)} "
+                          f"(found {', '.join(given) or 'none'})")
+    return given[0]
+
+
+def _applies(section: str, kind: str) -> bool:
+    """Whether a section belongs in a scene with workpiece ``kind``."""
+    if section in WORKPIECES:
+        return section == kind
+    if section in _DIE_SECTIONS:
+        return kind != "membrane"
+    if section in _LOAD_SECTIONS:
+        return kind == "membrane"
+    return True
 
 
 def _parse_override(text: str) -> tuple[str, str, Any]:
@@ -257,10 +319,18 @@ def _check_list(name: str, f: Field, value: Any) -> list:
 
 def _cross_checks(raw: dict, out: dict) -> None:
     """Rules that involve several keys."""
-    given = [w for w in WORKPIECES if w in raw]
-    if len(given) != 1:
-        raise ConfigError(f"give exactly one workpiece section, [billet] or [ring] "
-                          f"(found {', '.join(given) or 'none'})")
+    if "membrane" in out:
+        _membrane_checks(out)
+        return
+    if "block" in out:
+        b = out["block"]
+        for fine, full in (("fine_width_mm", "width_mm"), ("fine_depth_mm", "depth_mm")):
+            if b[fine] > b[full]:
+                raise ConfigError(f"block.{fine} = {b[fine]!r}: must be <= block.{full} = "
+                                  f"{b[full]!r}")
+    if out["die"]["reduction"] is None:
+        f = SCHEMA["die"]["reduction"]
+        raise ConfigError(f"missing required key die.reduction (float in {f.allowed()}): {f.doc}")
     if "ring" in out:
         r = out["ring"]
         if r["inner_diameter_mm"] >= r["outer_diameter_mm"]:
@@ -291,8 +361,36 @@ def _cross_checks(raw: dict, out: dict) -> None:
         raise ConfigError("friction.model = 'shear' needs friction.m (float in [0, 1])")
 
 
+def _membrane_checks(out: dict) -> None:
+    m, ld = out["membrane"], out["load"]
+    if out["mesh"]["geometry"] != "plane_strain":
+        raise ConfigError(f"mesh.geometry = {out['mesh']['geometry']!r}: a [membrane] scene is "
+                          f"plane strain; set mesh.geometry = 'plane_strain'")
+    c = m["corners_mm"]
+    if len(c) != 4:
+        raise ConfigError(f"membrane.corners_mm: needs exactly 4 [x_mm, y_mm] corners, got "
+                          f"{len(c)}")
+    turns = []
+    for i in range(4):
+        (x0, y0), (x1, y1), (x2, y2) = c[i], c[(i + 1) % 4], c[(i + 2) % 4]
+        turns.append((x1 - x0) * (y2 - y1) - (y1 - y0) * (x2 - x1))
+    if min(turns) <= 0.0:
+        raise ConfigError(f"membrane.corners_mm = {c!r}: the corners must form a convex "
+                          f"quadrilateral, listed counter-clockwise")
+    if m["tip_mm"] and len(m["tip_mm"]) != 2:
+        raise ConfigError(f"membrane.tip_mm = {m['tip_mm']!r}: must be [x_mm, y_mm] or []")
+    if ld["edge"] == m["clamped_edge"]:
+        raise ConfigError(f"load.edge = {ld['edge']!r}: must differ from membrane.clamped_edge")
+    for key in ("force_x_N", "force_y_N"):
+        if not math.isfinite(ld[key]):
+            raise ConfigError(f"load.{key} = {ld[key]!r}: must be finite")
+    if ld["force_x_N"] == 0.0 and ld["force_y_N"] == 0.0:
+        raise ConfigError("load.force_x_N and load.force_y_N are both 0: give the load's "
+                          "resultant (N per mm of depth)")
+
+
 # keys that may be left out even though they have no default (checked in _cross_checks)
-_CONDITIONAL = {("die", "speed_mm_s")}
+_CONDITIONAL = {("die", "speed_mm_s"), ("die", "reduction")}
 
 
 def load_config(path_or_dict: str | PathLike | dict, overrides: Iterable[str] = ()) -> dict:
@@ -322,9 +420,14 @@ def load_config(path_or_dict: str | PathLike | dict, overrides: Iterable[str] = 
             if key not in SCHEMA[section]:
                 raise ConfigError(f"unknown key {section}.{key}; allowed keys of [{section}]: "
                                   f"{', '.join(SCHEMA[section])}")
+    kind = _workpiece(raw)
+    for section in raw:
+        if not _applies(section, kind):
+            raise ConfigError(f"[{section}] does not apply to a [{kind}] scene; allowed sections: "
+                              f"{', '.join(s for s in SCHEMA if _applies(s, kind))}")
     out: dict[str, dict[str, Any]] = {}
     for section, fields in SCHEMA.items():
-        if section in WORKPIECES and section not in raw:
+        if not _applies(section, kind):
             continue
         given = raw.get(section, {})
         out[section] = {}

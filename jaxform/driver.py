@@ -45,8 +45,13 @@ def write_outputs(out_dir: str | Path, result: Result) -> None:
     scene = result.scene
     cfg = scene.config
     h = result.history
-    cols = {k: h[k] for k in ("time_s", "stroke_mm", "force_N", "newton_iterations",
-                              "cutbacks", "friction_work_Nmm")}
+    if scene.kind == "membrane":  # no die: the applied load and the tip displacement
+        cols = {"time_s": h["time_s"], "load_N": h["force_N"], "tip_ux_mm": h["tip_ux_mm"],
+                "tip_uy_mm": h["tip_uy_mm"], "newton_iterations": h["newton_iterations"],
+                "cutbacks": h["cutbacks"]}
+    else:
+        cols = {k: h[k] for k in ("time_s", "stroke_mm", "force_N", "newton_iterations",
+                                  "cutbacks", "friction_work_Nmm")}
     cols.update({k: h[k] for k in ("inner_diameter_mm", "outer_diameter_mm", "die_fill") if k in h})
     write_csv(out / "history.csv", cols)
     dump_config(cfg, out / "config.toml")
@@ -59,17 +64,37 @@ def write_outputs(out_dir: str | Path, result: Result) -> None:
         u, _, _ = nodal_fields(scene, result.fields["x"][-1])
         coords1 = coords0 + u
         el = np.asarray(scene.mesh.elements)
-        height = cfg["billet" if "billet" in cfg else "ring"]["height_mm"]
+        mesh_text = f"{cfg['mesh']['element']}, {cfg['mesh']['nr']}x{cfg['mesh']['nz']}"
+        axes = (("r [mm]", "z [mm]") if cfg["mesh"]["geometry"] == "axisymmetric"
+                else ("x [mm]", "y [mm]"))
+        if scene.kind == "membrane":
+            _membrane_plots(out, result, coords0, coords1, el, mesh_text, axes)
+            return
+        height = cfg[scene.kind]["depth_mm" if scene.kind == "block" else "height_mm"]
         red = 100.0 * h["stroke_mm"][-1] / height
         plot.force_stroke(h["stroke_mm"], h["force_N"], out / "force_stroke.png",
-                          f"{cfg['mesh']['element']}, {cfg['mesh']['nr']}x{cfg['mesh']['nz']}, "
-                          f"friction {cfg['friction']['model']}")
+                          f"{mesh_text}, friction {cfg['friction']['model']}")
         plot.deformed_mesh(coords0, coords1, el, out / "deformed_mesh.png",
-                           f"initial and deformed mesh, {red:.1f} % reduction")
+                           f"initial and deformed mesh, {red:.1f} % reduction", axes)
         plot.cell_contours(coords1, el, result.fields["eqps"][-1].mean(axis=1),
                            out / "eqps.png", f"equivalent plastic strain, {red:.1f} % reduction",
-                           "equivalent plastic strain [-]")
+                           "equivalent plastic strain [-]", axes)
         _contact_plot(out / "contact_profile.png", result)
+
+
+def _membrane_plots(out: Path, result: Result, coords0, coords1, el, mesh_text: str,
+                    axes) -> None:
+    """Load against tip displacement, deformed mesh, pressure on the deformed mesh."""
+    from jaxform import plot
+
+    h = result.history
+    plot.load_displacement(h["tip_uy_mm"], h["force_N"], out / "load_displacement.png",
+                           f"{mesh_text}: load against tip displacement")
+    plot.deformed_mesh(coords0, coords1, el, out / "deformed_mesh.png",
+                       "initial and deformed mesh (displacements to scale)", axes)
+    stress = result.fields["stress"][-1].mean(axis=1)
+    plot.cell_contours(coords1, el, -np.trace(stress, axis1=1, axis2=2) / 3.0,
+                       out / "pressure.png", "pressure (element mean)", "pressure [MPa]", axes)
 
 
 def _contact_plot(path: Path, result: Result) -> None:

@@ -80,3 +80,16 @@ def virtual_work_residual(p1: jax.Array, dndx, radius, weight, axisymmetric: boo
 def first_piola(cauchy: jax.Array, f: jax.Array) -> jax.Array:
     """P = J sigma F^-T at each Gauss point."""
     return det3(f)[:, None, None] * jnp.einsum("gij,gkj->gik", cauchy, inv3(f))
+
+
+def facet_forces(x_a: jax.Array, x_b: jax.Array, traction: jax.Array, axisymmetric: bool):
+    """Consistent nodal forces (2 nodes, 2) of a uniform traction (2,) on the straight
+    2-node facet from x_a to x_b (reference coordinates, mm): the integral of the linear
+    shape functions times the traction over the facet, L/2 each in plane strain (per mm of
+    depth), 2 pi L (2 r_a + r_b)/6 and 2 pi L (r_a + 2 r_b)/6 over the full ring."""
+    length = jnp.sqrt(jnp.sum((x_b - x_a) ** 2))
+    if axisymmetric:
+        w = 2.0 * jnp.pi * length * jnp.stack([2.0 * x_a[0] + x_b[0], x_a[0] + 2.0 * x_b[0]]) / 6.0
+    else:
+        w = 0.5 * length * jnp.ones(2, dtype=x_a.dtype)
+    return w[:, None] * traction[None, :]

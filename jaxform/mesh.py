@@ -66,10 +66,98 @@ def rectangle(width: float, height: float, nx: int, ny: int, origin=(0.0, 0.0)) 
         raise MeshError(f"rectangle {width} x {height} mm: both sides must be > 0")
     x = origin[0] + np.linspace(0.0, width, nx + 1)
     y = origin[1] + np.linspace(0.0, height, ny + 1)
+    return tensor_grid(x, y)
+
+
+def tensor_grid(x: np.ndarray, y: np.ndarray) -> Mesh:
+    """Mesh of the tensor grid of increasing node coordinates x (nx+1,) and y (ny+1,),
+    with sets left/right/bottom/top."""
+    x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+    if x.size < 2 or y.size < 2 or np.any(np.diff(x) <= 0) or np.any(np.diff(y) <= 0):
+        raise MeshError("tensor grid: node coordinates must increase, at least 2 per direction")
     xs, ys = np.meshgrid(x, y)
     coords, elements = _structured(xs, ys)
+    nodes, facets = _grid_sets(x.size - 1, y.size - 1)
+    return Mesh(coords, elements, nodes, facets)
+
+
+def mapped_quad(corners, nx: int, ny: int) -> Mesh:
+    """Structured nx x ny mesh of the quadrilateral with ``corners`` (4, 2), counter-clockwise,
+    by the bilinear map of the unit square (a Coons patch with straight edges).
+
+    Edges and their sets: ``bottom`` corner 0 -> 1, ``right`` 1 -> 2, ``top`` 2 -> 3,
+    ``left`` 3 -> 0 (logical directions: nx elements along bottom/top, ny along left/right).
+    Cook's membrane: corners (0, 0), (48, 44), (48, 60), (0, 44) mm.
+    """
+    c = np.asarray(corners, dtype=float)
+    if c.shape != (4, 2) or not np.all(np.isfinite(c)):
+        raise MeshError(f"quadrilateral corners: need 4 finite [x, y] points, got shape {c.shape}")
+    if nx < 1 or ny < 1:
+        raise MeshError(f"mesh size {nx} x {ny}: both counts must be >= 1")
+    # convex and counter-clockwise: every turn is to the left
+    d = np.roll(c, -1, axis=0) - c
+    turns = d[:, 0] * np.roll(d, -1, axis=0)[:, 1] - d[:, 1] * np.roll(d, -1, axis=0)[:, 0]
+    if np.any(turns <= 0):
+        raise MeshError("quadrilateral corners: must be convex and counter-clockwise")
+    s, t = np.meshgrid(np.linspace(0.0, 1.0, nx + 1), np.linspace(0.0, 1.0, ny + 1))
+    s, t = s[..., None], t[..., None]
+    pts = ((1 - s) * (1 - t) * c[0] + s * (1 - t) * c[1] + s * t * c[2] + (1 - s) * t * c[3])
+    coords, elements = _structured(pts[..., 0], pts[..., 1])
     nodes, facets = _grid_sets(nx, ny)
     return Mesh(coords, elements, nodes, facets)
+
+
+def graded_nodes(length: float, fine_length: float, n_fine: int, growth: float) -> np.ndarray:
+    """Node coordinates on [0, length]: n_fine equal elements on [0, fine_length], then
+    elements that grow geometrically by about ``growth`` (> 1) each up to ``length``.
+
+    The ratio is adjusted so that the last node lands on ``length`` exactly and the first
+    coarse element is no smaller than the fine ones."""
+    if not (0 < fine_length <= length) or n_fine < 1:
+        raise MeshError(f"graded nodes: need 0 < fine length {fine_length} <= length {length} "
+                        f"and n_fine >= 1")
+    fine = np.linspace(0.0, fine_length, n_fine + 1)
+    rest = length - fine_length
+    h = fine_length / n_fine
+    if rest <= 1e-12 * length:
+        return fine
+    if growth <= 1.0:
+        raise MeshError(f"graded nodes: growth {growth} must be > 1")
+    # fewest elements with sizes h q^k (k = 1..n, q <= growth) that cover the rest
+    n = 1
+    while h * sum(growth**k for k in range(1, n + 1)) < rest:
+        n += 1
+    lo, hi = 1.0, growth  # the ratio q that fits exactly: sum_k h q^k = rest (bisection)
+    if h * n >= rest:  # n equal elements of size >= h already too long: make them equal
+        sizes = np.full(n, rest / n)
+    else:
+        for _ in range(200):
+            q = 0.5 * (lo + hi)
+            if h * np.sum(q ** np.arange(1, n + 1)) < rest:
+                lo = q
+            else:
+                hi = q
+        sizes = h * q ** np.arange(1, n + 1)
+        sizes *= rest / sizes.sum()
+    return np.concatenate([fine, fine_length + np.cumsum(sizes)])
+
+
+def block(width: float, depth: float, fine_width: float, fine_depth: float, nx: int, ny: int,
+          growth: float) -> Mesh:
+    """Plane-strain block [0, width] x [0, depth] for indentation from the top, symmetric
+    about x = 0: nx x ny equal elements in the corner zone [0, fine_width] x
+    [depth - fine_depth, depth] under the punch, growing geometrically outside it.
+
+    Sets: ``axis`` (x = 0, the symmetry line), ``base`` (y = 0), ``top`` (y = depth),
+    ``side`` (x = width), ``free_surface`` (top and side)."""
+    x = graded_nodes(width, fine_width, nx, growth)
+    y = depth - graded_nodes(depth, fine_depth, ny, growth)[::-1]
+    mesh = tensor_grid(x, y)
+    n, f = mesh.node_sets, mesh.facet_sets
+    nodes = {"axis": n["left"], "base": n["bottom"], "top": n["top"], "side": n["right"],
+             "free_surface": np.union1d(n["top"], n["right"])}
+    facets = {"axis": f["left"], "base": f["bottom"], "top": f["top"], "side": f["right"]}
+    return Mesh(mesh.coords, mesh.elements, nodes, facets)
 
 
 def billet_quarter(

@@ -39,13 +39,20 @@ def force_stroke(stroke_mm, force_n, path: Path, title: str, reference=None):
     _finish_curve(fig, ax, path, title, "stroke [mm]", "ram force [N]")
 
 
+def load_displacement(u_mm, load_n, path: Path, title: str):
+    fig, ax = plt.subplots(figsize=(6, 4.2))
+    ax.plot(u_mm, load_n, "o-", ms=3, label="jaxform")
+    _finish_curve(fig, ax, path, title, "tip displacement u_y [mm]", "load [N per mm depth]")
+
+
 def _quads(coords, elements):
     from matplotlib.collections import PolyCollection
 
     return PolyCollection(coords[elements], closed=True)
 
 
-def deformed_mesh(coords0, coords1, elements, path: Path, title: str):
+def deformed_mesh(coords0, coords1, elements, path: Path, title: str,
+                  axes=("r [mm]", "z [mm]")):
     """Deformed mesh (blue) over the initial mesh (grey), as thesis Fig. 6.4."""
     fig, ax = plt.subplots(figsize=(6, 5))
     for c, style in ((coords0, dict(edgecolor="0.6", facecolor="none", lw=0.8)),
@@ -57,15 +64,16 @@ def deformed_mesh(coords0, coords1, elements, path: Path, title: str):
     ax.set_xlim(allc[:, 0].min() - 0.1, allc[:, 0].max() * 1.05 + 0.1)
     ax.set_ylim(allc[:, 1].min() - 0.1, allc[:, 1].max() * 1.05 + 0.1)
     ax.set_aspect("equal")
-    ax.set_xlabel("r [mm]")
-    ax.set_ylabel("z [mm]")
+    ax.set_xlabel(axes[0])
+    ax.set_ylabel(axes[1])
     ax.set_title(title)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
 
 
-def cell_contours(coords, elements, values, path: Path, title: str, label: str):
+def cell_contours(coords, elements, values, path: Path, title: str, label: str,
+                  axes=("r [mm]", "z [mm]")):
     """Cell values (e.g. equivalent plastic strain) on the deformed mesh, as thesis Fig. 6.6."""
     fig, ax = plt.subplots(figsize=(6, 5))
     pc = _quads(coords, elements)
@@ -77,8 +85,8 @@ def cell_contours(coords, elements, values, path: Path, title: str, label: str):
     ax.set_xlim(coords[:, 0].min(), coords[:, 0].max() * 1.02)
     ax.set_ylim(coords[:, 1].min(), coords[:, 1].max() * 1.02)
     ax.set_aspect("equal")
-    ax.set_xlabel("r [mm]")
-    ax.set_ylabel("z [mm]")
+    ax.set_xlabel(axes[0])
+    ax.set_ylabel(axes[1])
     ax.set_title(title)
     fig.colorbar(pc, ax=ax, label=label)
     fig.tight_layout()

@@ -2,10 +2,13 @@
 
 * ring scenes: ``inner_diameter_mm`` and ``outer_diameter_mm`` at the ring's mid-height
   (the nodes of the inner/outer surface on the symmetry plane);
+* membrane scenes: ``tip_ux_mm`` and ``tip_uy_mm``, the displacement of the ``tip`` node;
 * closed dies: ``die_fill`` = material volume / volume of the cavity enclosed by the die
   profile, the axis and the mid-plane (Pappus: V = 2 pi * integral of r dA);
 * contact profiles along the die: normal pressure and shear traction (multiplier over
-  the node's contact area, MPa), status (0 open, 1 stick, 2 slip), accumulated slip.
+  the node's contact area, MPa), status (0 open, 1 stick, 2 slip), accumulated slip;
+* the pressure-oscillation measure of equal-order u-p (q1q1): how far the nodal pressure
+  departs from its element-patch average (checkerboard modes).
 """
 
 from __future__ import annotations
@@ -65,12 +68,16 @@ def cavity_volume(scene, t: float) -> float:
 
 def extra_history(scene, xs: np.ndarray, times: np.ndarray) -> dict[str, np.ndarray]:
     out: dict[str, np.ndarray] = {}
+    if scene.kind == "membrane":
+        k = int(scene.mesh.node_sets["tip"][0])
+        u = np.array([nodal_fields(scene, x)[0][k] for x in xs])
+        out["tip_ux_mm"], out["tip_uy_mm"] = u[:, 0], u[:, 1]
     if scene.kind == "ring":
         ki, ko = _mid_height_node(scene, "inner"), _mid_height_node(scene, "outer")
         pos = [positions(scene, x) for x in xs]
         out["inner_diameter_mm"] = np.array([2.0 * p[ki, 0] for p in pos])
         out["outer_diameter_mm"] = np.array([2.0 * p[ko, 0] for p in pos])
-    if scene.config["die"]["closed"]:
+    if "die" in scene.config and scene.config["die"]["closed"]:
         out["die_fill"] = np.array([
             material_volume(scene, positions(scene, x)) / max(cavity_volume(scene, t), 1e-300)
             for x, t in zip(xs, times)])
@@ -94,3 +101,27 @@ def contact_profile(scene, x: np.ndarray, slip_mm: np.ndarray, status: np.ndarra
     return dict(r_mm=pos[:, 0], z_mm=pos[:, 1], pressure_MPa=lam[:, 0] / safe,
                 shear_MPa=lam[:, 1] / safe, status=np.asarray(status),
                 slip_mm=np.asarray(slip_mm), area_mm2=area)
+
+
+def patch_average(values: np.ndarray, elements: np.ndarray) -> np.ndarray:
+    """Nodal values smoothed over their element patch: the mean over the elements around
+    each node of the element means of the nodal values."""
+    el_mean = values[elements].mean(axis=1)
+    total = np.zeros(len(values))
+    count = np.zeros(len(values))
+    np.add.at(total, elements, el_mean[:, None])
+    np.add.at(count, elements, 1.0)
+    return total / np.maximum(count, 1.0)
+
+
+def pressure_oscillation(scene, x: np.ndarray) -> float:
+    """RMS of (nodal pressure - its patch average) over the RMS nodal pressure (q1q1).
+
+    A checkerboard mode (+1/-1 on alternate nodes) has element means of 0, so it counts in
+    full (measure ~1 when it dominates); a smooth field differs from its patch average
+    by O(h^2) inside and O(h) on the boundary, so its measure is small."""
+    _, p, _ = nodal_fields(scene, x)
+    if p is None:
+        raise ValueError("pressure_oscillation needs nodal pressures (mesh.element = 'q1q1')")
+    dev = p - patch_average(p, np.asarray(scene.mesh.elements))
+    return float(np.sqrt(np.mean(dev**2)) / max(np.sqrt(np.mean(p**2)), 1e-300))

@@ -2,8 +2,8 @@
 
 config --load_config--> dict --build_scene--> :class:`jaxform.simulate.Scene`
 
-Workpieces (exactly one section in the config), always a half-height model with the
-symmetry plane z = 0 (u_z = 0) and the top die pressing down on it:
+Workpieces (exactly one section in the config); billets and rings are half-height models
+with the symmetry plane z = 0 (u_z = 0) and the top die pressing down on it:
 
 * ``[billet]`` solid cylinder (axisymmetric) or block (plane strain): section
   [0, D/2] x [0, H/2]; the axis r = 0 has u_r = 0; candidates for contact: top + side.
@@ -13,6 +13,14 @@ symmetry plane z = 0 (u_z = 0) and the top die pressing down on it:
 * ``mesh.file`` replaces the generated section by a gmsh/meshio mesh whose physical
   groups name the sets: ``symmetry`` and ``top`` required, ``axis``, ``side``, ``inner``,
   ``outer`` optional.
+* ``[block]`` plane-strain block [0, W] x [0, D] indented from the top (Prandtl's punch):
+  symmetric about x = 0 (``axis``, u_x = 0) on a frictionless base (``base``, y = 0,
+  u_y = 0); candidates: the top face; graded mesh (equal elements under the die). The
+  stroke is the die travel itself (no mid-plane), ``die.reduction`` a fraction of D.
+* ``[membrane]`` plane-strain panel with 4 straight edges (Cook's membrane), no die: one
+  edge clamped (u = 0), a uniform dead traction with resultant ``load.force_*_N`` on another
+  (:mod:`jaxform.loads`), ramped linearly over ``load.ramp_time_s``; the history records the
+  displacement of the node nearest ``membrane.tip_mm`` (``tip``).
 
 Die: ``die.profile_mm`` (or a flat die on the top face), moved along the path table or at
 half the ram speed (the mid-plane is fixed, so the top die travels half the stroke).
@@ -31,17 +39,48 @@ from jaxform.contact import ContactLaw
 from jaxform.dies import DieError, catmull_rom, check_profile, make_die, time_at_travel
 from jaxform.formulations import Formulation
 from jaxform.linear import choose_backend
+from jaxform.loads import FacetLoad
 from jaxform.materials import load_material
 from jaxform.precision import require_x64
 from jaxform.simulate import Inputs, Scene
 from jaxform.solver import NewtonSettings
 
 FREE_SETS = ("top", "side", "outer", "inner")
+# Dirichlet conditions by node set: the displacement components held at 0
+FIXED_COMPONENTS = {"symmetry": (1,), "axis": (0,), "base": (1,), "clamped": (0, 1)}
+# u_y dofs of this set carry the support reaction (for checks)
+REACTION_SETS = ("symmetry", "base", "clamped")
+
+
+def membrane_mesh(cfg: dict) -> meshing.Mesh:
+    """Mapped mesh of the panel with sets ``clamped``, ``loaded`` and ``tip`` added."""
+    mb, m = cfg["membrane"], cfg["mesh"]
+    corners = np.asarray(mb["corners_mm"])
+    try:
+        mesh = meshing.mapped_quad(corners, m["nr"], m["nz"])
+    except meshing.MeshError as err:
+        raise ConfigError(f"membrane.corners_mm: {err}") from err
+    tip = np.asarray(mb["tip_mm"]) if mb["tip_mm"] else corners[2]
+    tip_node = int(np.argmin(np.sum((mesh.coords - tip) ** 2, axis=1)))
+    edge = cfg["load"]["edge"]
+    nodes = dict(mesh.node_sets, clamped=mesh.node_sets[mb["clamped_edge"]],
+                 loaded=mesh.node_sets[edge], tip=np.array([tip_node]))
+    facets = dict(mesh.facet_sets, loaded=mesh.facet_sets[edge])
+    return meshing.Mesh(mesh.coords, mesh.elements, nodes, facets)
 
 
 def workpiece_mesh(cfg: dict) -> tuple[meshing.Mesh, str]:
     m = cfg["mesh"]
-    kind = "ring" if "ring" in cfg else "billet"
+    kind = next(k for k in ("ring", "block", "membrane", "billet") if k in cfg)
+    if kind == "membrane":
+        return membrane_mesh(cfg), kind
+    if kind == "block":
+        b = cfg["block"]
+        try:
+            return meshing.block(b["width_mm"], b["depth_mm"], b["fine_width_mm"],
+                                 b["fine_depth_mm"], m["nr"], m["nz"], b["growth"]), kind
+        except meshing.MeshError as err:
+            raise ConfigError(f"block: {err}") from err
     if m["file"]:
         try:
             mesh = meshing.read_mesh(m["file"])
@@ -82,7 +121,10 @@ def die_profile(cfg: dict, top_z: float) -> np.ndarray:
 
 
 def die_path(cfg: dict, half_height: float) -> tuple[np.ndarray, np.ndarray, float]:
-    """(times, travel of the top die, end time) for a run to the configured reduction."""
+    """(times, travel of the top die, end time) for a run to the configured reduction.
+
+    Half-height models (billet, ring): the top die travels half the ram stroke at half the
+    ram speed; a block (no mid-plane) is indented by the die's whole travel and speed."""
     d = cfg["die"]
     target = d["reduction"] * half_height  # top-die travel; the ram stroke is twice it
     if d["path_time_s"]:
@@ -92,31 +134,45 @@ def die_path(cfg: dict, half_height: float) -> tuple[np.ndarray, np.ndarray, flo
         except DieError as err:
             raise ConfigError(str(err)) from err
         return times, travel, t_end
-    v = 0.5 * d["speed_mm_s"]
+    v = (1.0 if "block" in cfg else 0.5) * d["speed_mm_s"]
     t_end = target / v
     return np.array([0.0, t_end]), np.array([0.0, v * t_end]), t_end
 
 
+def membrane_load(cfg: dict, mesh: meshing.Mesh) -> FacetLoad:
+    """The traction (per unit initial edge length) whose resultant is load.force_*_N."""
+    ld = cfg["load"]
+    facets = mesh.facet_sets["loaded"]
+    length = float(np.sum(np.linalg.norm(mesh.coords[facets[:, 1]] - mesh.coords[facets[:, 0]],
+                                         axis=1)))
+    traction = np.array([ld["force_x_N"], ld["force_y_N"]]) / length
+    return FacetLoad(traction=jnp.asarray(traction), ramp_end_s=jnp.asarray(ld["ramp_time_s"]))
+
+
 def build_scene(cfg: dict) -> Scene:
-    """Set-up of a forging scene from a validated config (jaxform.config.load_config)."""
+    """Set-up of a scene from a validated config (jaxform.config.load_config)."""
     require_x64()
-    m, tm, so, fr = cfg["mesh"], cfg["time"], cfg["solver"], cfg["friction"]
+    m, tm, so = cfg["mesh"], cfg["time"], cfg["solver"]
     axi = m["geometry"] == "axisymmetric"
     mesh, kind = workpiece_mesh(cfg)
-    top_z = float(mesh.coords[mesh.node_sets["top"], 1].max())
     law, params = load_material(cfg["material"]["preset"])
     form = Formulation(kind=m["element"], axisymmetric=axi, theta=m["stabilization"],
                        alpha=tm["alpha"])
     nf = form.n_fields
-    fixed = [mesh.node_sets["symmetry"] * nf + 1]
-    if "axis" in mesh.node_sets:
-        fixed.append(mesh.node_sets["axis"] * nf)
-    present = [s for s in FREE_SETS if s in mesh.node_sets]
-    contact = np.unique(np.concatenate([mesh.node_sets[s] for s in present])).astype(np.int64)
-    facets = np.concatenate([mesh.facet_sets[s] for s in present if s in mesh.facet_sets])
+    fixed = [mesh.node_sets[s] * nf + k for s, comps in FIXED_COMPONENTS.items()
+             if s in mesh.node_sets for k in comps]
+    reaction = next(mesh.node_sets[s] * nf + 1 for s in REACTION_SETS if s in mesh.node_sets)
+    if kind == "membrane":
+        contact = np.zeros(0, dtype=np.int64)
+        facets = np.zeros((0, 2), dtype=np.int64)
+    else:
+        present = ["top"] if kind == "block" else [s for s in FREE_SETS if s in mesh.node_sets]
+        contact = np.unique(np.concatenate([mesh.node_sets[s] for s in present])).astype(np.int64)
+        facets = np.concatenate([mesh.facet_sets[s] for s in present if s in mesh.facet_sets])
     layout, idx = build_indices(mesh, nf, np.concatenate(fixed), contact,
-                                reaction_dofs=mesh.node_sets["symmetry"] * nf + 1,
-                                contact_facets=facets)
+                                reaction_dofs=reaction, contact_facets=facets,
+                                load_facets=mesh.facet_sets.get("loaded"))
+    fr = cfg.get("friction", {"model": "none", "mu": 0.0, "m": 0.0})
     model = Model(form, law, layout, ContactLaw(fr["model"]))
     areas = meshing.element_areas(mesh.coords, mesh.elements)
     if np.any(areas <= 0):
@@ -125,8 +181,13 @@ def build_scene(cfg: dict) -> Scene:
     h = float(np.sqrt(areas.min()))
     r_out = float(mesh.coords[:, 0].max())
     c = float(law.shear_modulus(params)) * h * (2.0 * np.pi * r_out if axi else 1.0)
-    times, travel, t_end = die_path(cfg, top_z)
-    die = make_die(die_profile(cfg, top_z), times, travel, mu=fr["mu"], m=fr["m"])
+    if kind == "membrane":
+        die, load, t_end = None, membrane_load(cfg, mesh), cfg["load"]["ramp_time_s"]
+    else:
+        top_z = float(mesh.coords[mesh.node_sets["top"], 1].max())
+        times, travel, t_end = die_path(cfg, top_z)
+        die = make_die(die_profile(cfg, top_z), times, travel, mu=fr["mu"], m=fr["m"])
+        load = None
     return Scene(
         config=cfg,
         mesh=mesh,
@@ -136,10 +197,11 @@ def build_scene(cfg: dict) -> Scene:
         newton=NewtonSettings(max_iterations=so["max_newton_iterations"], rtol=so["rtol"],
                               line_search=so["line_search"]),
         inputs=Inputs(coords=jnp.asarray(mesh.coords), params=params, die=die,
-                      c_contact=jnp.asarray(c)),
+                      c_contact=jnp.asarray(c), load=load),
         dt=tm["dt_s"],
         t_end=t_end,
         max_cutbacks=so["max_cutbacks"],
         chunk=so["chunk_steps"],
         kind=kind,
+        symmetric_z=kind in ("billet", "ring"),
     )

@@ -12,6 +12,11 @@ Scenes are half-height models (symmetry plane z = 0): the top die travels d(t) t
 the mid-plane, ``stroke_mm`` = 2 d(t) and ``force_N`` refer to the whole workpiece (the
 z-component of the contact multipliers, which already include the 2 pi of axisymmetry).
 Each converged step also accumulates the friction work (N mm) and each candidate's slip.
+
+Scenes without a die (a membrane under a traction load, :mod:`jaxform.loads`) have
+``Inputs.die = None`` and no contact candidates; their ``force_N`` is the magnitude of the
+applied load's resultant at the step (N, per mm of depth in plane strain) and
+``stroke_mm`` is 0.
 """
 
 from __future__ import annotations
@@ -32,6 +37,7 @@ from jaxform.dies import RigidDie
 from jaxform.formulations import CAUSES, OK, GaussState, initial_gauss_state
 from jaxform.kinematics import deviator, safe_norm_eq
 from jaxform.linear import LinearSolver
+from jaxform.loads import FacetLoad, external_forces, total_force
 from jaxform.postprocess import extra_history
 from jaxform.precision import require_x64
 from jaxform.solver import NewtonSettings, solve_implicit
@@ -56,8 +62,9 @@ class Inputs:
 
     coords: jax.Array  # initial nodal coordinates (mm)
     params: object  # material parameters
-    die: RigidDie  # profile, path and friction coefficients
+    die: RigidDie | None  # profile, path and friction coefficients (None: no die)
     c_contact: jax.Array  # complementarity scale (N/mm), set-up constant
+    load: FacetLoad | None = None  # traction load on idx.load_facets (None: no load)
 
 
 @dataclass(frozen=True)
@@ -75,7 +82,7 @@ class Scene:
     t_end: float
     max_cutbacks: int
     chunk: int
-    kind: str = "billet"  # workpiece: 'billet' or 'ring'
+    kind: str = "billet"  # workpiece: 'billet', 'ring', 'block' or 'membrane'
     symmetric_z: bool = True  # half-height model: stroke = 2 x die travel
 
     @property
@@ -130,18 +137,19 @@ def contact_step(model: Model, state: SimState, inp: Inputs, idx: Indices) -> Co
 
 
 def _step_residual(model: Model, x, args):
-    gauss, coords, t, dt, params, die, c_contact, cstep, idx = args
-    return model.residual(x, gauss, coords, t, dt, params, die, c_contact, cstep, idx)
+    gauss, coords, t, dt, params, die, c_contact, cstep, idx, f_ext = args
+    return model.residual(x, gauss, coords, t, dt, params, die, c_contact, cstep, idx,
+                          f_ext=f_ext)
 
 
 def _step_residual_and_jacobian(model: Model, x, args):
-    gauss, coords, t, dt, params, die, c_contact, cstep, idx = args
+    gauss, coords, t, dt, params, die, c_contact, cstep, idx, f_ext = args
     return model.residual_and_jacobian(x, gauss, coords, t, dt, params, die, c_contact,
-                                       cstep, idx)
+                                       cstep, idx, f_ext=f_ext)
 
 
 def _step_linear(model: Model, linear: LinearSolver, vals, b, args, transpose: bool):
-    idx = args[-1]
+    idx = args[8]
     solve = linear.solve_transpose if transpose else linear.solve
     return solve(idx.rows, idx.cols, vals, b, model.layout.n_dofs)
 
@@ -154,7 +162,9 @@ def solve_step(model: Model, linear: LinearSolver, settings: NewtonSettings,
     Differentiable (reverse mode) in ``state`` and ``inp`` by the implicit function theorem
     (:func:`jaxform.solver.solve_implicit`).  Returns (x, gauss, its, code, hist, cstep)."""
     cstep = contact_step(model, state, inp, idx)
-    args = (state.gauss, inp.coords, t_new, dt, inp.params, inp.die, inp.c_contact, cstep, idx)
+    f_ext = applied_forces(model, inp, t_new, idx)
+    args = (state.gauss, inp.coords, t_new, dt, inp.params, inp.die, inp.c_contact, cstep, idx,
+            f_ext)
     x_fallback = jax.lax.stop_gradient(state.x)
     x0 = x_fallback if x_guess is None else jax.lax.stop_gradient(x_guess)
     x, g, its, code, hist = solve_implicit(
@@ -216,9 +226,24 @@ def macro_step(model, linear, settings, max_cutbacks, state: SimState, t_target,
     return out["state"], info
 
 
+def applied_forces(model: Model, inp: Inputs, t, idx: Indices):
+    """External nodal forces of the scene's traction load at time t (None without a load)."""
+    if inp.load is None:
+        return None
+    lay = model.layout
+    return external_forces(inp.load, t, inp.coords, idx.load_facets,
+                           model.formulation.axisymmetric, lay.n_fields, lay.n_dofs)
+
+
 def die_force(model: Model, x, inp: Inputs, t, idx: Indices):
     """Ram force (N, positive in compression): minus the z-component of the force the die
-    puts on the workpiece, lambda_n n + lambda_t t summed over the candidates."""
+    puts on the workpiece, lambda_n n + lambda_t t summed over the candidates.  Without a
+    die: the magnitude of the applied load's resultant at t (0 without a load)."""
+    if inp.die is None:
+        if inp.load is None:
+            return jnp.zeros((), dtype=x.dtype)
+        res = total_force(inp.load, inp.coords, idx.load_facets, model.formulation.axisymmetric)
+        return inp.load.factor(t) * jnp.sqrt(jnp.sum(res**2))
     pos = model.nodal_positions(x, inp.coords, idx)[idx.contact_nodes]
     _, n, tan = jax.vmap(lambda p: inp.die.gap(p, t))(pos)
     lam = x[idx.mult_dofs]
@@ -229,7 +254,8 @@ def step_outputs(model: Model, state: SimState, inp: Inputs, idx: Indices, symme
     """Scalars and fields recorded after each step."""
     return dict(
         time_s=state.t,
-        stroke_mm=(2.0 if symmetric_z else 1.0) * inp.die.travel(state.t),
+        stroke_mm=(jnp.zeros_like(state.t) if inp.die is None
+                   else (2.0 if symmetric_z else 1.0) * inp.die.travel(state.t)),
         force_N=die_force(model, state.x, inp, state.t, idx),
         friction_work_Nmm=state.friction_work,
         x=state.x,

@@ -3,8 +3,9 @@
 Thesis Fig. 5.2, made robust: each iteration solves J dx = -R, then backtracks
 (alpha = 1, 1/2, 1/4, ...) until ||R(x + alpha dx)|| <= (1 - 1e-4 alpha) ||R(x)|| and
 the trial state is valid.  Convergence: ||R|| <= rtol * F, where F is the force scale of
-the step (the larger of the root-sum-square of the element force vectors and the norm of
-the contact forces), so the test is relative to the forces actually carried.
+the step (the largest of the root-sum-square of the element force vectors, the norm of
+the contact forces and that of the external loads), so the test is relative to the forces
+actually carried.
 
 Failures are status codes (see jaxform.formulations): the caller cuts the step back.
 
@@ -17,6 +18,10 @@ aux = G(x*, a)) is differentiated too: xbar gains (dG/dx)^T auxbar before the so
 abar gains (dG/da)^T auxbar.  Where R is only piecewise smooth (contact and friction
 switch between branches at an active-set change), the derivative is that of the branch
 active at x*: exact away from a switch, one-sided at it.
+
+Each call site of ``residual`` is compiled separately (~1-2 s of XLA time each on 2 cores),
+so the start (x0, else the fallback) and the line search each evaluate it from one site
+inside a while loop.
 """
 
 from __future__ import annotations
@@ -48,11 +53,23 @@ def newton(residual, residual_and_jacobian, linear_solve, x0, settings: NewtonSe
     history) with history[k] = ||R_k|| / scale_k (NaN-free; inf where not reached).
     """
     s = settings
-    r0, aux0, code0, scale0 = residual(x0)
-    if x_fallback is not None:
-        x0, r0, aux0, code0, scale0 = jax.lax.cond(
-            code0 == OK, lambda: (x0, r0, aux0, code0, scale0),
-            lambda: (x_fallback,) + tuple(residual(x_fallback)))
+    if x_fallback is None:
+        r0, aux0, code0, scale0 = residual(x0)
+    else:  # x0, then x_fallback if x0 is invalid, through one call site of the residual
+        blank = jax.tree_util.tree_map(lambda a: jnp.zeros(a.shape, a.dtype),
+                                       jax.eval_shape(residual, x0))
+
+        def start_cond(c):
+            k, _, out = c
+            return (k == 0) | ((k == 1) & (out[2] != OK))
+
+        def start_body(c):
+            k = c[0]
+            xk = jnp.where(k == 0, x0, x_fallback)
+            return k + 1, xk, tuple(residual(xk))
+
+        _, x0, (r0, aux0, code0, scale0) = jax.lax.while_loop(
+            start_cond, start_body, (jnp.asarray(0), x0, tuple(blank)))
     n0 = jnp.linalg.norm(r0)
     hist0 = jnp.full(s.max_iterations + 1, jnp.inf).at[0].set(n0 / scale0)
     conv0 = (code0 == OK) & (n0 <= s.rtol * scale0)
@@ -72,18 +89,22 @@ def newton(residual, residual_and_jacobian, linear_solve, x0, settings: NewtonSe
             rt, auxt, codet, scalet = residual(xt)
             return xt, rt, auxt, codet, scalet
 
-        def ls_cond(lc):
-            k, alpha, _, rt, _, codet, _ = lc
-            bad = (codet != OK) | (jnp.linalg.norm(rt) > (1.0 - 1e-4 * alpha) * rnorm)
-            return s.line_search & bad & (k < s.max_backtracks)
+        if s.line_search:  # alpha = 1, 1/2, 1/4, ... while the decrease is insufficient
+            def ls_cond(lc):
+                return ~lc[2]
 
-        def ls_body(lc):
-            k, alpha, *_ = lc
-            alpha = 0.5 * alpha
-            return (k + 1, alpha) + trial(alpha)
+            def ls_body(lc):
+                k, alpha = lc[0], lc[1]
+                xt, rt, auxt, codet, scalet = trial(alpha)
+                bad = (codet != OK) | (jnp.linalg.norm(rt) > (1.0 - 1e-4 * alpha) * rnorm)
+                done = ~(bad & (k < s.max_backtracks))  # k backtracks done before this trial
+                return (k + 1, 0.5 * alpha, done, xt, rt, auxt, codet, scalet)
 
-        lc0 = (0, jnp.asarray(1.0, x.dtype)) + trial(jnp.asarray(1.0, x.dtype))
-        _, _, xt, rt, auxt, codet, scalet = jax.lax.while_loop(ls_cond, ls_body, lc0)
+            lc0 = (jnp.asarray(0), jnp.asarray(1.0, x.dtype), jnp.asarray(False),
+                   x, r, aux, code_j, scale)
+            _, _, _, xt, rt, auxt, codet, scalet = jax.lax.while_loop(ls_cond, ls_body, lc0)
+        else:  # full steps: the backtracking loop is not compiled at all
+            xt, rt, auxt, codet, scalet = trial(jnp.asarray(1.0, x.dtype))
         rtn = jnp.linalg.norm(rt)
         conv = (codet == OK) & (rtn <= s.rtol * scalet)
         hist = hist.at[it + 1].set(rtn / scalet)

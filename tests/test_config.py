@@ -22,7 +22,8 @@ def _with(section, key, value):
 
 def test_minimal_fills_defaults():
     cfg = load_config(MINIMAL)
-    assert set(cfg) == set(SCHEMA) - {"ring"}  # one workpiece section: the billet
+    # one workpiece section (the billet); no [load] (membrane scenes only)
+    assert set(cfg) == set(SCHEMA) - {"ring", "block", "membrane", "load"}
     for section in cfg:
         assert set(cfg[section]) == set(SCHEMA[section])
     assert cfg["mesh"]["nr"] == 10 and cfg["mesh"]["element"] == "q1q1"
