@@ -107,8 +107,14 @@ SCHEMA: dict[str, dict[str, Field]] = {
         "path_travel_mm": Field("floats", [], doc="die path table: downward travel of the top "
                                 "die relative to the mid-plane at those times (mm), starting "
                                 "at 0 (the ram stroke is twice it)"),
+        "corner_radius_mm": Field("float", 0.5, 0.0, None, False, False,
+                                  doc="radius of the arcs that round the profile's vertices "
+                                      "(mm): the die surface is C1; where two segments are "
+                                      "too short for it, the arc runs between their midpoints "
+                                      "(so sampled fillets and splines keep their shape)"),
         "closed": Field("bool", False, doc="the profile closes a cavity with the mid-plane: "
-                        "report die_fill (material volume / cavity volume) in the history"),
+                        "report die_fill (cavity volume filled with material / cavity volume) in the "
+                        "history"),
     },
     "friction": {
         "model": Field("str", "none", choices=("none", "coulomb", "shear", "sticking"),

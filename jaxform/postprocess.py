@@ -2,8 +2,9 @@
 
 * ring scenes: ``inner_diameter_mm`` and ``outer_diameter_mm`` at the ring's mid-height
   (the nodes of the inner/outer surface on the symmetry plane);
-* closed dies: ``die_fill`` = material volume / volume of the cavity enclosed by the die
-  profile, the axis and the mid-plane (Pappus: V = 2 pi * integral of r dA);
+* closed dies: ``die_fill`` = material volume / volume of the cavity enclosed by the
+  (rounded, :mod:`jaxform.dies`) die profile, the axis and the mid-plane (Pappus:
+  V = 2 pi * integral of r dA);
 * contact profiles along the die: normal pressure and shear traction (multiplier over
   the node's contact area, MPa), status (0 open, 1 stick, 2 slip), accumulated slip.
 """
@@ -12,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from jaxform.dies import sample_rounded
 from jaxform.io import nodal_fields
 
 
@@ -55,7 +57,7 @@ def _clip_above(poly: np.ndarray, z0: float = 0.0) -> np.ndarray:
 
 def cavity_volume(scene, t: float) -> float:
     die = scene.inputs.die
-    pts = np.asarray(die.points) - np.array([0.0, float(die.travel(t))])
+    pts = sample_rounded(die.points, die.corner_radius) - np.array([0.0, float(die.travel(t))])
     poly = np.vstack([[0.0, 0.0], pts, [pts[-1, 0], 0.0]])
     poly = _clip_above(poly)
     if len(poly) < 3:

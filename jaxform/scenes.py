@@ -126,7 +126,8 @@ def build_scene(cfg: dict) -> Scene:
     r_out = float(mesh.coords[:, 0].max())
     c = float(law.shear_modulus(params)) * h * (2.0 * np.pi * r_out if axi else 1.0)
     times, travel, t_end = die_path(cfg, top_z)
-    die = make_die(die_profile(cfg, top_z), times, travel, mu=fr["mu"], m=fr["m"])
+    die = make_die(die_profile(cfg, top_z), times, travel, mu=fr["mu"], m=fr["m"],
+                   corner_radius=cfg["die"]["corner_radius_mm"])
     return Scene(
         config=cfg,
         mesh=mesh,
