@@ -1,6 +1,6 @@
-"""Rounded die profiles (geometry only, no simulation: fast).
+"""Rounded die profiles and the die-fill volume (geometry only, no simulation: fast).
 
-References: closed-form circle geometry.
+References: closed-form circle and rectangle geometry; Pappus volumes of revolution.
 """
 
 import jax
@@ -8,7 +8,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from jaxform.config import load_config
 from jaxform.dies import closest_point_gap, make_die, sample_rounded
+from jaxform.postprocess import cavity_volume, filled_volume, material_volume
+from jaxform.scenes import build_scene
 
 # a concave die corner (cavity corner): walked +x, then down: right turn
 CORNER = np.array([[0.0, 1.0], [1.0, 1.0], [1.0, -1.0]])
@@ -60,3 +63,34 @@ def test_rounded_profile_is_c1_and_keeps_sampled_fillets():
 def test_make_die_rejects_a_zero_corner_radius():
     with pytest.raises(ValueError, match="corner radius"):
         make_die(CORNER, [0.0, 1.0], [0.0, 1.0], corner_radius=0.0)
+
+
+def _cylinder_cavity_scene(nr=4, nz=3):
+    """Closed flat die at z = 2 over r in [0, 3] (cavity: cylinder r < 3, z < 2), billet
+    r < 2, z < 1 (only the geometry is used)."""
+    return build_scene(load_config({
+        "billet": {"diameter_mm": 4.0, "height_mm": 2.0},
+        "mesh": {"nr": nr, "nz": nz},
+        "die": {"speed_mm_s": 0.1, "reduction": 0.1, "closed": True,
+                "profile_mm": [[0.0, 2.0], [3.0, 2.0], [3.0, 0.0]]},
+        "time": {"dt_s": 1.0}}))
+
+
+@pytest.mark.parametrize("width, height, expected", [
+    (2.0, 1.0, np.pi * 4.0 * 1.0),  # inside: all of it
+    (2.0, 2.5, np.pi * 4.0 * 2.0),  # taller: cut at the die face, z = 2
+    (3.5, 2.5, None),  # wider and taller: fills the cylinder up to the rounded corner
+])
+def test_filled_volume_is_the_material_inside_the_cavity(width, height, expected):
+    """Billet section scaled to width x height: the filled volume is the Pappus volume of
+    its intersection with the cavity (1e-12 relative); a rectangle covering the whole
+    cavity fills it exactly."""
+    sc = _cylinder_cavity_scene()
+    c0 = np.asarray(sc.mesh.coords)
+    pos = c0 * np.array([width / 2.0, height / 1.0])
+    v = filled_volume(sc, pos, 0.0)
+    if expected is None:
+        expected = cavity_volume(sc, 0.0)
+    else:
+        assert abs(material_volume(sc, pos) - np.pi * width**2 * height) <= 1e-9 * v
+    assert abs(v / expected - 1.0) <= 1e-12, (v, expected)
