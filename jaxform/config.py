@@ -83,6 +83,11 @@ SCHEMA: dict[str, dict[str, Field]] = {
                                    "(the thesis used 1e-4)"),
         "file": Field("str", "", doc="optional gmsh/meshio quadrilateral mesh file replacing "
                                      "the structured mesh ('' = structured)"),
+        "rezone_quality": Field("float", 0.0, 0.0, 1.0, True, False,
+                                doc="rezone (relocate the nodes, carry the state over) after a "
+                                    "step whose worst element corner quality (jaxform.rezone: "
+                                    "1 for squares) falls below this (0 = never; structured "
+                                    "meshes only)"),
     },
     "material": {
         "preset": Field("str", "al1100_673K",
@@ -245,6 +250,9 @@ def _cross_checks(raw: dict, out: dict) -> None:
     if d["profile_mm"] and len(d["profile_mm"]) < 2:
         raise ConfigError("die.profile_mm: needs at least 2 [r_mm, z_mm] points (or [] for a "
                           "flat die)")
+    if out["mesh"]["rezone_quality"] > 0.0 and out["mesh"]["file"]:
+        raise ConfigError("mesh.rezone_quality > 0 needs the structured mesh (mesh.file = ''): "
+                          "rezoning relocates the nodes of the logical grid")
     fr = out["friction"]
     if fr["model"] == "coulomb" and "mu" not in raw.get("friction", {}):
         raise ConfigError("friction.model = 'coulomb' needs friction.mu (float in [0, 10])")

@@ -143,4 +143,6 @@ def build_scene(cfg: dict) -> Scene:
         max_cutbacks=so["max_cutbacks"],
         chunk=so["chunk_steps"],
         kind=kind,
+        rezone_quality=m["rezone_quality"],
+        grid=None if m["file"] else (m["nr"], m["nz"]),
     )
