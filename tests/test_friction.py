@@ -128,12 +128,19 @@ def _quadratic_tail(res):
     return ratios
 
 
-def test_nodes_slide_across_a_die_corner():
-    """Top die with a kink at r = 0.9 mm (flat, then rising 2.7 deg): nodes in contact
-    slide outward across the vertex; penetration <= 1e-8 mm at every converged step and
-    the Newton tail stays quadratic (e_{k+1} <= 10 e_k^2)."""
+def _slides_across(profile, kind, r_cross):
+    """Billet (6x3, q1p0) under a top die with ``profile`` (padded with collinear points
+    to 65 points, the size of a 4-span sampled spline, so that every die of these tests
+    shares one compiled program): returns the scene, the result and whether a node in
+    contact crossed r = r_cross.  Asserts penetration <= 1e-8 mm at every converged step
+    and a quadratic Newton tail (e_{k+1} <= 10 e_k^2) in more than 5 steps."""
+    pts = np.asarray(profile, dtype=float)
+    if kind == "polyline":
+        pts = _pad_collinear(pts, 65)
     sc, res = run(BILLET, "mesh.nr=6", "mesh.nz=3", "mesh.element=q1p0", "time.dt_s=2.0",
-                  "die.profile_mm=[[0.0, 3.75], [0.9, 3.75], [5.0, 3.9434]]")
+                  f"die.profile_kind={kind}",
+                  "die.profile_mm=" + str([[float(a), float(b)] for a, b in pts]))
+    assert sc.inputs.die.points.shape == (65, 2)
     crossed = False
     r_first = None
     for k in range(1, len(res.history["time_s"])):
@@ -142,10 +149,37 @@ def test_nodes_slide_across_a_die_corner():
         lam = np.asarray(res.fields["x"][k][sc.model.layout.n_node_dofs:]).reshape(-1, 2)[:, 0]
         in_contact = lam > 0
         r_first = pos[:, 0].copy() if r_first is None else r_first
-        crossed |= bool(np.any(in_contact & (r_first < 0.9) & (pos[:, 0] > 0.9)))
-    assert crossed
+        crossed |= bool(np.any(in_contact & (r_first < r_cross) & (pos[:, 0] > r_cross)))
     ratios = _quadratic_tail(res)
     assert len(ratios) > 5 and max(ratios) <= 10.0, ratios
+    return sc, res, crossed
+
+
+def _pad_collinear(pts, n):
+    """The same polyline with n points (extra points on its segments, longest first)."""
+    pts = [p for p in pts]
+    while len(pts) < n:
+        k = int(np.argmax([np.linalg.norm(b - a) for a, b in zip(pts[:-1], pts[1:])]))
+        pts.insert(k + 1, 0.5 * (pts[k] + pts[k + 1]))
+    return np.array(pts)
+
+
+def test_nodes_slide_across_a_die_corner():
+    """Top die with a kink at r = 0.9 mm (flat, then rising 2.7 deg; rounded with the
+    default corner radius 0.5 mm, an arc 0.024 mm long): nodes in contact slide outward
+    across it; penetration <= 1e-8 mm and quadratic Newton tails (see _slides_across)."""
+    _, _, crossed = _slides_across([[0.0, 3.75], [0.9, 3.75], [5.0, 3.9434]], "polyline", 0.9)
+    assert crossed
+
+
+def test_nodes_slide_from_one_spline_segment_to_the_next():
+    """Catmull-Rom die through (0, 3.75), (1, 3.76), (2, 3.8), (3, 3.87), (5, 4.05) (convex,
+    rising 0.6 deg at the axis to 5 deg), sampled with 16 segments per span: nodes in
+    contact slide across the knot at r = 1 mm (and over every sampled segment in between);
+    penetration <= 1e-8 mm and quadratic Newton tails (see _slides_across)."""
+    _, _, crossed = _slides_across(
+        [[0.0, 3.75], [1.0, 3.76], [2.0, 3.8], [3.0, 3.87], [5.0, 4.05]], "spline", 1.0)
+    assert crossed
 
 
 def test_closed_die_scene_fills_without_penetration():
