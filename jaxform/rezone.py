@@ -13,7 +13,8 @@ sparsity pattern stay) and moves the nodes (:func:`smooth`):
    that side, projected onto the die where they would enter it) and takes the best offer
    if it raises the worst corner quality of its elements; a side node's move must not
    change the material volume (by more than 1e-4 of its elements'), so free-surface
-   corners are not cut off; grid corners stay;
+   corners are not cut off, except along the die; grid corners slide too unless they
+   carry a Dirichlet condition (axis, mid-plane);
 2. the state is carried to the new mesh: Gauss-point fields (stress, deformation
    resistance, equivalent plastic strain) are extrapolated to the nodes in each old
    element, averaged at the nodes, limited to the range of the Gauss values around the
@@ -108,7 +109,7 @@ def _volumes(p: np.ndarray, axisymmetric: bool) -> np.ndarray:
 
 def smooth(pos: np.ndarray, nr: int, nz: int, gap_fn, axisymmetric: bool = True,
            sweeps: int = 100, touching=(False, True, True, True), volume_tol: float = 1e-4,
-           move_tol: float = 1e-4) -> np.ndarray:
+           move_tol: float = 1e-4, contact_tol: float = 1e-6, pinned=()) -> np.ndarray:
     """Quality-driven ("smart") smoothing of a structured grid.
 
     Each node in turn is offered: the centre of its neighbours (interior: the mean of the
@@ -119,7 +120,15 @@ def smooth(pos: np.ndarray, nr: int, nz: int, gap_fn, axisymmetric: bool = True,
     smallest corner quality (:func:`corner_qualities`) of the elements around the node,
     pushes no node into the die, and changes the volume of the material (the elements
     around a side node) by at most ``volume_tol`` of theirs, in that move and in all of
-    that node's moves together (interior moves never change it).  Grid corners stay.
+    that node's moves together (interior moves never change it).  Exception: a side node
+    that lies on the die (|gap| <= ``contact_tol`` mm) between two neighbours on the die
+    slides along the die itself (its offers are projected onto it), with no volume limit:
+    the boundary there is the die, and the volume between the die and the chords of the
+    boundary (material that a convex die corner overlaps) is no material.  A corner of
+    the grid slides like a side node along its two neighbours on the boundary (the sides
+    meet at a smooth point when a free surface folds onto the die, as the ring's sides at
+    high friction) unless it is in ``pinned`` (nodes with a Dirichlet condition: sliding
+    would move them off the axis or the mid-plane).
     Sweeps end when no node moves by more than ``move_tol`` x its element size.
     ``touching`` says which sides (bottom, top, left, right) the die may touch;
     ``gap_fn(points (m, 2)) -> (g (m,), n (m, 2))``."""
@@ -131,36 +140,40 @@ def smooth(pos: np.ndarray, nr: int, nz: int, gap_fn, axisymmetric: bool = True,
         for a in nodes:
             around[a].append(e)
     patch = [elements[np.array(a)] for a in around]
-    sides = (ids[0, :], ids[-1, :], ids[:, 0], ids[:, -1])
-    side_of = {}
-    for k, side in enumerate(sides):
-        for m in range(1, len(side) - 1):
-            side_of[int(side[m])] = (k, m)
-    corners = {int(ids[0, 0]), int(ids[0, -1]), int(ids[-1, 0]), int(ids[-1, -1])}
-    v_start = {a: _volumes(x[patch[a]], axisymmetric).sum() for a in side_of}
+    # the boundary as one counter-clockwise loop: bottom, right, top, left side
+    loop = np.concatenate([ids[0, :-1], ids[:-1, -1], ids[-1, :0:-1], ids[:0:-1, 0]])
+    side_id = np.concatenate([np.full(nr, 0), np.full(nz, 3), np.full(nr, 1), np.full(nz, 2)])
+    touch = np.asarray(touching)[side_id]  # of each loop node's side (corners: the first)
+    corner_mask = np.isin(loop, [ids[0, 0], ids[0, -1], ids[-1, 0], ids[-1, -1]])
+    nb = {int(a): (int(loop[m - 1]), int(loop[(m + 1) % len(loop)]),
+                   bool(touch[m] and touch[m - 1]), bool(corner_mask[m]))
+          for m, a in enumerate(loop)}
+    v_start = {a: _volumes(x[patch[a]], axisymmetric).sum() for a in nb}
     dirs = np.array([[np.cos(a), np.sin(a)] for a in np.linspace(0, 2 * np.pi, 8, endpoint=False)])
     steps = np.array([0.25, 0.0625])
     fractions = np.array([1.0, 0.5, 0.25])
     for _ in range(sweeps):
         moved = 0.0
         for a in range(len(x)):
-            if a in corners:
-                continue
             pe = patch[a]
             h_loc = np.mean(np.linalg.norm(x[pe].reshape(-1, 2) - x[a], axis=1)) * 4.0 / 3.0
-            on_side = a in side_of
+            on_side = a in nb
+            on_die = False
             if on_side:
-                k, m = side_of[a]
-                chain = x[sides[k]]
+                prev, nxt, may_touch, is_corner = nb[a]
+                chain = x[[prev, a, nxt]]
+                if may_touch:
+                    on_die = bool(np.all(np.abs(gap_fn(chain)[0]) <= contact_tol))
+                if is_corner and a in pinned:
+                    continue
                 s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(chain, axis=0),
                                                                     axis=1))])
-                s_try = np.concatenate([s[m] + fractions * (0.5 * (s[m - 1] + s[m + 1]) - s[m]),
-                                        s[m] + np.outer([-1.0, 1.0], steps * h_loc).ravel()])
-                s_try = s_try[(s_try > s[m - 1]) & (s_try < s[m + 1])]
-                cand = _chain_points(chain, s_try)
-                if touching[k] and len(cand):
+                s_try = np.concatenate([s[1] + fractions * (0.5 * s[2] - s[1]),
+                                        s[1] + np.outer([-1.0, 1.0], steps * h_loc).ravel()])
+                cand = _chain_points(chain, s_try[(s_try > 0.0) & (s_try < s[2])])
+                if may_touch and len(cand):
                     g, n = gap_fn(cand)
-                    cand = cand - np.minimum(g, 0.0)[:, None] * n
+                    cand = cand - (g if on_die else np.minimum(g, 0.0))[:, None] * n
             else:
                 j, i = divmod(a, nr + 1)
                 centre = 0.25 * (x[ids[j, i - 1]] + x[ids[j, i + 1]] + x[ids[j - 1, i]]
@@ -176,7 +189,7 @@ def smooth(pos: np.ndarray, nr: int, nz: int, gap_fn, axisymmetric: bool = True,
             q = corner_qualities(corners_xy, None).min(axis=(1, 2))
             g = gap_fn(pts)[0]
             ok = (q > q[0] + 1e-9) & (g >= min(g[0], 0.0) - 1e-12)
-            if on_side:
+            if on_side and not on_die:
                 v = _volumes(corners_xy, axisymmetric).sum(axis=1)
                 ok &= (np.abs(v - v[0]) <= volume_tol * abs(v[0])) & (
                     np.abs(v - v_start[a]) <= volume_tol * abs(v_start[a]))
@@ -191,7 +204,7 @@ def smooth(pos: np.ndarray, nr: int, nz: int, gap_fn, axisymmetric: bool = True,
 
 
 def rezoned_positions(pos: np.ndarray, nr: int, nz: int, die, t: float,
-                      axisymmetric: bool = True) -> np.ndarray:
+                      axisymmetric: bool = True, pinned=()) -> np.ndarray:
     """New nodal positions (n, 2) for the current positions ``pos`` of the grid."""
     t = jnp.asarray(t)
 
@@ -204,7 +217,7 @@ def rezoned_positions(pos: np.ndarray, nr: int, nz: int, die, t: float,
         g, n = _gaps_at(die, jnp.asarray(pad), t)
         return np.asarray(g)[:m], np.asarray(n)[:m]
 
-    return smooth(pos, nr, nz, gap_fn, axisymmetric)
+    return smooth(pos, nr, nz, gap_fn, axisymmetric, pinned=set(int(a) for a in pinned))
 
 
 _BATCH = 32
@@ -289,6 +302,7 @@ class RezoneReport:
     quality_before: float
     quality_after: float
     volume_change: float  # relative change of the material volume (chords across corners)
+    improved: bool = True  # False: no node move raised the quality; the mesh was kept
 
 
 def rezone(scene, state, inputs):
@@ -306,13 +320,13 @@ def rezone(scene, state, inputs):
     nodal = x[: lay.n_node_dofs].reshape(lay.n_nodes, nf)
     pos = ref + nodal[:, :2]
     t = float(state.t)
+    pinned = np.unique(np.asarray(scene.idx.fixed) // nf)
     new_pos = rezoned_positions(pos, nr, nz, inputs.die, t,
-                                scene.model.formulation.axisymmetric)
+                                scene.model.formulation.axisymmetric, pinned)
     q_old = float(min_quality(pos, elements))
     q_new = float(min_quality(new_pos, elements))
-    if not q_new > max(q_old, 0.0):
-        raise RezoneError(f"rezoning at t = {t:g} s did not improve the mesh (worst corner "
-                          f"quality {q_old:.3f} -> {q_new:.3f})")
+    if not q_new > q_old:  # nothing to gain: the caller goes on with the mesh as it is
+        return state, inputs, RezoneReport(t, q_old, q_old, 0.0, improved=False)
     # new Gauss points and nodes, located in the old (current) mesh
     gp_new = np.einsum("ga,eai->egi", el.N_GP, new_pos[elements]).reshape(-1, 2)
     e_gp, xi_gp = _locate(gp_new, pos, elements)

@@ -292,7 +292,9 @@ def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Re
 
     With ``scene.rezone_quality`` > 0, a step after which an element's worst corner quality
     is below it ends the compiled chunk; the mesh is rezoned (:mod:`jaxform.rezone`) and
-    the run goes on from there (history column ``rezoned`` = 1 on that step)."""
+    the run goes on from there (history column ``rezoned`` = 1 on that step).  If no node
+    move can raise the quality, the mesh stays as it is and the next attempt waits until
+    the quality has fallen by another 10 %."""
     require_x64()
     targets = scene.step_targets()
     n = len(targets)
@@ -304,10 +306,11 @@ def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Re
     init = jax.device_get(step_outputs(scene.model, state, inp, scene.idx, scene.symmetric_z))
     rows = [dict(init, iterations=0, cutbacks=0, code=OK, rezoned=0,
                  mesh_quality=float(min_quality(np.asarray(scene.mesh.coords),
-                                                    np.asarray(scene.mesh.elements))))]
+                                                np.asarray(scene.mesh.elements))))]
     hists = []
     rezones = []
     failure = None
+    trigger = scene.rezone_quality
     k0 = 0
     while k0 < n and failure is None:
         tk = np.full(c, targets[-1])
@@ -315,7 +318,7 @@ def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Re
         m = min(c, n - k0)
         tk[:m], act[:m] = targets[k0:k0 + m], True
         state_new, outs = run_chunk(*st_args, state, jnp.asarray(tk), jnp.asarray(act),
-                                    inp, scene.idx, jnp.asarray(scene.rezone_quality))
+                                    inp, scene.idx, jnp.asarray(trigger))
         outs = jax.device_get(outs)
         done = m
         for j in range(m):
@@ -338,13 +341,20 @@ def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Re
                 break
         state = state_new
         k0 += done
-        if failure is None and rows[-1]["rezoned"] and k0 < n:
+        if rows[-1]["rezoned"] and (failure is not None or k0 >= n):
+            rows[-1]["rezoned"] = 0  # the run ends here: nothing to rezone for
+        if rows[-1]["rezoned"]:
             try:
                 state, inp, report = rezone(scene, state, inp)
             except RezoneError as err:
                 failure = f"step {k0}: {err}"
             else:
                 rezones.append(report)
+                # a rezoning that could not raise the quality keeps the mesh; try again
+                # when the quality has fallen by another 10 %
+                trigger = (scene.rezone_quality if report.improved
+                           else 0.9 * report.quality_before)
+                rows[-1]["rezoned"] = int(report.improved)
     hist_keys = ("time_s", "stroke_mm", "force_N", "iterations", "cutbacks", "friction_work_Nmm",
                  "mesh_quality", "rezoned")
     history = {k: np.array([float(r[k]) for r in rows]) for k in hist_keys}

@@ -7,6 +7,7 @@ reproduce linear functions).
 """
 
 import numpy as np
+import pytest
 
 from jaxform import element as el
 from jaxform.mesh import rectangle
@@ -79,3 +80,15 @@ def test_corner_quality_values():
                         [np.cos(np.pi / 6), s]])
     for shape, q in ((square, 1.0), (rect, 8.0 / 17.0), (rhombus, 0.5)):
         assert np.max(np.abs(corner_qualities(shape, elements) - q)) <= 1e-12
+
+
+def test_rezoning_needs_a_structured_mesh():
+    from jaxform.config import ConfigError, load_config
+
+    cfg = {"billet": {"diameter_mm": 4.0, "height_mm": 2.0}, "time": {"dt_s": 1.0},
+           "die": {"speed_mm_s": 0.1, "reduction": 0.1},
+           "mesh": {"file": "some.msh", "rezone_quality": 0.3}}
+    with pytest.raises(ConfigError, match="mesh.rezone_quality"):
+        load_config(cfg)
+    with pytest.raises(ConfigError, match="mesh.rezone_quality"):
+        load_config({**cfg, "mesh": {"rezone_quality": 1.0}})
