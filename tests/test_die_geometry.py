@@ -60,9 +60,12 @@ def test_rounded_profile_is_c1_and_keeps_sampled_fillets():
     assert np.max(np.abs(g + (1.0 - np.cos(np.radians(11.25))))) <= 1e-12
 
 
-def test_make_die_rejects_a_zero_corner_radius():
+def test_a_zero_corner_radius_is_rejected():
     with pytest.raises(ValueError, match="corner radius"):
         make_die(CORNER, [0.0, 1.0], [0.0, 1.0], corner_radius=0.0)
+    with pytest.raises(ValueError, match="die.corner_radius_mm"):
+        load_config({"billet": {"diameter_mm": 4.0, "height_mm": 2.0}, "time": {"dt_s": 1.0},
+                     "die": {"speed_mm_s": 0.1, "reduction": 0.1, "corner_radius_mm": 0.0}})
 
 
 def _cylinder_cavity_scene(nr=4, nz=3):

@@ -11,6 +11,7 @@ from functools import lru_cache
 
 import jax.numpy as jnp
 import numpy as np
+import pytest
 from fd_check import jacobian_fd_error
 
 from jaxform.config import load_config
@@ -182,14 +183,42 @@ def test_nodes_slide_from_one_spline_segment_to_the_next():
     assert crossed
 
 
-def test_closed_die_scene_fills_without_penetration():
-    """configs/closed_die.toml on a coarse mesh to 36 % reduction: completes, no
-    penetration, die_fill reported and rising, force rising with the fill."""
-    sc, res = run("configs/closed_die.toml", "mesh.nr=6", "mesh.nz=6", "die.reduction=0.36",
-                  "time.dt_s=2.0", "output.fields=false", "output.plots=false")
+def closed_die(*overrides):
+    return run("configs/closed_die.toml", "output.fields=false", "output.plots=false",
+               *overrides)
+
+
+def _check_closed_die(sc, res, min_fill, force_jump):
+    """Completes; die_fill rises to >= min_fill; penetration <= 1e-8 mm at every converged
+    step; the mesh was rezoned; the last step's force >= force_jump x the force at 90 %
+    fill (the cavity closes)."""
     h = res.history
     fill = h["die_fill"]
-    assert np.all(np.diff(fill[1:]) > 0) and 0.8 < fill[-1] < 1.0, fill[-1]
-    assert h["force_N"][-1] > h["force_N"][len(fill) // 2]
+    assert np.all(np.diff(fill) > 0) and min_fill <= fill[-1] <= 1.0, fill[-1]
+    assert h["rezoned"].sum() >= 1
+    k90 = int(np.argmax(fill >= 0.9))
+    assert h["force_N"][-1] >= force_jump * h["force_N"][k90], (h["force_N"][-1], h["force_N"][k90])
     for k in range(1, len(fill)):
         assert _gaps(sc, res, k)[0].min() >= -1e-8
+
+
+def test_closed_die_scene_fills_without_penetration():
+    """configs/closed_die.toml, frictionless on a 6x3 mesh with 2 s steps to 44 %
+    reduction, the die profile padded to 65 points (the scene then shares the compiled
+    program of the sliding tests above): fills to >= 98 % (measured 98.84 %), the force
+    at the end >= 4 x that at 90 % fill (measured 15.9 kN / 2.2 kN), one rezoning."""
+    cfg = load_config("configs/closed_die.toml")
+    profile = _pad_collinear(np.asarray(cfg["die"]["profile_mm"]), 65)
+    sc, res = closed_die("mesh.nr=6", "mesh.nz=3", "time.dt_s=2.0", "die.reduction=0.44",
+                         "friction.model=none",
+                         "die.profile_mm=" + str([[float(a), float(b)] for a, b in profile]))
+    _check_closed_die(sc, res, 0.98, 4.0)
+
+
+@pytest.mark.slow
+def test_closed_die_scene_as_configured():
+    """The configured scene (10x10, shear friction m = 0.2, 1 s steps, 44.5 % reduction):
+    fill >= 99.5 % (measured 99.75 %), the force at the end >= 10 x that at 90 % fill
+    (measured 42.0 kN / 2.24 kN), rezoned twice."""
+    sc, res = closed_die()
+    _check_closed_die(sc, res, 0.995, 10.0)
