@@ -106,7 +106,8 @@ def _run(args) -> int:
         return 1
     h = result.history
     print(f"done: {len(h['time_s']) - 1} steps, {int(h['newton_iterations'].sum())} Newton "
-          f"iterations, {int(h['cutbacks'].sum())} cutbacks, final force {h['force_N'][-1]:.2f} N, "
+          f"iterations, {int(h['cutbacks'].sum())} cutbacks, {int(h['rezoned'].sum())} rezonings, "
+          f"final force {h['force_N'][-1]:.2f} N, "
           f"{time.perf_counter() - t0:.1f} s wall (first chunk incl. compile "
           f"{first[0] if first else 0:.1f} s)")
     written = sorted(p.name for p in Path(args.out).iterdir() if p.is_file())

@@ -121,6 +121,11 @@ SCHEMA: dict[str, dict[str, Field]] = {
                                    "(the thesis used 1e-4)"),
         "file": Field("str", "", doc="optional gmsh/meshio quadrilateral mesh file replacing "
                                      "the structured mesh ('' = structured)"),
+        "rezone_quality": Field("float", 0.0, 0.0, 1.0, True, False,
+                                doc="rezone (relocate the nodes, carry the state over) after a "
+                                    "step whose worst element corner quality (jaxform.rezone: "
+                                    "1 for squares) falls below this (0 = never; structured "
+                                    "meshes only)"),
     },
     "material": {
         "preset": Field("str", "al1100_673K",
@@ -145,8 +150,14 @@ SCHEMA: dict[str, dict[str, Field]] = {
         "path_travel_mm": Field("floats", [], doc="die path table: downward travel of the top "
                                 "die relative to the mid-plane at those times (mm), starting "
                                 "at 0 (the ram stroke is twice it)"),
+        "corner_radius_mm": Field("float", 0.5, 0.0, None, False, False,
+                                  doc="radius of the arcs that round the profile's vertices "
+                                      "(mm): the die surface is C1; where two segments are "
+                                      "too short for it, the arc runs between their midpoints "
+                                      "(so sampled fillets and splines keep their shape)"),
         "closed": Field("bool", False, doc="the profile closes a cavity with the mid-plane: "
-                        "report die_fill (material volume / cavity volume) in the history"),
+                        "report die_fill (cavity volume filled with material / cavity volume) in the "
+                        "history"),
     },
     "friction": {
         "model": Field("str", "none", choices=("none", "coulomb", "shear", "sticking"),
@@ -354,6 +365,9 @@ def _cross_checks(raw: dict, out: dict) -> None:
     if d["profile_mm"] and len(d["profile_mm"]) < 2:
         raise ConfigError("die.profile_mm: needs at least 2 [r_mm, z_mm] points (or [] for a "
                           "flat die)")
+    if out["mesh"]["rezone_quality"] > 0.0 and out["mesh"]["file"]:
+        raise ConfigError("mesh.rezone_quality > 0 needs the structured mesh (mesh.file = ''): "
+                          "rezoning relocates the nodes of the logical grid")
     fr = out["friction"]
     if fr["model"] == "coulomb" and "mu" not in raw.get("friction", {}):
         raise ConfigError("friction.model = 'coulomb' needs friction.mu (float in [0, 10])")

@@ -53,6 +53,8 @@ def write_outputs(out_dir: str | Path, result: Result) -> None:
         cols = {k: h[k] for k in ("time_s", "stroke_mm", "force_N", "newton_iterations",
                                   "cutbacks", "friction_work_Nmm")}
     cols.update({k: h[k] for k in ("inner_diameter_mm", "outer_diameter_mm", "die_fill") if k in h})
+    if scene.rezone_quality > 0:  # worst element corner quality; 1 where the mesh was rezoned
+        cols.update({k: h[k] for k in ("mesh_quality", "rezoned")})
     write_csv(out / "history.csv", cols)
     dump_config(cfg, out / "config.toml")
     if result.failure:

@@ -126,6 +126,10 @@ def schedule(scene: Scene, inputs: Inputs | None = None) -> np.ndarray:
 
     from jaxform.simulate import simulate
 
+    if scene.rezone_quality > 0.0:
+        raise ValueError("mesh.rezone_quality > 0: a rezoned history has no gradient here "
+                         "(the mesh changes between steps); set mesh.rezone_quality = 0 for "
+                         "gradient runs")
     run = scene if inputs is None else replace(scene, inputs=inputs)
     h = simulate(run).history
     t, cuts = h["time_s"], h["cutbacks"].astype(int)

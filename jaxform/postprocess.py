@@ -3,8 +3,9 @@
 * ring scenes: ``inner_diameter_mm`` and ``outer_diameter_mm`` at the ring's mid-height
   (the nodes of the inner/outer surface on the symmetry plane);
 * membrane scenes: ``tip_ux_mm`` and ``tip_uy_mm``, the displacement of the ``tip`` node;
-* closed dies: ``die_fill`` = material volume / volume of the cavity enclosed by the die
-  profile, the axis and the mid-plane (Pappus: V = 2 pi * integral of r dA);
+* closed dies: ``die_fill`` = volume of the cavity that the material occupies / volume of
+  the cavity enclosed by the (rounded, :mod:`jaxform.dies`) die profile, the axis and the
+  mid-plane (Pappus: V = 2 pi * integral of r dA);
 * contact profiles along the die: normal pressure and shear traction (multiplier over
   the node's contact area, MPa), status (0 open, 1 stick, 2 slip), accumulated slip;
 * the pressure-oscillation measure of equal-order u-p (q1q1): how far the nodal pressure
@@ -15,6 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from jaxform.dies import sample_rounded
 from jaxform.io import nodal_fields
 
 
@@ -56,14 +58,99 @@ def _clip_above(poly: np.ndarray, z0: float = 0.0) -> np.ndarray:
     return np.array(out) if out else np.zeros((0, 2))
 
 
-def cavity_volume(scene, t: float) -> float:
+def cavity_polygon(scene, t: float) -> np.ndarray:
+    """The cavity at time t (die profile, mid-plane, axis) as a counter-clockwise polygon."""
     die = scene.inputs.die
-    pts = np.asarray(die.points) - np.array([0.0, float(die.travel(t))])
-    poly = np.vstack([[0.0, 0.0], pts, [pts[-1, 0], 0.0]])
-    poly = _clip_above(poly)
+    pts = sample_rounded(die.points, die.corner_radius) - np.array([0.0, float(die.travel(t))])
+    poly = _clip_above(np.vstack([[0.0, 0.0], pts, [pts[-1, 0], 0.0]]))
+    if len(poly) >= 3 and _signed_area(poly) < 0.0:
+        poly = poly[::-1]
+    return poly
+
+
+def cavity_volume(scene, t: float) -> float:
+    poly = cavity_polygon(scene, t)
     if len(poly) < 3:
         return 0.0
     return _revolved(poly, scene.model.formulation.axisymmetric)
+
+
+def _signed_area(poly: np.ndarray) -> float:
+    x, y = poly[:, 0], poly[:, 1]
+    return 0.5 * float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
+
+
+def _inside(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Even-odd point-in-region test against the boundary edges a -> b (vectorized)."""
+    px, py = points[:, None, 0], points[:, None, 1]
+    crosses = (a[None, :, 1] > py) != (b[None, :, 1] > py)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        xc = a[None, :, 0] + (py - a[None, :, 1]) * (b[None, :, 0] - a[None, :, 0]) / (
+            b[None, :, 1] - a[None, :, 1])
+    return np.sum(crosses & (px < xc), axis=1) % 2 == 1
+
+
+def _distance_to(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    d = b - a
+    s = np.clip(np.einsum("pmi,mi->pm", points[:, None, :] - a[None], d)
+                / np.maximum(np.sum(d * d, axis=1), 1e-300), 0.0, 1.0)
+    q = a[None] + s[..., None] * d[None]
+    return np.min(np.linalg.norm(points[:, None, :] - q, axis=2), axis=1)
+
+
+def _clipped_boundary_integral(p0, p1, a, b, keep_on_boundary, tol, axisymmetric):
+    """Green's-theorem integral (int r^2/2 dz, axisymmetric; int r dz, plane strain) over
+    the parts of the directed edges p0 -> p1 inside the region bounded by the edges a -> b
+    (parts on that boundary, within tol, count as inside when ``keep_on_boundary``)."""
+    d, e = p1 - p0, b - a
+    den = d[:, None, 0] * e[None, :, 1] - d[:, None, 1] * e[None, :, 0]
+    w = a[None] - p0[:, None]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (w[..., 0] * e[None, :, 1] - w[..., 1] * e[None, :, 0]) / den
+        u = (w[..., 0] * d[:, None, 1] - w[..., 1] * d[:, None, 0]) / den
+    hit = (np.abs(den) > 0) & (t > 0) & (t < 1) & (u >= 0) & (u <= 1)
+    total = 0.0
+    for k in range(len(p0)):
+        ts = np.concatenate([[0.0], np.sort(t[k][hit[k]]), [1.0]])
+        q = p0[k] + ts[:, None] * d[k]
+        mid = 0.5 * (q[:-1] + q[1:])
+        near = _distance_to(mid, a, b) <= tol
+        keep = np.where(near, keep_on_boundary, _inside(mid, a, b))
+        r0, z0, r1, z1 = q[:-1, 0], q[:-1, 1], q[1:, 0], q[1:, 1]
+        if axisymmetric:
+            part = (z1 - z0) * (r0 * r0 + r0 * r1 + r1 * r1) / 6.0
+        else:
+            part = (z1 - z0) * (r0 + r1) / 2.0
+        total += float(np.sum(part[keep]))
+    return total
+
+
+def boundary_edges(elements: np.ndarray) -> np.ndarray:
+    """(n_b, 2) directed boundary edges of a mesh of counter-clockwise quads (the material
+    on their left)."""
+    e = np.asarray(elements)
+    edges = np.stack([e, np.roll(e, -1, axis=1)], axis=-1).reshape(-1, 2)
+    keys = set(map(tuple, edges.tolist()))
+    return np.array([ab for ab in edges.tolist() if (ab[1], ab[0]) not in keys])
+
+
+def filled_volume(scene, pos: np.ndarray, t: float) -> float:
+    """Volume of the cavity that the material occupies: the intersection of material and
+    cavity, by Green's theorem over the material's boundary inside the cavity and the
+    cavity's boundary inside the material (material that a convex die corner overlaps
+    between two contact nodes does not count; a boundary shared within 1e-9 of the cavity
+    size counts once)."""
+    cav = cavity_polygon(scene, t)
+    if len(cav) < 3:
+        return 0.0
+    axi = scene.model.formulation.axisymmetric
+    edges = boundary_edges(scene.mesh.elements)
+    m0, m1 = pos[edges[:, 0]], pos[edges[:, 1]]
+    c0, c1 = cav, np.roll(cav, -1, axis=0)
+    tol = 1e-9 * max(float(np.ptp(cav, axis=0).max()), 1.0)
+    total = (_clipped_boundary_integral(m0, m1, c0, c1, True, tol, axi)
+             + _clipped_boundary_integral(c0, c1, m0, m1, False, tol, axi))
+    return abs(2.0 * np.pi * total) if axi else abs(total)
 
 
 def extra_history(scene, xs: np.ndarray, times: np.ndarray) -> dict[str, np.ndarray]:
@@ -79,7 +166,7 @@ def extra_history(scene, xs: np.ndarray, times: np.ndarray) -> dict[str, np.ndar
         out["outer_diameter_mm"] = np.array([2.0 * p[ko, 0] for p in pos])
     if "die" in scene.config and scene.config["die"]["closed"]:
         out["die_fill"] = np.array([
-            material_volume(scene, positions(scene, x)) / max(cavity_volume(scene, t), 1e-300)
+            filled_volume(scene, positions(scene, x), t) / max(cavity_volume(scene, t), 1e-300)
             for x, t in zip(xs, times)])
     return out
 

@@ -186,8 +186,13 @@ def build_scene(cfg: dict) -> Scene:
     else:
         top_z = float(mesh.coords[mesh.node_sets["top"], 1].max())
         times, travel, t_end = die_path(cfg, top_z)
-        die = make_die(die_profile(cfg, top_z), times, travel, mu=fr["mu"], m=fr["m"])
+        die = make_die(die_profile(cfg, top_z), times, travel, mu=fr["mu"], m=fr["m"],
+                       corner_radius=cfg["die"]["corner_radius_mm"])
         load = None
+    structured = kind in ("billet", "ring") and not m["file"]
+    if m["rezone_quality"] > 0.0 and not structured:
+        raise ConfigError(f"mesh.rezone_quality > 0 needs a billet or ring scene on its "
+                          f"structured mesh (this scene: {kind})")
     return Scene(
         config=cfg,
         mesh=mesh,
@@ -204,4 +209,6 @@ def build_scene(cfg: dict) -> Scene:
         chunk=so["chunk_steps"],
         kind=kind,
         symmetric_z=kind in ("billet", "ring"),
+        rezone_quality=m["rezone_quality"],
+        grid=(m["nr"], m["nz"]) if structured else None,
     )

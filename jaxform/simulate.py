@@ -22,7 +22,7 @@ applied load's resultant at the step (N, per mm of depth in plane strain) and
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import partial
 from typing import Callable
 
@@ -40,6 +40,7 @@ from jaxform.linear import LinearSolver
 from jaxform.loads import FacetLoad, external_forces, total_force
 from jaxform.postprocess import extra_history
 from jaxform.precision import require_x64
+from jaxform.rezone import RezoneError, min_quality, rezone
 from jaxform.solver import NewtonSettings, solve_implicit
 
 
@@ -84,6 +85,8 @@ class Scene:
     chunk: int
     kind: str = "billet"  # workpiece: 'billet', 'ring', 'block' or 'membrane'
     symmetric_z: bool = True  # half-height model: stroke = 2 x die travel
+    rezone_quality: float = 0.0  # rezone when the worst corner quality drops below (0: never)
+    grid: tuple[int, int] | None = None  # (nr, nz) of a structured mesh (rezoning needs it)
 
     @property
     def n_steps(self) -> int:
@@ -269,14 +272,15 @@ def step_outputs(model: Model, state: SimState, inp: Inputs, idx: Indices, symme
 
 @partial(jax.jit, static_argnums=(0, 1, 2, 4))
 def run_chunk(model, linear, settings, max_cutbacks, symmetric_z, state: SimState,
-              targets, active, inp: Inputs, idx: Indices):
-    """lax.scan over a chunk of load steps; inactive steps (past the end or after a
-    failure) leave the state unchanged."""
+              targets, active, inp: Inputs, idx: Indices, rezone_quality=0.0):
+    """lax.scan over a chunk of load steps; inactive steps (past the end, after a
+    failure, or after a step that left an element corner quality below ``rezone_quality``:
+    the caller rezones and goes on) leave the state unchanged."""
 
     def step(carry, tk):
-        st, failed = carry
+        st, failed, paused = carry
         t_target, act = tk
-        run = act & ~failed
+        run = act & ~failed & ~paused
 
         def do(st):
             return macro_step(model, linear, settings, max_cutbacks, st, t_target, inp, idx)
@@ -288,12 +292,18 @@ def run_chunk(model, linear, settings, max_cutbacks, symmetric_z, state: SimStat
 
         new, info = jax.lax.cond(run, do, skip, st)
         failed = failed | (info["code"] != OK)
+        pos = model.nodal_positions(new.x, inp.coords, idx)
+        quality = min_quality(pos, idx.elements)
+        paused = paused | (run & ~failed & (rezone_quality > 0.0) & (quality < rezone_quality))
         out = step_outputs(model, new, inp, idx, symmetric_z)
         out.update(info)
         out["active"] = run
-        return (new, failed), out
+        out["mesh_quality"] = quality
+        out["paused"] = paused
+        return (new, failed, paused), out
 
-    (state, failed), outs = jax.lax.scan(step, (state, jnp.asarray(False)), (targets, active))
+    init = (state, jnp.asarray(False), jnp.asarray(False))
+    (state, _, _), outs = jax.lax.scan(step, init, (targets, active))
     return state, outs
 
 
@@ -307,30 +317,57 @@ class Result:
     final_state: SimState
     newton_histories: np.ndarray  # per step: ||R_k|| / F of the last (sub)step's Newton
     failure: str | None = None
+    inputs: Inputs | None = None  # the inputs final_state refers to (coords change on rezoning)
+    rezones: list = field(default_factory=list)  # jaxform.rezone.RezoneReport per rezoning
+
+
+def _absolute(scene: Scene, inp: Inputs, x: np.ndarray) -> np.ndarray:
+    """Unknowns with the displacement measured from the initial mesh (after rezoning the
+    compiled step measures it from the rezoned reference ``inp.coords``)."""
+    shift = np.asarray(inp.coords) - np.asarray(scene.mesh.coords)
+    if not np.any(shift):
+        return x
+    lay = scene.model.layout
+    x = np.array(x)
+    nodal = x[: lay.n_node_dofs].reshape(lay.n_nodes, lay.n_fields)
+    nodal[:, :2] += shift
+    return x
 
 
 def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Result:
-    """Run the scene to its end; raises SimulationError (with .result) on failure."""
+    """Run the scene to its end; raises SimulationError (with .result) on failure.
+
+    With ``scene.rezone_quality`` > 0, a step after which an element's worst corner quality
+    is below it ends the compiled chunk; the mesh is rezoned (:mod:`jaxform.rezone`) and
+    the run goes on from there (history column ``rezoned`` = 1 on that step).  If no node
+    move can raise the quality, the mesh stays as it is and the next attempt waits until
+    the quality has fallen by another 10 %."""
     require_x64()
     targets = scene.step_targets()
     n = len(targets)
     c = scene.chunk
     state = scene.initial_state()
+    inp = scene.inputs
     st_args = (scene.model, scene.linear, scene.newton, jnp.asarray(scene.max_cutbacks),
                scene.symmetric_z)
-    init = jax.device_get(step_outputs(scene.model, state, scene.inputs, scene.idx,
-                                       scene.symmetric_z))
-    rows = [dict(init, iterations=0, cutbacks=0, code=OK)]
+    init = jax.device_get(step_outputs(scene.model, state, inp, scene.idx, scene.symmetric_z))
+    rows = [dict(init, iterations=0, cutbacks=0, code=OK, rezoned=0,
+                 mesh_quality=float(min_quality(np.asarray(scene.mesh.coords),
+                                                np.asarray(scene.mesh.elements))))]
     hists = []
+    rezones = []
     failure = None
-    for k0 in range(0, n, c):
+    trigger = scene.rezone_quality
+    k0 = 0
+    while k0 < n and failure is None:
         tk = np.full(c, targets[-1])
         act = np.zeros(c, dtype=bool)
         m = min(c, n - k0)
         tk[:m], act[:m] = targets[k0:k0 + m], True
         state_new, outs = run_chunk(*st_args, state, jnp.asarray(tk), jnp.asarray(act),
-                                    scene.inputs, scene.idx)
+                                    inp, scene.idx, jnp.asarray(trigger))
         outs = jax.device_get(outs)
+        done = m
         for j in range(m):
             row = {k: v[j] for k, v in outs.items()}
             if int(row["code"]) != OK:
@@ -339,22 +376,42 @@ def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Re
                            f"{float(row['time_s']):g} s) failed after {scene.max_cutbacks} "
                            f"cutbacks: {CAUSES.get(int(row['code']), 'unknown')}")
                 break
+            row["x"] = _absolute(scene, inp, row["x"])
+            row["rezoned"] = int(bool(row["paused"]))
             rows.append(row)
             hists.append(row["hist"])
             if progress is not None:
                 progress(dict(step=k0 + j + 1, n_steps=n, **{k: row[k] for k in (
                     "time_s", "stroke_mm", "force_N", "iterations", "cutbacks")}))
+            if row["paused"]:
+                done = j + 1
+                break
         state = state_new
-        if failure:
-            break
-    hist_keys = ("time_s", "stroke_mm", "force_N", "iterations", "cutbacks", "friction_work_Nmm")
+        k0 += done
+        if rows[-1]["rezoned"] and (failure is not None or k0 >= n):
+            rows[-1]["rezoned"] = 0  # the run ends here: nothing to rezone for
+        if rows[-1]["rezoned"]:
+            try:
+                state, inp, report = rezone(scene, state, inp)
+            except RezoneError as err:
+                failure = f"step {k0}: {err}"
+            else:
+                rezones.append(report)
+                # a rezoning that could not raise the quality keeps the mesh; try again
+                # when the quality has fallen by another 10 %
+                trigger = (scene.rezone_quality if report.improved
+                           else 0.9 * report.quality_before)
+                rows[-1]["rezoned"] = int(report.improved)
+    hist_keys = ("time_s", "stroke_mm", "force_N", "iterations", "cutbacks", "friction_work_Nmm",
+                 "mesh_quality", "rezoned")
     history = {k: np.array([float(r[k]) for r in rows]) for k in hist_keys}
     history["newton_iterations"] = history.pop("iterations")
     fields = {k: np.stack([np.asarray(r[k]) for r in rows])
               for k in ("x", "stress", "s", "eqps", "slip_mm", "contact_status")}
     history.update(extra_history(scene, fields["x"], history["time_s"]))
     result = Result(history=history, fields=fields, scene=scene, final_state=state,
-                    newton_histories=np.array(hists), failure=failure)
+                    newton_histories=np.array(hists), failure=failure, inputs=inp,
+                    rezones=rezones)
     if failure:
         raise SimulationError(failure, result)
     return result

@@ -1,0 +1,356 @@
+"""Rezoning: relocate the nodes of a distorted structured mesh and carry the state over.
+
+A Lagrangian mesh cannot follow material that flows around a die corner: in the closed
+die (configs/closed_die.toml) the top-surface element at the hub's convex fillet is
+wrapped around the corner, one of its corners opens through 180 deg (non-convex quad at
+~83 % die fill on 10x10 and 20x20 alike, with friction or without), its tangent becomes
+nearly singular (Newton directions of 1e3-1e4 with line-search steps of 1e-3) and Newton
+stagnates.  Rezoning keeps the mesh *topology* (so the compiled program, the dofs and the
+sparsity pattern stay) and moves the nodes (:func:`smooth`):
+
+1. node by node, a quality-driven ("smart") smoothing: the node is offered the centre of
+   its neighbours and short steps around it (nodes on a side of the logical grid: along
+   that side, projected onto the die where they would enter it) and takes the best offer
+   if it raises the worst corner quality of its elements; a side node's move must not
+   change the material volume (by more than 1e-4 of its elements'), so free-surface
+   corners are not cut off, except along the die; grid corners slide too unless they
+   carry a Dirichlet condition (axis, mid-plane);
+2. the state is carried to the new mesh: Gauss-point fields (stress, deformation
+   resistance, equivalent plastic strain) are extrapolated to the nodes in each old
+   element, averaged at the nodes, limited to the range of the Gauss values around the
+   node, and interpolated (bilinear, in the old element that contains the new point);
+   nodal pressures (q1q1) and the nodal velocities of the rate predictor likewise;
+   contact multipliers stay with their (boundary) node;
+3. the rezoned configuration becomes the new reference (u = 0, F_n = I): the material
+   update is incremental (thesis: updated-Lagrangian stress update), so nothing else
+   refers to the initial mesh.  Outputs keep measuring displacements from the initial
+   mesh (:func:`jaxform.simulate.simulate`).
+
+The trigger is the mesh quality (:func:`corner_qualities`): 2 det[a, b] / (|a|^2 + |b|^2)
+for the two edges a, b at an element corner (1 for a square; it falls with skew and with
+aspect ratio, and is < 0 for a non-convex quad), its minimum over the mesh checked after
+every converged step inside the compiled chunk.
+
+Rezoning is host-side NumPy between load steps (2.8 s on 10x10): sensitivities
+(jax.grad through a run) do not pass through it.  Only structured meshes (billet or ring
+sections, not ``mesh.file``) can be rezoned.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxform import element as el
+
+
+class RezoneError(RuntimeError):
+    pass
+
+
+_NEXT = np.array([1, 2, 3, 0])
+_PREV = np.array([3, 0, 1, 2])
+
+
+def corner_qualities(pos, elements):
+    """(..., 4) quality of each element corner: 2 det[a, b] / (|a|^2 + |b|^2) with a, b
+    the two edges leaving the corner (1 for a square, sin(angle) for a rhombus, 2k/(1+k^2)
+    for a 1:k rectangle, 0 for a degenerate corner, < 0 for a non-convex quad).  ``pos``
+    (n, 2) with ``elements`` (..., 4), or element corner positions (..., 4, 2) with
+    ``elements`` None.  Works on NumPy and JAX arrays."""
+    xp = jnp if isinstance(pos, jax.Array) else np
+    p = pos if elements is None else pos[elements]
+    a = p[..., _NEXT, :] - p
+    b = p[..., _PREV, :] - p
+    cross = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+    norm2 = xp.sum(a * a, axis=-1) + xp.sum(b * b, axis=-1)
+    return 2.0 * cross / xp.maximum(norm2, 1e-300)
+
+
+def min_quality(pos, elements):
+    """The mesh quality that triggers rezoning: the worst corner of any element."""
+    return corner_qualities(pos, elements).min()
+
+
+# ----------------------------------------------------------------------------------
+# geometry
+
+
+def _grid_ids(nr: int, nz: int) -> np.ndarray:
+    return np.arange((nr + 1) * (nz + 1)).reshape(nz + 1, nr + 1)
+
+
+def _grid_elements(ids: np.ndarray) -> np.ndarray:
+    n0 = ids[:-1, :-1].ravel()
+    nx = ids.shape[1] - 1
+    return np.column_stack([n0, n0 + 1, n0 + nx + 2, n0 + nx + 1])
+
+
+def _chain_points(chain: np.ndarray, s_target: np.ndarray) -> np.ndarray:
+    seg = np.linalg.norm(np.diff(chain, axis=0), axis=1)
+    s = np.concatenate([[0.0], np.cumsum(seg)])
+    return np.column_stack([np.interp(s_target, s, chain[:, 0]),
+                            np.interp(s_target, s, chain[:, 1])])
+
+
+def _volumes(p: np.ndarray, axisymmetric: bool) -> np.ndarray:
+    """Volumes (axisymmetric: of revolution, Pappus) or areas (plane strain) of quads
+    given by their corner positions (..., 4, 2)."""
+    xa, ya = p[..., 0], p[..., 1]
+    xb, yb = xa[..., _NEXT], ya[..., _NEXT]
+    cross = xa * yb - xb * ya
+    if axisymmetric:
+        return 2.0 * np.pi * np.sum(cross * (xa + xb), axis=-1) / 6.0
+    return 0.5 * np.sum(cross, axis=-1)
+
+
+def smooth(pos: np.ndarray, nr: int, nz: int, gap_fn, axisymmetric: bool = True,
+           sweeps: int = 100, touching=(False, True, True, True), volume_tol: float = 1e-4,
+           move_tol: float = 1e-4, contact_tol: float = 1e-6, pinned=()) -> np.ndarray:
+    """Quality-driven ("smart") smoothing of a structured grid.
+
+    Each node in turn is offered: the centre of its neighbours (interior: the mean of the
+    four grid neighbours; side nodes: the arc-length midpoint of its two neighbours along
+    the side), the half and quarter way there, and short steps in 8 directions (side
+    nodes: along the side) of 1/4 and 1/16 of the local element size; side points that
+    land inside the die are projected onto it.  The best offer is taken if it raises the
+    smallest corner quality (:func:`corner_qualities`) of the elements around the node,
+    pushes no node into the die, and changes the volume of the material (the elements
+    around a side node) by at most ``volume_tol`` of theirs, in that move and in all of
+    that node's moves together (interior moves never change it).  Exception: a side node
+    that lies on the die (|gap| <= ``contact_tol`` mm) between two neighbours on the die
+    slides along the die itself (its offers are projected onto it), with no volume limit:
+    the boundary there is the die, and the volume between the die and the chords of the
+    boundary (material that a convex die corner overlaps) is no material.  A corner of
+    the grid slides like a side node along its two neighbours on the boundary (the sides
+    meet at a smooth point when a free surface folds onto the die, as the ring's sides at
+    high friction) unless it is in ``pinned`` (nodes with a Dirichlet condition: sliding
+    would move them off the axis or the mid-plane).
+    Sweeps end when no node moves by more than ``move_tol`` x its element size.
+    ``touching`` says which sides (bottom, top, left, right) the die may touch;
+    ``gap_fn(points (m, 2)) -> (g (m,), n (m, 2))``."""
+    ids = _grid_ids(nr, nz)
+    elements = _grid_elements(ids)
+    x = pos.copy()
+    around = [[] for _ in range(len(x))]
+    for e, nodes in enumerate(elements):
+        for a in nodes:
+            around[a].append(e)
+    patch = [elements[np.array(a)] for a in around]
+    # the boundary as one counter-clockwise loop: bottom, right, top, left side
+    loop = np.concatenate([ids[0, :-1], ids[:-1, -1], ids[-1, :0:-1], ids[:0:-1, 0]])
+    side_id = np.concatenate([np.full(nr, 0), np.full(nz, 3), np.full(nr, 1), np.full(nz, 2)])
+    touch = np.asarray(touching)[side_id]  # of each loop node's side (corners: the first)
+    corner_mask = np.isin(loop, [ids[0, 0], ids[0, -1], ids[-1, 0], ids[-1, -1]])
+    nb = {int(a): (int(loop[m - 1]), int(loop[(m + 1) % len(loop)]),
+                   bool(touch[m] and touch[m - 1]), bool(corner_mask[m]))
+          for m, a in enumerate(loop)}
+    v_start = {a: _volumes(x[patch[a]], axisymmetric).sum() for a in nb}
+    dirs = np.array([[np.cos(a), np.sin(a)] for a in np.linspace(0, 2 * np.pi, 8, endpoint=False)])
+    steps = np.array([0.25, 0.0625])
+    fractions = np.array([1.0, 0.5, 0.25])
+    for _ in range(sweeps):
+        moved = 0.0
+        for a in range(len(x)):
+            pe = patch[a]
+            h_loc = np.mean(np.linalg.norm(x[pe].reshape(-1, 2) - x[a], axis=1)) * 4.0 / 3.0
+            on_side = a in nb
+            on_die = False
+            if on_side:
+                prev, nxt, may_touch, is_corner = nb[a]
+                chain = x[[prev, a, nxt]]
+                if may_touch:
+                    on_die = bool(np.all(np.abs(gap_fn(chain)[0]) <= contact_tol))
+                if is_corner and a in pinned:
+                    continue
+                s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(chain, axis=0),
+                                                                    axis=1))])
+                s_try = np.concatenate([s[1] + fractions * (0.5 * s[2] - s[1]),
+                                        s[1] + np.outer([-1.0, 1.0], steps * h_loc).ravel()])
+                cand = _chain_points(chain, s_try[(s_try > 0.0) & (s_try < s[2])])
+                if may_touch and len(cand):
+                    g, n = gap_fn(cand)
+                    cand = cand - (g if on_die else np.minimum(g, 0.0))[:, None] * n
+            else:
+                j, i = divmod(a, nr + 1)
+                centre = 0.25 * (x[ids[j, i - 1]] + x[ids[j, i + 1]] + x[ids[j - 1, i]]
+                                 + x[ids[j + 1, i]])
+                cand = np.vstack([x[a] + fractions[:, None] * (centre - x[a]),
+                                  x[a] + (steps[:, None, None] * h_loc * dirs).reshape(-1, 2)])
+            if not len(cand):
+                continue
+            pts = np.vstack([x[a][None], cand])  # row 0: where the node is now
+            corners_xy = np.broadcast_to(x[pe], (len(pts),) + pe.shape + (2,)).copy()
+            mine = pe == a
+            corners_xy[:, mine] = pts[:, None, :]
+            q = corner_qualities(corners_xy, None).min(axis=(1, 2))
+            g = gap_fn(pts)[0]
+            ok = (q > q[0] + 1e-9) & (g >= min(g[0], 0.0) - 1e-12)
+            if on_side and not on_die:
+                v = _volumes(corners_xy, axisymmetric).sum(axis=1)
+                ok &= (np.abs(v - v[0]) <= volume_tol * abs(v[0])) & (
+                    np.abs(v - v_start[a]) <= volume_tol * abs(v_start[a]))
+            if not ok.any():
+                continue
+            best = int(np.argmax(np.where(ok, q, -np.inf)))
+            moved = max(moved, float(np.linalg.norm(pts[best] - x[a])) / h_loc)
+            x[a] = pts[best]
+        if moved < move_tol:
+            break
+    return x
+
+
+def rezoned_positions(pos: np.ndarray, nr: int, nz: int, die, t: float,
+                      axisymmetric: bool = True, pinned=()) -> np.ndarray:
+    """New nodal positions (n, 2) for the current positions ``pos`` of the grid."""
+    t = jnp.asarray(t)
+
+    def gap_fn(points):
+        # padded to a fixed batch so that one compiled program serves every call
+        m = len(points)
+        pad = np.zeros((_BATCH, 2))
+        pad[:m] = points
+        pad[m:] = points[0]
+        g, n = _gaps_at(die, jnp.asarray(pad), t)
+        return np.asarray(g)[:m], np.asarray(n)[:m]
+
+    return smooth(pos, nr, nz, gap_fn, axisymmetric, pinned=set(int(a) for a in pinned))
+
+
+_BATCH = 32
+
+
+@jax.jit
+def _gaps_at(die, points, t):
+    return jax.vmap(lambda p: die.gap(p, t)[:2])(points)
+
+
+# ----------------------------------------------------------------------------------
+# transfer
+
+
+def _locate(points: np.ndarray, pos: np.ndarray, elements: np.ndarray):
+    """Element and natural coordinates (clamped to [-1, 1]^2) of each point in the mesh
+    (pos, elements): the element for which the point is least outside."""
+    xe = pos[elements]  # (ne, 4, 2)
+    corners = el._CORNERS
+    best_e = np.zeros(len(points), dtype=np.int64)
+    best_xi = np.zeros((len(points), 2))
+    best_out = np.full(len(points), np.inf)
+    for e0 in range(0, len(elements), 256):
+        x = xe[e0:e0 + 256]  # (m, 4, 2)
+        xi = np.zeros((len(points), len(x), 2))
+        for _ in range(12):
+            a, b = corners[:, 0], corners[:, 1]
+            n = 0.25 * (1 + a * xi[..., :1]) * (1 + b * xi[..., 1:])  # (p, m, 4)
+            dn_dxi = 0.25 * a * (1 + b * xi[..., 1:])
+            dn_deta = 0.25 * b * (1 + a * xi[..., :1])
+            r = np.einsum("pma,mai->pmi", n, x) - points[:, None, :]
+            j = np.stack([np.einsum("pma,mai->pmi", dn_dxi, x),
+                          np.einsum("pma,mai->pmi", dn_deta, x)], axis=-1)  # (p,m,i,k)
+            det = j[..., 0, 0] * j[..., 1, 1] - j[..., 0, 1] * j[..., 1, 0]
+            det = np.where(np.abs(det) > 1e-300, det, 1e-300)
+            d0 = (j[..., 1, 1] * r[..., 0] - j[..., 0, 1] * r[..., 1]) / det
+            d1 = (-j[..., 1, 0] * r[..., 0] + j[..., 0, 0] * r[..., 1]) / det
+            xi = np.clip(xi - np.stack([d0, d1], axis=-1), -3.0, 3.0)
+        n = 0.25 * (1 + a * xi[..., :1]) * (1 + b * xi[..., 1:])
+        miss = np.linalg.norm(np.einsum("pma,mai->pmi", n, x) - points[:, None, :], axis=-1)
+        size = np.linalg.norm(x[:, 2] - x[:, 0], axis=-1)[None, :]
+        out = np.maximum(np.abs(xi).max(axis=-1) - 1.0, 0.0) + miss / size
+        k = np.argmin(out, axis=1)
+        o = out[np.arange(len(points)), k]
+        better = o < best_out
+        best_out[better] = o[better]
+        best_e[better] = e0 + k[better]
+        best_xi[better] = xi[np.arange(len(points)), k][better]
+    return best_e, np.clip(best_xi, -1.0, 1.0)
+
+
+def _interpolate(nodal: np.ndarray, elements: np.ndarray, e: np.ndarray, xi: np.ndarray):
+    a, b = el._CORNERS[:, 0], el._CORNERS[:, 1]
+    n = 0.25 * (1 + a * xi[:, :1]) * (1 + b * xi[:, 1:])  # (p, 4)
+    vals = nodal[elements[e]]  # (p, 4, ...)
+    return np.einsum("pa,pa...->p...", n, vals)
+
+
+def gauss_to_nodes(values: np.ndarray, elements: np.ndarray, n_nodes: int) -> np.ndarray:
+    """Gauss-point values (ne, 4, ...) to nodal values (n, ...): bilinear extrapolation in
+    each element, averaged over the elements at a node, limited to the range of the Gauss
+    values of those elements (no new extrema)."""
+    extrap = np.einsum("ag,eg...->ea...", np.linalg.inv(el.N_GP), values)
+    shape = values.shape[2:]
+    total = np.zeros((n_nodes,) + shape)
+    np.add.at(total, elements, extrap)
+    count = np.zeros(n_nodes)
+    np.add.at(count, elements, 1.0)
+    avg = total / count.reshape((-1,) + (1,) * len(shape))
+    lo = np.full((n_nodes,) + shape, np.inf)
+    hi = np.full((n_nodes,) + shape, -np.inf)
+    emin, emax = values.min(axis=1), values.max(axis=1)
+    for c in range(4):
+        np.minimum.at(lo, elements[:, c], emin)
+        np.maximum.at(hi, elements[:, c], emax)
+    return np.clip(avg, lo, hi)
+
+
+@dataclass(frozen=True)
+class RezoneReport:
+    time_s: float
+    quality_before: float
+    quality_after: float
+    volume_change: float  # relative change of the material volume (chords across corners)
+    improved: bool = True  # False: no node move raised the quality; the mesh was kept
+
+
+def rezone(scene, state, inputs):
+    """(new state, new inputs, RezoneReport) for a scene's converged state."""
+    from jaxform.postprocess import material_volume
+
+    if scene.grid is None:
+        raise RezoneError("rezoning needs a structured mesh (mesh.file = '')")
+    nr, nz = scene.grid
+    lay = scene.model.layout
+    nf = lay.n_fields
+    elements = np.asarray(scene.mesh.elements)
+    ref = np.asarray(inputs.coords)
+    x = np.asarray(state.x)
+    nodal = x[: lay.n_node_dofs].reshape(lay.n_nodes, nf)
+    pos = ref + nodal[:, :2]
+    t = float(state.t)
+    pinned = np.unique(np.asarray(scene.idx.fixed) // nf)
+    new_pos = rezoned_positions(pos, nr, nz, inputs.die, t,
+                                scene.model.formulation.axisymmetric, pinned)
+    q_old = float(min_quality(pos, elements))
+    q_new = float(min_quality(new_pos, elements))
+    if not q_new > q_old:  # nothing to gain: the caller goes on with the mesh as it is
+        return state, inputs, RezoneReport(t, q_old, q_old, 0.0, improved=False)
+    # new Gauss points and nodes, located in the old (current) mesh
+    gp_new = np.einsum("ga,eai->egi", el.N_GP, new_pos[elements]).reshape(-1, 2)
+    e_gp, xi_gp = _locate(gp_new, pos, elements)
+    e_nd, xi_nd = _locate(new_pos, pos, elements)
+
+    def gauss_field(v):
+        v = np.asarray(v)
+        nod = gauss_to_nodes(v, elements, lay.n_nodes)
+        return jnp.asarray(_interpolate(nod, elements, e_gp, xi_gp).reshape(v.shape))
+
+    mat = jax.tree_util.tree_map(gauss_field, state.gauss.mat)
+    eye = jnp.broadcast_to(jnp.eye(3), state.gauss.F.shape)
+    gauss = replace(state.gauss, F=eye, mat=mat)
+
+    rate = np.asarray(state.x_rate)
+    rate_nodal = rate[: lay.n_node_dofs].reshape(lay.n_nodes, nf)
+    new_rate_nodal = _interpolate(rate_nodal, elements, e_nd, xi_nd)
+    new_nodal = np.zeros_like(nodal)
+    if nf == 3:  # q1q1 nodal pressure
+        new_nodal[:, 2] = _interpolate(nodal[:, 2], elements, e_nd, xi_nd)
+    x_new = np.concatenate([new_nodal.ravel(), x[lay.n_node_dofs:]])
+    rate_new = np.concatenate([new_rate_nodal.ravel(), rate[lay.n_node_dofs:]])
+    new_state = replace(state, x=jnp.asarray(x_new), gauss=gauss, x_rate=jnp.asarray(rate_new))
+    new_inputs = replace(inputs, coords=jnp.asarray(new_pos))
+    v0 = material_volume(scene, pos)
+    v1 = material_volume(scene, new_pos)
+    return new_state, new_inputs, RezoneReport(t, q_old, q_new, v1 / v0 - 1.0)
