@@ -62,7 +62,7 @@ def write_outputs(out_dir: str | Path, result: Result) -> None:
     if cfg["output"]["fields"]:
         write_vtu_series(out, scene, result)
     if cfg["output"]["plots"]:
-        coords0 = np.asarray(scene.mesh.coords)
+        coords0 = np.asarray(scene.inputs.coords)
         u, _, _ = nodal_fields(scene, result.fields["x"][-1])
         coords1 = coords0 + u
         el = np.asarray(scene.mesh.elements)

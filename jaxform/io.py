@@ -56,7 +56,7 @@ def write_vtu_series(out_dir: Path, scene, result, every: int = 1) -> Path:
     out_dir = Path(out_dir)
     fields_dir = out_dir / "fields"
     fields_dir.mkdir(parents=True, exist_ok=True)
-    coords = np.asarray(scene.mesh.coords)
+    coords = np.asarray(scene.inputs.coords)
     pts = np.column_stack([coords, np.zeros(len(coords))])
     cells = [("quad", np.asarray(scene.mesh.elements))]
     entries = []

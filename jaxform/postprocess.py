@@ -21,8 +21,10 @@ from jaxform.io import nodal_fields
 
 
 def positions(scene, x) -> np.ndarray:
+    """Current nodal positions (mm): the scene's reference ``inputs.coords`` (the mesh, or a
+    preform that replaced it) plus the displacement in ``x``."""
     u, _, _ = nodal_fields(scene, x)
-    return np.asarray(scene.mesh.coords) + u
+    return np.asarray(scene.inputs.coords) + u
 
 
 def _mid_height_node(scene, name: str) -> int:

@@ -322,9 +322,10 @@ class Result:
 
 
 def _absolute(scene: Scene, inp: Inputs, x: np.ndarray) -> np.ndarray:
-    """Unknowns with the displacement measured from the initial mesh (after rezoning the
-    compiled step measures it from the rezoned reference ``inp.coords``)."""
-    shift = np.asarray(inp.coords) - np.asarray(scene.mesh.coords)
+    """Unknowns with the displacement measured from the scene's reference coordinates
+    ``scene.inputs.coords`` (after rezoning the compiled step measures it from the rezoned
+    reference ``inp.coords``)."""
+    shift = np.asarray(inp.coords) - np.asarray(scene.inputs.coords)
     if not np.any(shift):
         return x
     lay = scene.model.layout
@@ -352,7 +353,7 @@ def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Re
                scene.symmetric_z)
     init = jax.device_get(step_outputs(scene.model, state, inp, scene.idx, scene.symmetric_z))
     rows = [dict(init, iterations=0, cutbacks=0, code=OK, rezoned=0,
-                 mesh_quality=float(min_quality(np.asarray(scene.mesh.coords),
+                 mesh_quality=float(min_quality(np.asarray(scene.inputs.coords),
                                                 np.asarray(scene.mesh.elements))))]
     hists = []
     rezones = []
