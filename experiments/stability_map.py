@@ -133,7 +133,9 @@ def plot(rows: list[dict], path: Path) -> None:
                     text = f"{r['mean_newton_per_step']:.1f}" + (f"\n{c} cb" if c else "")
                 ax.text(b, a, text, ha="center", va="center", fontsize=7)
             ax.imshow(grid, cmap=cmap, vmin=-0.5, vmax=3.5, aspect="auto")
-            ax.set_xticks(range(len(dts)), [f"{d:g}" for d in dts], fontsize=8)
+            capped = {r["dt_s"] for r in rows if r["capped"]}
+            ax.set_xticks(range(len(dts)), [f"{d:g}*" if d in capped else f"{d:g}" for d in dts],
+                          fontsize=8)
             ax.set_yticks(range(len(elements)), elements)
             ax.set_xlabel("time step dt [s]")
             mesh = next(r["mesh"] for r in rows if r["scene"] == sc)
@@ -143,7 +145,7 @@ def plot(rows: list[dict], path: Path) -> None:
                          "converged, > 5 cutbacks", "failed after max cutbacks"],
                loc="lower center", ncol=4, fontsize=8)
     fig.suptitle("Upsetting, Al 1100-O 673 K: text = mean Newton iterations per step, "
-                 "cb = cutbacks", fontsize=9)
+                 "cb = cutbacks; * = run capped to a shorter stroke", fontsize=9)
     fig.tight_layout(rect=(0, 0.05, 1, 1))
     fig.savefig(path, dpi=120)
     plt.close(fig)
