@@ -14,7 +14,8 @@ Contract
 --------
 * ``trajectory(scene, inputs, times)`` -> :class:`Trajectory`.  Each step starts from
   the last step's rate (predictor) and, if that solve fails, once more from the last
-  state.  ``times`` (n,) are the
+  state (the second, differentiated solve starts from the first one's solution where
+  that converged: no branch, so the run vmaps without computing both).  ``times`` (n,) are the
   step end times (s), increasing from > 0; the scene's own schedule is
   :meth:`Scene.step_targets`.  Steps that need a cutback in a forward run need a finer
   schedule here (``dt``): a failed step does not raise inside jit, it leaves its code in
@@ -73,16 +74,19 @@ def _trajectory(model, linear, settings, symmetric_z, inputs: Inputs, times, sta
     def step(st: SimState, t_new):
         dt = t_new - st.t
         guess = st.x + dt * st.x_rate
-        x, g, its, code, _, cstep = solve_step(model, linear, settings, st, t_new, dt, inputs,
-                                               idx, x_guess=guess)
-
-        # like the forward run after a cutback: retry without the rate predictor
-        def retry(_):
-            x2, g2, its2, code2, _, _ = solve_step(model, linear, settings, st, t_new, dt,
-                                                   inputs, idx)
-            return x2, g2, its + its2, code2
-
-        x, g, its, code = jax.lax.cond(code == OK, lambda _: (x, g, its, code), retry, None)
+        # first attempt from the rate predictor, not differentiated (stop_gradient: no
+        # tangent reaches it, so it has no reverse pass)
+        sg = jax.lax.stop_gradient
+        x1, _, its1, code1, _, _ = solve_step(model, linear, settings, sg(st), t_new, sg(dt),
+                                              sg(inputs), idx, x_guess=guess)
+        # the differentiated solve: from x1 where that converged (0 iterations, one
+        # residual), else from the last state, like the forward run after a cutback.  No
+        # lax.cond: under vmap a cond runs both branches, i.e. a whole second Newton solve
+        # for every lane; here a lane that converged costs one residual evaluation.
+        x, g, its2, code, _, cstep = solve_step(model, linear, settings, st, t_new, dt,
+                                                inputs, idx,
+                                                x_guess=jnp.where(code1 == OK, x1, st.x))
+        its = its1 + its2
         new = converged_state(model, st, x, g, t_new, inputs, cstep, idx)
         out = (t_new, die_force(model, x, inputs, t_new, idx), new.friction_work, code, its)
         return new, out

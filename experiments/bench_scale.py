@@ -1,0 +1,201 @@
+"""Cost of a Newton iteration against the number of unknowns, and the 100x100 seed scene.
+
+    python experiments/bench_scale.py [--meshes 10 20 40 80 160] [--quick] [--out docs/figures]
+    python experiments/bench_scale.py --full 100        # the seed scene to 56.3 %, timed
+
+Seed scene (configs/upsetting_seed.toml, q1q1, Anand) on n x n meshes, klujax sparse LU.
+Each size runs in its own subprocess (``--one n``, so that its peak resident memory,
+``ru_maxrss``, is that size's alone) and times the compiled pieces of a Newton iteration
+separately, each best of 5 after compilation:
+
+* ``assemble``: ``Model.residual_and_jacobian`` (element residuals, their jacfwd Jacobians
+  with the nested Anand local solves, contact blocks, the segment_sum onto the pattern);
+* ``residual``: ``Model.residual`` (one per line-search trial, i.e. one per iteration);
+* ``solve``: ``LinearSolver.solve`` on the fixed pattern (klujax: symbolic analysis,
+  factorization and solve, all in one call).
+
+evaluated at the first step's homogeneous compression (u_r = e r / 2, u_z = -e z, the
+flow the scene starts with).  One Newton iteration = assemble + solve + residual.
+Writes bench_scale.csv and bench_scale.png (log-log, with power-law exponents fitted over
+the sizes >= 20x20).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+SEED = "configs/upsetting_seed.toml"
+
+
+def _best(fn, repeats=5):
+    import jax
+
+    jax.block_until_ready(fn())
+    best = np.inf
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn())
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def one(n: int, linear: str) -> dict:
+    """Time the compiled pieces on an n x n seed mesh (run in a fresh process)."""
+    import jax
+    import jax.numpy as jnp
+
+    import jaxform
+    from jaxform.config import load_config
+    from jaxform.scenes import build_scene
+    from jaxform.simulate import applied_forces, contact_step
+
+    jaxform.enable_x64()
+    cfg = load_config(SEED, [f"mesh.nr={n}", f"mesh.nz={n}", f"solver.linear={linear}",
+                             "output.fields=false", "output.plots=false"])
+    sc = build_scene(cfg)
+    lay, idx, inp, model = sc.model.layout, sc.idx, sc.inputs, sc.model
+    st = sc.initial_state()
+    coords = np.asarray(inp.coords)
+    e = cfg["die"]["speed_mm_s"] * sc.dt / cfg["billet"]["height_mm"]  # first step's strain
+    x = np.zeros(lay.n_dofs)
+    u = x[: lay.n_node_dofs].reshape(-1, lay.n_fields)
+    u[:, 0], u[:, 1] = 0.5 * e * coords[:, 0], -e * coords[:, 1]
+    x = jnp.asarray(x)
+    t, dt = jnp.asarray(sc.dt), jnp.asarray(sc.dt)
+    cstep = contact_step(model, st, inp, idx)
+    args = (st.gauss, inp.coords, t, dt, inp.params, inp.die, inp.c_contact, cstep, idx,
+            applied_forces(model, inp, t, idx))
+    rj = jax.jit(model.residual_and_jacobian)
+    res = jax.jit(model.residual)
+    solve = jax.jit(lambda r, c, v, b: sc.linear.solve(r, c, v, b, lay.n_dofs))
+    out = {"n": n, "unknowns": lay.n_dofs, "nonzeros": lay.n_nonzeros,
+           "backend": sc.linear.backend}
+    t0 = time.perf_counter()
+    r, vals, *_ = jax.block_until_ready(rj(x, *args))
+    out["compile_assemble_s"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    jax.block_until_ready(res(x, *args))
+    out["compile_residual_s"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    dx = jax.block_until_ready(solve(idx.rows, idx.cols, vals, -r))
+    out["compile_solve_s"] = time.perf_counter() - t0
+    out["assemble_s"] = _best(lambda: rj(x, *args))
+    out["residual_s"] = _best(lambda: res(x, *args))
+    out["solve_s"] = _best(lambda: solve(idx.rows, idx.cols, vals, -r))
+    out["iteration_s"] = out["assemble_s"] + out["solve_s"] + out["residual_s"]
+    out["solve_finite"] = bool(np.all(np.isfinite(np.asarray(dx))))
+    out["peak_rss_mib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    return out
+
+
+def full(n: int) -> None:
+    """The seed scene on n x n to 56.3 %: first run (compile + run), then a second run."""
+    import jaxform
+    from jaxform.config import load_config
+    from jaxform.scenes import build_scene
+    from jaxform.simulate import simulate
+
+    jaxform.enable_x64()
+    cfg = load_config(SEED, [f"mesh.nr={n}", f"mesh.nz={n}", "output.fields=false",
+                             "output.plots=false"])
+    t0 = time.perf_counter()
+    simulate(build_scene(cfg))
+    first = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    res = simulate(build_scene(cfg))
+    second = time.perf_counter() - t0
+    its = res.history["newton_iterations"][1:]
+    print(f"seed {n}x{n}: {build_scene(cfg).model.layout.n_dofs} unknowns, {len(its)} steps, "
+          f"{its.sum():.0f} Newton iterations ({its.mean():.2f}/step): first run "
+          f"{first:.1f} s, run after compile {second:.1f} s "
+          f"({second / its.sum() * 1e3:.0f} ms per iteration incl. step overhead), "
+          f"force {res.history['force_N'][-1]:.2f} N, peak RSS "
+          f"{resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MiB")
+
+
+def fit(unknowns, seconds):
+    k, c = np.polyfit(np.log(unknowns), np.log(seconds), 1)
+    return float(k), float(np.exp(c))
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--meshes", type=int, nargs="+", default=[10, 20, 40, 80, 160])
+    ap.add_argument("--quick", action="store_true", help="10, 20, 40 only")
+    ap.add_argument("--linear", default="sparse")
+    ap.add_argument("--out", default="docs/figures")
+    ap.add_argument("--one", type=int, help=argparse.SUPPRESS)
+    ap.add_argument("--full", type=int, help="time the whole seed scene on this n x n mesh")
+    args = ap.parse_args()
+    if args.one:
+        print("RESULT " + json.dumps(one(args.one, args.linear)), flush=True)
+        return
+    if args.full:
+        return full(args.full)
+    meshes = [10, 20, 40] if args.quick else args.meshes
+    rows = []
+    print(f"{'mesh':>9} {'unknowns':>8} {'nonzeros':>9} {'assemble':>9} {'residual':>9} "
+          f"{'solve':>8} {'iteration':>9} {'peak RSS':>9} {'compile a/r/s':>15}")
+    for n in meshes:
+        p = subprocess.run([sys.executable, __file__, "--one", str(n), "--linear", args.linear],
+                           capture_output=True, text=True)
+        line = [ln for ln in p.stdout.splitlines() if ln.startswith("RESULT ")]
+        if p.returncode or not line:
+            print(f"{n}x{n}: failed\n{p.stderr[-2000:]}")
+            break
+        r = json.loads(line[0][7:])
+        rows.append(r)
+        print(f"{n:>4}x{n:<4} {r['unknowns']:>8} {r['nonzeros']:>9} {r['assemble_s'] * 1e3:>7.1f}ms "
+              f"{r['residual_s'] * 1e3:>7.1f}ms {r['solve_s'] * 1e3:>6.1f}ms "
+              f"{r['iteration_s'] * 1e3:>7.1f}ms {r['peak_rss_mib']:>6.0f}MiB "
+              f"{r['compile_assemble_s']:>5.1f}/{r['compile_residual_s']:.1f}/"
+              f"{r['compile_solve_s']:.1f}s", flush=True)
+    if len(rows) < 2:
+        return
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    keys = ("n", "unknowns", "nonzeros", "assemble_s", "residual_s", "solve_s", "iteration_s",
+            "peak_rss_mib", "compile_assemble_s", "compile_residual_s", "compile_solve_s")
+    from jaxform.io import write_csv
+
+    write_csv(out / "bench_scale.csv", {k: np.array([float(r[k]) for r in rows]) for k in keys})
+    nu = np.array([r["unknowns"] for r in rows], dtype=float)
+    sel = np.array([r["n"] >= 20 for r in rows]) if sum(r["n"] >= 20 for r in rows) >= 2 \
+        else np.ones(len(rows), bool)
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.4, 4.6))
+    for key, label, mk in (("assemble_s", "assembly (R and Jacobian)", "o"),
+                           ("residual_s", "residual", "^"),
+                           ("solve_s", "sparse LU (klujax)", "s"),
+                           ("iteration_s", "Newton iteration", "D")):
+        y = np.array([r[key] for r in rows])
+        k, c = fit(nu[sel], y[sel])
+        print(f"{label:>26}: time ~ unknowns^{k:.2f}")
+        ax.loglog(nu, y, mk + "-", label=f"{label}: exponent {k:.2f}")
+    ax.set_xlabel("unknowns")
+    ax.set_ylabel("time per call (s)")
+    ax.set_title("seed scene, q1q1 Anand, 2-core CPU")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out / "bench_scale.png", dpi=120)
+    mem = np.array([r["peak_rss_mib"] for r in rows])
+    k, _ = fit(nu[sel], mem[sel])
+    print(f"{'peak RSS':>26}: MiB ~ unknowns^{k:.2f}")
+    print(f"wrote {out / 'bench_scale.csv'} and {out / 'bench_scale.png'}")
+
+
+if __name__ == "__main__":
+    main()
