@@ -15,7 +15,10 @@ dx*/da = -J^-1 dR/da, so a reverse pass needs one solve with the transposed Jaco
 of the converged step (y = J^-T xbar) and one VJP of the residual with respect to the
 arguments (abar = -y^T dR/da).  The solve's auxiliary output (the new Gauss state,
 aux = G(x*, a)) is differentiated too: xbar gains (dG/dx)^T auxbar before the solve and
-abar gains (dG/da)^T auxbar.  Where R is only piecewise smooth (contact and friction
+abar gains (dG/da)^T auxbar.  Per step the reverse pass costs one Jacobian assembly
+(forward mode over the element dofs, whose tangents also give (dG/dx)^T auxbar), one
+transposed solve, and one linearization of (R, G) in the arguments transposed once with
+the cotangent (-y, auxbar).  Where R is only piecewise smooth (contact and friction
 switch between branches at an active-set change), the derivative is that of the branch
 active at x*: exact away from a switch, one-sided at it.
 
