@@ -1,6 +1,6 @@
 """Cost of exact gradients: time of one gradient / time of one forward run, and memory.
 
-    python experiments/bench_gradient.py [--scenes seed friction] [--repeat 3]
+    python experiments/bench_gradient.py [--scenes seed friction] [--repeat 5]
 
 For each scene (the seed config, and the seed billet with Coulomb friction 0.3 =
 configs/upsetting_friction.toml) on the same fixed step schedule:
@@ -11,7 +11,9 @@ configs/upsetting_friction.toml) on the same fixed step schedule:
   reverse pass (problem.value_and_grad, compiled);
 * simulate: the ordinary forward run with cutback (jaxform.simulate), for reference.
 
-Times are the best of --repeat runs after compilation.  Memory: XLA's own account of
+Times are the best of --repeat runs after compilation; the forward and gradient runs
+alternate (forward, gradient, forward, ...), so that load from other jobs on a shared
+machine hits both alike, and the ratio is that of the two minima.  Memory: XLA's own account of
 the compiled programs (arguments + outputs + temporaries, from memory_analysis()), i.e.
 the peak the reverse pass needs, and the process's peak resident set size.
 Target (issue): gradient / forward <= 2.
@@ -35,12 +37,18 @@ CONFIGS = {"seed": "configs/upsetting_seed.toml", "friction": "configs/upsetting
 
 
 def best(fn, repeat):
-    times = []
+    return interleaved([fn], repeat)[0]
+
+
+def interleaved(fns, repeat):
+    """Best time of each of ``fns``, run in turn ``repeat`` times."""
+    times = [[] for _ in fns]
     for _ in range(repeat):
-        t0 = time.perf_counter()
-        jax.block_until_ready(fn())
-        times.append(time.perf_counter() - t0)
-    return min(times)
+        for fn, ts in zip(fns, times):
+            t0 = time.perf_counter()
+            jax.block_until_ready(fn())
+            ts.append(time.perf_counter() - t0)
+    return [min(ts) for ts in times]
 
 
 def program_bytes(jitted, *args) -> float:
@@ -53,7 +61,7 @@ def program_bytes(jitted, *args) -> float:
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--scenes", nargs="+", default=list(CONFIGS), choices=list(CONFIGS))
-    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--repeat", type=int, default=5)
     args = ap.parse_args()
     jaxform.enable_x64()
     rows = []
@@ -68,8 +76,8 @@ def main():
         t0 = time.perf_counter()
         problem.value_and_grad(u)
         c_grad = time.perf_counter() - t0
-        t_fwd = best(lambda: problem.value(u)[0], args.repeat)
-        t_grad = best(lambda: problem.value_and_grad(u)[1], args.repeat)
+        t_fwd, t_grad = interleaved([lambda: problem.value(u)[0],
+                                     lambda: problem.value_and_grad(u)[1]], args.repeat)
         t_sim = best(lambda: simulate(scene).history["force_N"], args.repeat)
         mem_fwd = program_bytes(problem._value, u)
         mem_grad = program_bytes(problem._value_and_grad, u)

@@ -151,6 +151,12 @@ def _step_residual_and_jacobian(model: Model, x, args):
                                        cstep, idx, f_ext=f_ext)
 
 
+def _step_adjoint(model: Model, x, args, gauss_bar):
+    gauss, coords, t, dt, params, die, c_contact, cstep, idx, f_ext = args
+    return model.jacobian_and_state_vjp(x, gauss, coords, t, dt, params, die, c_contact,
+                                        cstep, idx, gauss_bar)
+
+
 def _step_linear(model: Model, linear: LinearSolver, vals, b, args, transpose: bool):
     idx = args[8]
     solve = linear.solve_transpose if transpose else linear.solve
@@ -172,7 +178,8 @@ def solve_step(model: Model, linear: LinearSolver, settings: NewtonSettings,
     x0 = x_fallback if x_guess is None else jax.lax.stop_gradient(x_guess)
     x, g, its, code, hist = solve_implicit(
         partial(_step_residual, model), partial(_step_residual_and_jacobian, model),
-        partial(_step_linear, model, linear), settings, x0, x_fallback, args)
+        partial(_step_adjoint, model), partial(_step_linear, model, linear), settings, x0,
+        x_fallback, args)
     return x, g, its, code, hist, cstep
 
 

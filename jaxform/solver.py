@@ -15,7 +15,10 @@ dx*/da = -J^-1 dR/da, so a reverse pass needs one solve with the transposed Jaco
 of the converged step (y = J^-T xbar) and one VJP of the residual with respect to the
 arguments (abar = -y^T dR/da).  The solve's auxiliary output (the new Gauss state,
 aux = G(x*, a)) is differentiated too: xbar gains (dG/dx)^T auxbar before the solve and
-abar gains (dG/da)^T auxbar.  Where R is only piecewise smooth (contact and friction
+abar gains (dG/da)^T auxbar.  Per step the reverse pass costs one Jacobian assembly
+(forward mode over the element dofs, whose tangents also give (dG/dx)^T auxbar), one
+transposed solve, and one linearization of (R, G) in the arguments transposed once with
+the cotangent (-y, auxbar).  Where R is only piecewise smooth (contact and friction
 switch between branches at an active-set change), the derivative is that of the branch
 active at x*: exact away from a switch, one-sided at it.
 
@@ -117,12 +120,13 @@ def newton(residual, residual_and_jacobian, linear_solve, x0, settings: NewtonSe
     return x, aux, it, code, hist
 
 
-@partial(jax.custom_vjp, nondiff_argnums=(0, 1, 2, 3))
-def solve_implicit(fn, fn_jac, linear, settings: NewtonSettings, x0, x_fallback, args):
+@partial(jax.custom_vjp, nondiff_argnums=(0, 1, 2, 3, 4))
+def solve_implicit(fn, fn_jac, fn_adj, linear, settings: NewtonSettings, x0, x_fallback, args):
     """Newton from x0 (x_fallback if x0 is invalid) on fn(., args) = 0, differentiable in
     ``args`` by the implicit function theorem (x0 and x_fallback get no derivative).
 
     fn(x, args) -> (R, aux, code, scale); fn_jac(x, args) -> (R, vals, aux, code, scale);
+    fn_adj(x, args, aux_bar) -> (vals, (daux/dx)^T aux_bar), for the reverse pass;
     linear(vals, b, args, transpose) -> solution of J y = b (or J^T y = b).  Returns
     (x, aux, iterations, code, history) like :func:`newton`.  The functions must be
     hashable and close over no traced value: everything traced goes through ``args``.
@@ -132,33 +136,32 @@ def solve_implicit(fn, fn_jac, linear, settings: NewtonSettings, x0, x_fallback,
                   x_fallback=x_fallback)
 
 
-def _solve_implicit_fwd(fn, fn_jac, linear, settings, x0, x_fallback, args):
-    out = solve_implicit(fn, fn_jac, linear, settings, x0, x_fallback, args)
-    return out, (out[0], x0, x_fallback, args)
+def _solve_implicit_fwd(fn, fn_jac, fn_adj, linear, settings, x0, x_fallback, args):
+    out = solve_implicit(fn, fn_jac, fn_adj, linear, settings, x0, x_fallback, args)
+    return out, (out[0], args)
 
 
-def _solve_implicit_bwd(fn, fn_jac, linear, settings, res, cot):
-    x, x0, x_fallback, args = res
+def _solve_implicit_bwd(fn, fn_jac, fn_adj, linear, settings, res, cot):
+    """xbar_total = xbar + (dG/dx)^T auxbar;  J^T y = xbar_total;
+    abar = (dG/da)^T auxbar - (dR/da)^T y.
+
+    The x-derivatives come from forward mode (fn_adj: the Jacobian assembly, whose
+    tangents carry dG/dx too), so the reverse pass through the residual is taken with
+    respect to ``args`` only, and once, with the cotangent (-y, auxbar): one
+    linearization and one transposition instead of a linearization in (x, args) and two
+    transpositions (measured on the seed scene: see experiments/bench_gradient.py)."""
+    x, args = res
     x_bar, aux_bar = cot[0], cot[1]
+    vals, xg_bar = fn_adj(x, args, aux_bar)
+    y = linear(vals, x_bar + xg_bar, args, True)
 
-    def r_and_aux(x, a):
+    def r_and_aux(a):
         r, aux, _, _ = fn(x, a)
         return r, aux
 
-    (r, aux), vjp = jax.vjp(r_and_aux, x, args)
-    zero_r = jnp.zeros_like(r)
-    xg_bar, ag_bar = vjp((zero_r, aux_bar))  # through the Gauss-state output
-    _, vals, _, _, _ = fn_jac(x, args)
-    y = linear(vals, x_bar + xg_bar, args, True)  # J^T y = xbar
-    _, ar_bar = vjp((-y, jax.tree_util.tree_map(jnp.zeros_like, aux)))
-    a_bar = jax.tree_util.tree_map(_add_cotangents, ag_bar, ar_bar)
-    return jnp.zeros_like(x0), jnp.zeros_like(x_fallback), a_bar
-
-
-def _add_cotangents(u, v):
-    if getattr(u, "dtype", None) == jax.dtypes.float0:
-        return u
-    return u + v
+    _, vjp = jax.vjp(r_and_aux, args)
+    (a_bar,) = vjp((-y, aux_bar))
+    return jnp.zeros_like(x), jnp.zeros_like(x), a_bar
 
 
 solve_implicit.defvjp(_solve_implicit_fwd, _solve_implicit_bwd)
