@@ -9,7 +9,8 @@ Each size runs in its own subprocess (``--one n``, so that its peak resident mem
 separately, each best of 5 after compilation:
 
 * ``assemble``: ``Model.residual_and_jacobian`` (element residuals, their jacfwd Jacobians
-  with the nested Anand local solves, contact blocks, the segment_sum onto the pattern);
+  with the nested Anand local solves in chunks of 32 elements, contact blocks, the
+  segment_sum onto the pattern);
 * ``residual``: ``Model.residual`` (one per line-search trial, i.e. one per iteration);
 * ``solve``: ``LinearSolver.solve`` on the fixed pattern (klujax: symbolic analysis,
   factorization and solve, all in one call).

@@ -178,8 +178,10 @@ SCHEMA: dict[str, dict[str, Field]] = {
                       doc="relative residual tolerance of Newton"),
         "max_cutbacks": Field("int", 6, 0, 30, doc="times a failed step may be halved"),
         "line_search": Field("bool", True, doc="backtracking line search in Newton"),
-        "linear": Field("str", "auto", choices=("auto", "dense", "sparse"),
-                        doc="linear solver backend (auto: dense LU below 100 unknowns, klujax sparse LU above)"),
+        "linear": Field("str", "auto", choices=("auto", "dense", "sparse", "jax-sparse"),
+                        doc="linear solver backend (auto: on CPU dense LU below 100 unknowns, "
+                            "klujax sparse LU above; on a GPU dense LU below 20 000, "
+                            "jax-sparse (cuSolver) above; see jaxform/linear.py)"),
         "chunk_steps": Field("int", 8, 1, 10000,
                              doc="load steps per compiled chunk (progress is reported between chunks)"),
     },
