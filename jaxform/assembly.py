@@ -162,8 +162,9 @@ class Model:
         return fn
 
     def _element_jacobians(self, fn, xe, x_ref, gstate):
-        """vmap(jacfwd(fn)) over the elements, in chunks of ``jacobian_chunk`` (see the
-        module docstring); returns (k_e, (r_e, gnew, ok_e)) like the plain vmap."""
+        """vmap(jacfwd(fn, has_aux=True)) over the elements, in chunks of
+        ``jacobian_chunk`` (see the module docstring); returns what the plain vmap
+        returns (for the element function: (k_e, (r_e, gnew, ok_e)))."""
         jac = jax.vmap(jax.jacfwd(fn, has_aux=True))
         n_el, b = xe.shape[0], self.jacobian_chunk
         if b <= 0 or n_el <= b:
@@ -243,8 +244,8 @@ class Model:
             r, (_, gnew, code) = fn(dofs_flat, x_ref, gs)
             return (r, gnew), code
 
-        (k_e, dg_e), _ = jax.vmap(jax.jacfwd(fn_state, has_aux=True))(
-            self._gather(x, idx), coords[idx.elements], gstate)
+        (k_e, dg_e), _ = self._element_jacobians(
+            fn_state, self._gather(x, idx), coords[idx.elements], gstate)
         n_e, n_d = k_e.shape[0], k_e.shape[-1]
         xg_e = sum(jnp.einsum("ek,ekd->ed", gb.reshape(n_e, -1), dg.reshape(n_e, -1, n_d))
                    for gb, dg in zip(jax.tree_util.tree_leaves(g_bar),
