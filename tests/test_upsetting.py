@@ -47,7 +47,8 @@ def positions(sc, res, k=-1):
     return np.asarray(sc.inputs.coords) + u
 
 
-@pytest.mark.parametrize("element", ["q1q1", "q1p0", "q4"])
+# q4 slow: the same homogeneous path, and q4 runs in the patch and punch tests (CI time)
+@pytest.mark.parametrize("element", ["q1q1", "q1p0", pytest.param("q4", marks=pytest.mark.slow)])
 def test_frictionless_upsetting_is_the_material_point(element):
     """Force-stroke = material point with the same steps to 1e-6; side straight to 1e-8;
     within the time-discretization error (2 %, steps of ~1 % strain) of the Radau ODE."""
@@ -185,6 +186,7 @@ def test_sparse_and_dense_backends_agree_on_seed_scene():
     assert np.max(np.abs(u_s - u_d)) <= 1e-10 * np.max(np.abs(u_d))
 
 
+@pytest.mark.slow  # ~26 s; tests/test_linear.py checks this backend's solves in the default suite
 def test_jax_sparse_backend_agrees_on_seed_scene():
     """jax.experimental.sparse.linalg.spsolve (the GPU sparse path; on CPU SciPy's spsolve
     through a callback) gives the same history as klujax to 1e-10 relative."""
