@@ -120,7 +120,9 @@ SCHEMA: dict[str, dict[str, Field]] = {
                                doc="q1q1 pressure stabilization theta in tau = theta h^2/(2G) "
                                    "(the thesis used 1e-4)"),
         "file": Field("str", "", doc="optional gmsh/meshio quadrilateral mesh file replacing "
-                                     "the structured mesh ('' = structured)"),
+                                     "the structured mesh ('' = structured); line groups name the "
+                                     "boundary sets (symmetry, top required; axis, side, inner, "
+                                     "outer), point groups node sets (e.g. one axis node)"),
         "rezone_quality": Field("float", 0.0, 0.0, 1.0, True, False,
                                 doc="rezone (relocate the nodes, carry the state over) after a "
                                     "step whose worst element corner quality (jaxform.rezone: "

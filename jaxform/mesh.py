@@ -199,15 +199,16 @@ def element_areas(coords: np.ndarray, elements: np.ndarray) -> np.ndarray:
     return 0.5 * np.sum(x * np.roll(y, -1, axis=1) - np.roll(x, -1, axis=1) * y, axis=1)
 
 
-def _named_lines(m) -> dict[str, np.ndarray]:
-    """Named groups of line cells: gmsh physical groups ($PhysicalNames + the
-    'gmsh:physical' tags, any gmsh version) or meshio cell sets (other formats)."""
+def _named_cells(m, cell_type: str, dim: int) -> dict[str, np.ndarray]:
+    """Named groups of ``cell_type`` cells (gmsh dimension ``dim``): gmsh physical groups
+    ($PhysicalNames + the 'gmsh:physical' tags, any gmsh version) or meshio cell sets
+    (other formats)."""
     groups: dict[str, list] = {}
-    line_blocks = {i: np.asarray(c.data) for i, c in enumerate(m.cells) if c.type == "line"}
+    blocks = {i: np.asarray(c.data) for i, c in enumerate(m.cells) if c.type == cell_type}
     tags = m.cell_data.get("gmsh:physical")
     if tags is not None:
-        names = {int(v[0]): k for k, v in (m.field_data or {}).items() if int(v[1]) == 1}
-        for i, block in line_blocks.items():
+        names = {int(v[0]): k for k, v in (m.field_data or {}).items() if int(v[1]) == dim}
+        for i, block in blocks.items():
             t = np.asarray(tags[i])
             for tag, name in names.items():
                 if np.any(t == tag):
@@ -216,16 +217,18 @@ def _named_lines(m) -> dict[str, np.ndarray]:
         if name.startswith("gmsh:") or name in groups:
             continue
         for i, sel in enumerate(per_block):
-            if i in line_blocks and sel is not None and len(sel):
-                groups.setdefault(name, []).append(line_blocks[i][np.asarray(sel, dtype=np.int64)])
+            if i in blocks and sel is not None and len(sel):
+                groups.setdefault(name, []).append(blocks[i][np.asarray(sel, dtype=np.int64)])
     return {k: np.concatenate(v).astype(np.int64) for k, v in groups.items()}
 
 
 def read_mesh(path: str | Path, tolerance: float = 1e-9) -> Mesh:
     """Read a 2-D quadrilateral mesh through meshio (gmsh .msh, .vtu, ...).
 
-    Physical groups / cell sets of line cells become facet and node sets by name; the
-    quads are re-oriented counter-clockwise; the z (third) coordinate must be 0.
+    Physical groups / cell sets of line cells become facet and node sets by name, those
+    of vertex cells node sets only (e.g. one node of a full-width section whose u_x is
+    fixed, ``axis``, to remove the rigid-body mode); the quads are re-oriented
+    counter-clockwise; the z (third) coordinate must be 0.
     """
     import meshio
 
@@ -249,10 +252,43 @@ def read_mesh(path: str | Path, tolerance: float = 1e-9) -> Mesh:
     elements[flip] = elements[flip][:, ::-1]
     facet_sets: dict[str, np.ndarray] = {}
     node_sets: dict[str, np.ndarray] = {}
-    for name, seg in _named_lines(m).items():
+    for name, seg in _named_cells(m, "line", 1).items():
         seg = renum[seg]
         if np.any(seg < 0):
             raise MeshError(f"{path}: set {name!r} has nodes that belong to no quad")
         facet_sets[name] = seg
         node_sets[name] = np.unique(seg)
+    for name, pts_ in _named_cells(m, "vertex", 0).items():
+        if name in node_sets:
+            raise MeshError(f"{path}: set {name!r} is both a line and a point group")
+        nodes = renum[pts_.ravel()]
+        if np.any(nodes < 0):
+            raise MeshError(f"{path}: point set {name!r} has nodes that belong to no quad")
+        node_sets[name] = np.unique(nodes)
     return Mesh(coords, elements, node_sets, facet_sets)
+
+
+def write_mesh(path: str | Path, mesh: Mesh) -> None:
+    """Write ``mesh`` as gmsh 2.2 (ASCII) through meshio, readable by :func:`read_mesh`:
+    each facet set a physical group of line cells, each node set without a facet set of
+    the same name a physical group of vertex cells, the quads one group ``domain``."""
+    import meshio
+
+    lines = {k: np.asarray(v, dtype=np.int64) for k, v in mesh.facet_sets.items()}
+    points = {k: np.asarray(v, dtype=np.int64) for k, v in mesh.node_sets.items()
+              if k not in lines}
+    cells, tags, field_data = [], [], {}
+    for tag, (name, data) in enumerate([*lines.items(), *points.items()], start=1):
+        kind, dim = ("line", 1) if name in lines else ("vertex", 0)
+        cells.append((kind, data.reshape(-1, 2) if kind == "line" else data.reshape(-1, 1)))
+        tags.append(np.full(len(cells[-1][1]), tag))
+        field_data[name] = np.array([tag, dim])
+    tag = len(cells) + 1
+    cells.append(("quad", np.asarray(mesh.elements, dtype=np.int64)))
+    tags.append(np.full(len(mesh.elements), tag))
+    field_data["domain"] = np.array([tag, 2])
+    pts = np.column_stack([mesh.coords, np.zeros(len(mesh.coords))])
+    meshio.write(str(path), meshio.Mesh(pts, cells, field_data=field_data,
+                                        cell_data={"gmsh:physical": tags,
+                                                   "gmsh:geometrical": tags}),
+                 file_format="gmsh22", binary=False)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from jaxform.config import load_config
-from jaxform.mesh import MeshError, billet_quarter, read_mesh
+from jaxform.mesh import Mesh, MeshError, billet_quarter, read_mesh, rectangle, write_mesh
 from jaxform.scenes import build_scene
 from jaxform.simulate import simulate
 
@@ -84,6 +84,26 @@ def test_read_gmsh_sets_and_orientation(tmp_path, writer):
         got = mesh.coords[mesh.node_sets[name]]
         want = ref.coords[ref.node_sets[name]]
         assert sorted(map(tuple, got.round(12))) == sorted(map(tuple, want.round(12))), name
+
+
+def test_write_then_read_keeps_line_and_point_groups(tmp_path):
+    """A full-width section (x in [-2.5, 2.5]) whose only u_x support is the centre node:
+    the node set ``axis`` has no facets, so it travels as a gmsh point group."""
+    r = rectangle(5.0, 3.75, 4, 3, origin=(-2.5, 0.0))
+    centre = np.flatnonzero(np.hypot(r.coords[:, 0], r.coords[:, 1]) < 1e-12)
+    side = np.concatenate([r.facet_sets["left"], r.facet_sets["right"]])
+    mesh = Mesh(r.coords, r.elements,
+                {"symmetry": r.node_sets["bottom"], "top": r.node_sets["top"],
+                 "side": np.unique(side), "axis": centre},
+                {"symmetry": r.facet_sets["bottom"], "top": r.facet_sets["top"], "side": side})
+    write_mesh(tmp_path / "full.msh", mesh)
+    back = read_mesh(tmp_path / "full.msh")
+    assert sorted(back.facet_sets) == ["side", "symmetry", "top"]
+    assert back.coords[back.node_sets["axis"]].tolist() == [[0.0, 0.0]]
+    for name in ("symmetry", "top", "side"):
+        got = sorted(map(tuple, back.coords[back.node_sets[name]]))
+        assert got == sorted(map(tuple, mesh.coords[mesh.node_sets[name]])), name
+        assert len(back.facet_sets[name]) == len(mesh.facet_sets[name]), name
 
 
 def test_read_mesh_errors_name_the_problem(tmp_path):
