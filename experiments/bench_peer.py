@@ -88,6 +88,7 @@ from functools import partial
 from pathlib import Path
 
 import numpy as np
+from timing import best_of
 
 ROOT = Path(__file__).resolve().parents[1]
 WIDTH = DEPTH = 10.0  # mm
@@ -129,18 +130,6 @@ def jaxform_config(n: int, element: str) -> dict:
         "solver": {"rtol": RTOL, "linear": "sparse", "chunk_steps": STEPS},
         "output": {"fields": False, "plots": False},
     }
-
-
-def _best(fn, repeats=3):
-    import jax
-
-    jax.block_until_ready(fn())
-    best = np.inf
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        jax.block_until_ready(fn())
-        best = min(best, time.perf_counter() - t0)
-    return best
 
 
 def run_jaxform(n: int, element: str, split: bool = True) -> dict:
@@ -188,10 +177,10 @@ def run_jaxform(n: int, element: str, split: bool = True) -> dict:
         fn = model._element_fn(inp.params, dt)
         elem = jax.jit(lambda x, g: jax.vmap(jax.jacfwd(fn, has_aux=True))(
             model._gather(x, idx), inp.coords[idx.elements], g))
-        out["assembly_s"] = _best(lambda: rj(x, *args))
-        out["element_s"] = _best(lambda: elem(x, st.gauss))
-        out["residual_s"] = _best(lambda: rf(x, *args))
-        out["linear_s"] = _best(lambda: solve(idx.rows, idx.cols, vals, -r))
+        out["assembly_s"] = best_of(lambda: rj(x, *args), 3)
+        out["element_s"] = best_of(lambda: elem(x, st.gauss), 3)
+        out["residual_s"] = best_of(lambda: rf(x, *args), 3)
+        out["linear_s"] = best_of(lambda: solve(idx.rows, idx.cols, vals, -r), 3)
     out["peak_rss_mib"] = _rss_mib()
     return out
 

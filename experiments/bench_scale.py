@@ -32,20 +32,9 @@ import time
 from pathlib import Path
 
 import numpy as np
+from timing import best_of, cold_and_warm
 
 SEED = "configs/upsetting_seed.toml"
-
-
-def _best(fn, repeats=5):
-    import jax
-
-    jax.block_until_ready(fn())
-    best = np.inf
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        jax.block_until_ready(fn())
-        best = min(best, time.perf_counter() - t0)
-    return best
 
 
 def one(n: int, linear: str) -> dict:
@@ -88,9 +77,9 @@ def one(n: int, linear: str) -> dict:
     t0 = time.perf_counter()
     dx = jax.block_until_ready(solve(idx.rows, idx.cols, vals, -r))
     out["compile_solve_s"] = time.perf_counter() - t0
-    out["assemble_s"] = _best(lambda: rj(x, *args))
-    out["residual_s"] = _best(lambda: res(x, *args))
-    out["solve_s"] = _best(lambda: solve(idx.rows, idx.cols, vals, -r))
+    out["assemble_s"] = best_of(lambda: rj(x, *args), 5)
+    out["residual_s"] = best_of(lambda: res(x, *args), 5)
+    out["solve_s"] = best_of(lambda: solve(idx.rows, idx.cols, vals, -r), 5)
     out["iteration_s"] = out["assemble_s"] + out["solve_s"] + out["residual_s"]
     out["solve_finite"] = bool(np.all(np.isfinite(np.asarray(dx))))
     out["peak_rss_mib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
@@ -101,20 +90,13 @@ def full(n: int) -> None:
     """The seed scene on n x n to 56.3 %: first run (compile + run), then a second run."""
     import jaxform
     from jaxform.config import load_config
-    from jaxform.scenes import build_scene
-    from jaxform.simulate import simulate
 
     jaxform.enable_x64()
     cfg = load_config(SEED, [f"mesh.nr={n}", f"mesh.nz={n}", "output.fields=false",
                              "output.plots=false"])
-    t0 = time.perf_counter()
-    simulate(build_scene(cfg))
-    first = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    res = simulate(build_scene(cfg))
-    second = time.perf_counter() - t0
+    scene, res, first, second = cold_and_warm(cfg)
     its = res.history["newton_iterations"][1:]
-    print(f"seed {n}x{n}: {build_scene(cfg).model.layout.n_dofs} unknowns, {len(its)} steps, "
+    print(f"seed {n}x{n}: {scene.model.layout.n_dofs} unknowns, {len(its)} steps, "
           f"{its.sum():.0f} Newton iterations ({its.mean():.2f}/step): first run "
           f"{first:.1f} s, run after compile {second:.1f} s "
           f"({second / its.sum() * 1e3:.0f} ms per iteration incl. step overhead), "

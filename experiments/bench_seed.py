@@ -13,6 +13,7 @@ import argparse
 import time
 
 import numpy as np
+from timing import cold_and_warm
 
 import jaxform
 from jaxform.config import load_config
@@ -38,13 +39,7 @@ def main():
         cfg = load_config("configs/upsetting_seed.toml", [
             f"mesh.nr={n}", f"mesh.nz={n}", f"mesh.element={args.element}",
             f"solver.linear={args.linear}", "output.fields=false", "output.plots=false"])
-        t0 = time.perf_counter()
-        scene = build_scene(cfg)
-        res = simulate(scene)
-        first = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        res = simulate(build_scene(cfg))
-        second = time.perf_counter() - t0
+        scene, res, first, second = cold_and_warm(cfg)
         its = res.history["newton_iterations"][1:]
         print(f"{n:>3}x{n:<3} {scene.model.layout.n_dofs:>8} {scene.linear.backend:>7} "
               f"{first:9.2f} {second:8.2f} {first - second:10.2f} {np.mean(its):11.2f} "
