@@ -179,11 +179,16 @@ def test_sparse_and_dense_backends_agree_on_seed_scene():
     assert sc.linear.backend == "sparse"
     dense = simulate(scene("solver.linear=dense"))
     assert dense.scene.linear.backend == "dense"
-    f_s, f_d = res.history["force_N"][1:], dense.history["force_N"][1:]
-    assert np.max(np.abs(f_s - f_d) / np.abs(f_d)) <= 1e-10
-    assert np.array_equal(res.history["newton_iterations"], dense.history["newton_iterations"])
-    u_s, u_d = res.fields["x"][-1], dense.fields["x"][-1]
-    assert np.max(np.abs(u_s - u_d)) <= 1e-10 * np.max(np.abs(u_d))
+    assert_same_history(dense, res, 1e-10)
+
+
+def assert_same_history(res, ref, rtol):
+    """Same force history and final unknowns to rtol relative, same Newton iterations."""
+    f, f_ref = res.history["force_N"][1:], ref.history["force_N"][1:]
+    assert np.max(np.abs(f - f_ref) / np.abs(f_ref)) <= rtol
+    assert np.array_equal(res.history["newton_iterations"], ref.history["newton_iterations"])
+    u, u_ref = res.fields["x"][-1], ref.fields["x"][-1]
+    assert np.max(np.abs(u - u_ref)) <= rtol * np.max(np.abs(u_ref))
 
 
 @pytest.mark.slow  # ~26 s; tests/test_linear.py checks this backend's solves in the default suite
@@ -193,11 +198,7 @@ def test_jax_sparse_backend_agrees_on_seed_scene():
     sc, res = seed_run()
     other = simulate(scene("solver.linear=jax-sparse"))
     assert other.scene.linear.backend == "jax-sparse"
-    f_s, f_o = res.history["force_N"][1:], other.history["force_N"][1:]
-    assert np.max(np.abs(f_s - f_o) / np.abs(f_s)) <= 1e-10
-    assert np.array_equal(res.history["newton_iterations"], other.history["newton_iterations"])
-    u_s, u_o = res.fields["x"][-1], other.fields["x"][-1]
-    assert np.max(np.abs(u_s - u_o)) <= 1e-10 * np.max(np.abs(u_s))
+    assert_same_history(other, res, 1e-10)
 
 
 def test_cutback_completes_a_step_made_to_fail():
