@@ -203,7 +203,7 @@ SCHEMA: dict[str, dict[str, Field]] = {
                 "target positions (mm^2), force-stroke misfit against a target curve, "
                 "variance of eqps, 1 - die fill"),
         "variables": Field("strs", ["material"], choices=(
-            "material", "friction", "speed", "preform", "die"),
+            "material", "friction", "speed", "preform", "nodes", "die"),
             doc="design variable groups jaxform design optimizes"),
         "material_params": Field("strs", ["s0_MPa", "h0_MPa", "s_hat_MPa"],
                                  doc="material parameters of the 'material' group (names "
@@ -215,6 +215,9 @@ SCHEMA: dict[str, dict[str, Field]] = {
         "preform_amplitude_max": Field("float", 0.2, 0.0, 0.9, False, True,
                                        doc="bound on each preform mode amplitude (fraction "
                                            "of the radius)"),
+        "node_offset_max_mm": Field("float", 0.1, 0.0, None, False, True,
+                                    doc="bound on each initial node coordinate's offset of "
+                                        "the 'nodes' group (mm)"),
         "die_points": Field("floats", [], doc="indices of die.profile_mm points whose z is "
                             "a design variable ([] = all)"),
         "die_offset_max_mm": Field("float", 1.0, 0.0, None, False, True,

@@ -67,11 +67,12 @@ def start_gradient():
 
 def test_every_group_is_available_on_the_friction_scene():
     pb = friction_problem()
-    assert [g.name for g in pb.groups] == ["material", "friction", "speed", "preform", "die"]
+    assert [g.name for g in pb.groups] == ["material", "friction", "speed", "preform", "nodes",
+                                           "die"]
     assert np.all(np.diff(pb.times) > 0)
 
 
-@pytest.mark.parametrize("group", ["material", "friction", "speed", "preform", "die"])
+@pytest.mark.parametrize("group", ["material", "friction", "speed", "preform", "nodes", "die"])
 def test_gradient_against_central_differences(group):
     """dJ/du . du against (J(u + h du) - J(u - h du)) / 2h, h = 1e-4 (truncation error
     O(h^2) ~ 1e-8): relative error <= 1e-5."""

@@ -159,6 +159,38 @@ class PreformCosine:
 
 
 @dataclass(frozen=True)
+class NodalCoordinates:
+    """The preform as raw initial nodal coordinates: one variable (mm) per node coordinate
+    that no boundary condition holds (u_r on the axis and u_z on the mid-plane stay
+    put, so the section keeps its axis and symmetry plane).  The most general preform
+    shape, for gradients (e.g. a sensitivity map of an objective over the initial
+    surface); unlike ``PreformCosine`` it keeps neither the volume nor smoothness."""
+
+    nodes: np.ndarray  # (k,) node of each variable
+    components: np.ndarray  # (k,) its coordinate: 0 = r (x), 1 = z (y)
+    offset_max_mm: float = 0.1
+    name: str = "nodes"
+
+    def __hash__(self):  # arrays are set-up constants; identity is enough
+        return id(self)
+
+    def initial(self):
+        return jnp.zeros(len(self.nodes))
+
+    def bounds(self):
+        b = jnp.full(len(self.nodes), self.offset_max_mm)
+        return -b, b
+
+    def apply(self, u, inputs, times):
+        coords = jnp.asarray(inputs.coords).at[self.nodes, self.components].add(u)
+        return replace(inputs, coords=coords), times
+
+    def physical(self, u):
+        return {f"node{n}_d{'rz'[c]}_mm": float(u[k])
+                for k, (n, c) in enumerate(zip(self.nodes, self.components))}
+
+
+@dataclass(frozen=True)
 class DieProfile:
     points: tuple[int, ...]  # indices into the die profile
     offset_max_mm: float = 1.0

@@ -28,7 +28,7 @@ from jaxform.design import parametrize as par
 from jaxform.gradients import check, schedule, trajectory
 from jaxform.simulate import Scene
 
-GROUPS = ("material", "friction", "speed", "preform", "die")
+GROUPS = ("material", "friction", "speed", "preform", "nodes", "die")
 
 
 @dataclass(frozen=True, eq=False)
@@ -89,7 +89,7 @@ def available_groups(scene: Scene) -> tuple[str, ...]:
         names.insert(1, "friction")
     if "billet" in cfg and not cfg["mesh"]["file"]:
         names.append("preform")
-    names.append("die")
+    names += ["nodes", "die"]
     return tuple(names)
 
 
@@ -123,6 +123,15 @@ def build_group(scene: Scene, name: str):
                                  np.asarray(scene.mesh.elements),
                                  axisymmetric=scene.model.formulation.axisymmetric,
                                  amplitude_max=d["preform_amplitude_max"])
+    if name == "nodes":
+        nf = scene.model.layout.n_fields
+        held = np.zeros((scene.model.layout.n_nodes, 2), dtype=bool)
+        fixed = np.asarray(scene.idx.fixed)
+        fixed = fixed[fixed < scene.model.layout.n_node_dofs]
+        node, comp = fixed // nf, fixed % nf
+        held[node[comp < 2], comp[comp < 2]] = True
+        nodes, comps = np.nonzero(~held)
+        return par.NodalCoordinates(nodes, comps, offset_max_mm=d["node_offset_max_mm"])
     if name == "die":
         n_pts = int(scene.inputs.die.points.shape[0])
         pts = d["die_points"] or list(range(n_pts))
