@@ -23,7 +23,7 @@ converged steps), the failure message, wall time (compile included for the first
 each compiled program).  dt, the stroke and max_cutbacks are inputs of the compiled
 program, so one program per scene x formulation x line search serves all time steps.
 
---quick: the friction scene on a 4 x 4 mesh, q1p0, both line-search settings, dt = 1 and
+--quick: the friction scene on a 5 x 5 mesh, q1p0, both line-search settings, dt = 1 and
 20 s (the test suite's compiled programs).
 
 Writes stability_map.csv and stability_map.png (one panel per scene x line search;
@@ -163,7 +163,7 @@ def main(argv=None) -> list[dict]:
     args = ap.parse_args(argv)
     jaxform.enable_x64()
     if args.quick:
-        scenes, elements, dts, mesh = {"coulomb 0.3": SCENES["coulomb 0.3"]}, ["q1p0"], [1.0, 20.0], 4
+        scenes, elements, dts, mesh = {"coulomb 0.3": SCENES["coulomb 0.3"]}, ["q1p0"], [1.0, 20.0], 5
     else:
         scenes, elements, dts, mesh = SCENES, args.elements, sorted(args.dts), None
     out = Path(args.out)
