@@ -26,9 +26,11 @@ Formulations (``kind``):
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 
 import jax
 import jax.numpy as jnp
+from jax.custom_derivatives import SymbolicZero
 
 from jaxform import element as el
 from jaxform.kinematics import step_kinematics
@@ -92,9 +94,10 @@ class Formulation:
         f_rel = jnp.einsum("gij,gjk->gik", f_mat, inv3(gstate.F))
 
         def point(fr, st):
-            return law.update(step_kinematics(fr, self.alpha, planar=True), st, params, dt)
+            return planar_point_update(law, self.alpha, fr, st, params, dt)
 
         sigma, mat_new, ok = jax.vmap(point)(f_rel, gstate.mat)
+        ok = ok > 0.5
         if self.kind == "q1q1":
             p_hat = el.N_GP @ dofs[:, 2]
             p_mat = -jnp.trace(sigma, axis1=1, axis2=2) / 3.0
@@ -126,6 +129,68 @@ class Formulation:
         r = jnp.einsum("ga,g,g->a", el.N_GP, (p_mat - p_hat) / k, dv)
         r = r - tau * jnp.einsum("gai,gi,g->a", grad_n, grad_p, dv)
         return r * (k / h0)
+
+
+# -- the material point, with its tangent taken in the 5 components of f ------------------
+# A 2-D section's relative deformation gradient has five independent components
+# (f11, f12, f21, f22, f33: the block structure of jaxform.kinematics).  The element
+# Jacobian is jacfwd over the element dofs (8 for q4/q1p0, 12 for q1q1), and each of those
+# tangents would otherwise be pushed through the whole material update (the polar
+# decomposition and the nested local Anand solves) at every Gauss point.  The custom JVP
+# below computes the point's Jacobian in the five components of f once (jacfwd, the
+# consistent tangent, computed from the primal values only, so an outer jacfwd/vmap over
+# element tangents does not repeat it) and maps every incoming tangent df through it with
+# one small product.  Tangents of the old state, the parameters and dt (gradients for
+# design) are pushed through the update itself, and skipped when they are symbolic zeros
+# (the Newton assembly).  The values are those of the plain update; the derivatives are
+# the same derivatives, computed in another order (tested against the plain jacfwd).
+_PLANAR = ((0, 0), (0, 1), (1, 0), (1, 1), (2, 2))
+
+
+def _planar_components(f):
+    return jnp.stack([f[i, j] for i, j in _PLANAR])
+
+
+def _planar_matrix(v):
+    z = jnp.zeros_like(v[0])
+    return jnp.array([[v[0], v[1], z], [v[2], v[3], z], [z, z, v[4]]])
+
+
+def _point(law, alpha, f, state, params, dt):
+    stress, new, ok = law.update(step_kinematics(f, alpha, planar=True), state, params, dt)
+    return stress, new, jnp.where(ok, 1.0, 0.0).astype(stress.dtype)
+
+
+@partial(jax.custom_jvp, nondiff_argnums=(0, 1))
+def planar_point_update(law, alpha, f, state, params, dt):
+    """``law.update(step_kinematics(f, alpha, planar=True), state, params, dt)`` with the
+    ``ok`` flag as a float (1.0 / 0.0), differentiated as described above."""
+    return _point(law, alpha, f, state, params, dt)
+
+
+def _planar_point_update_jvp(law, alpha, primals, tangents):
+    f, state, params, dt = primals
+    df, d_state, d_params, d_dt = tangents
+
+    def in_f(v):
+        out = _point(law, alpha, _planar_matrix(v), state, params, dt)
+        return out, out
+
+    jac, out = jax.jacfwd(in_f, has_aux=True)(_planar_components(f))
+    dv = _planar_components(df)
+    t_out = jax.tree_util.tree_map(lambda j: j @ dv, jac)
+    others = (d_state, d_params, d_dt)
+    if not all(type(t) is SymbolicZero for t in jax.tree_util.tree_leaves(others)):
+        inst = jax.tree_util.tree_map(
+            lambda t, p: jnp.zeros_like(p) if type(t) is SymbolicZero else t,
+            others, (state, params, dt))
+        _, t_rest = jax.jvp(lambda s, p, d: _point(law, alpha, f, s, p, d),
+                            (state, params, dt), inst)
+        t_out = jax.tree_util.tree_map(jnp.add, t_out, t_rest)
+    return out, t_out
+
+
+planar_point_update.defjvp(_planar_point_update_jvp, symbolic_zeros=True)
 
 
 def initial_gauss_state(law, params, n_elements: int) -> GaussState:
