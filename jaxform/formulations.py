@@ -176,9 +176,13 @@ def _planar_point_update_jvp(law, alpha, primals, tangents):
         out = _point(law, alpha, _planar_matrix(v), state, params, dt)
         return out, out
 
-    jac, out = jax.jacfwd(in_f, has_aux=True)(_planar_components(f))
-    dv = _planar_components(df)
-    t_out = jax.tree_util.tree_map(lambda j: j @ dv, jac)
+    if type(df) is SymbolicZero:  # e.g. a derivative in the parameters alone
+        out = _point(law, alpha, f, state, params, dt)
+        t_out = jax.tree_util.tree_map(jnp.zeros_like, out)
+    else:
+        jac, out = jax.jacfwd(in_f, has_aux=True)(_planar_components(f))
+        dv = _planar_components(df)
+        t_out = jax.tree_util.tree_map(lambda j: j @ dv, jac)
     others = (d_state, d_params, d_dt)
     if not all(type(t) is SymbolicZero for t in jax.tree_util.tree_leaves(others)):
         inst = jax.tree_util.tree_map(
