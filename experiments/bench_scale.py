@@ -1,7 +1,8 @@
 """Cost of a Newton iteration against the number of unknowns, and the 100x100 seed scene.
 
     python experiments/bench_scale.py [--meshes 10 20 40 80 160] [--quick] [--out docs/figures]
-    python experiments/bench_scale.py --full 100        # the seed scene to 56.3 %, timed
+    python experiments/bench_scale.py --full 100 [--newton auto|newton|modified]
+                                                        # the seed scene to 56.3 %, timed
 
 Seed scene (configs/upsetting_seed.toml, q1q1, Anand) on n x n meshes, klujax sparse LU.
 Each size runs in its own subprocess (``--one n``, so that its peak resident memory,
@@ -12,11 +13,15 @@ separately, each best of 5 after compilation:
   with the nested Anand local solves in chunks of 32 elements, contact blocks, the
   segment_sum onto the pattern);
 * ``residual``: ``Model.residual`` (one per line-search trial, i.e. one per iteration);
-* ``solve``: ``LinearSolver.solve`` on the fixed pattern (klujax: symbolic analysis,
-  factorization and solve, all in one call).
+* ``solve``: ``LinearSolver.solve`` on the fixed pattern (klujax: numeric factorization
+  and solve in one call, with the pattern's symbolic analysis done once at set-up);
+* ``factor``: ``LinearSolver.refactor`` alone (the numeric factorization modified Newton
+  keeps) and ``kept solve``: ``LinearSolver.solve_factored`` with it (the triangular
+  solves of an iteration that reuses it),
 
 evaluated at the first step's homogeneous compression (u_r = e r / 2, u_z = -e z, the
-flow the scene starts with).  One Newton iteration = assemble + solve + residual.
+flow the scene starts with).  One Newton iteration = assemble + solve + residual; one
+modified-Newton iteration with a kept factorization = residual + kept solve.
 Writes bench_scale.csv and bench_scale.png (log-log, with power-law exponents fitted over
 the sizes >= 20x20).
 """
@@ -65,7 +70,11 @@ def one(n: int, linear: str) -> dict:
             applied_forces(model, inp, t, idx))
     rj = jax.jit(model.residual_and_jacobian)
     res = jax.jit(model.residual)
-    solve = jax.jit(lambda r, c, v, b: sc.linear.solve(r, c, v, b, lay.n_dofs))
+    sym = idx.lu_symbolic
+    solve = jax.jit(lambda r, c, v, b: sc.linear.solve(r, c, v, b, lay.n_dofs, sym))
+    none = sc.linear.empty_factorization(lay.n_dofs, x.dtype)
+    factor = jax.jit(lambda v: sc.linear.refactor(idx.rows, idx.cols, v, lay.n_dofs, sym, none))
+    kept_solve = jax.jit(lambda f, b: sc.linear.solve_factored(f, b, sym))
     out = {"n": n, "unknowns": lay.n_dofs, "nonzeros": lay.n_nonzeros,
            "backend": sc.linear.backend}
     t0 = time.perf_counter()
@@ -81,23 +90,43 @@ def one(n: int, linear: str) -> dict:
     out["residual_s"] = best_of(lambda: res(x, *args), 5)
     out["solve_s"] = best_of(lambda: solve(idx.rows, idx.cols, vals, -r), 5)
     out["iteration_s"] = out["assemble_s"] + out["solve_s"] + out["residual_s"]
+    fac = jax.block_until_ready(factor(vals))
+    out["factor_s"] = best_of_freed(lambda: factor(vals), sc.linear.release, 5)
+    out["kept_solve_s"] = best_of(lambda: kept_solve(fac, -r), 5)
+    jax.block_until_ready(sc.linear.release(fac))
+    out["kept_iteration_s"] = out["residual_s"] + out["kept_solve_s"]
     out["solve_finite"] = bool(np.all(np.isfinite(np.asarray(dx))))
     out["peak_rss_mib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     return out
 
 
-def full(n: int) -> None:
+def best_of_freed(make, release, repeats: int) -> float:
+    """best_of for a call that returns a factorization: each one freed after its timing."""
+    import jax
+
+    best = np.inf
+    for _ in range(repeats + 1):
+        t0 = time.perf_counter()
+        fac = jax.block_until_ready(make())
+        best = min(best, time.perf_counter() - t0)
+        jax.block_until_ready(release(fac))
+    return best
+
+
+def full(n: int, newton: str) -> None:
     """The seed scene on n x n to 56.3 %: first run (compile + run), then a second run."""
     import jaxform
     from jaxform.config import load_config
 
     jaxform.enable_x64()
     cfg = load_config(SEED, [f"mesh.nr={n}", f"mesh.nz={n}", "output.fields=false",
-                             "output.plots=false"])
+                             "output.plots=false", f"solver.newton={newton}"])
     scene, res, first, second = cold_and_warm(cfg)
     its = res.history["newton_iterations"][1:]
+    n_fac = res.history["factorizations"][1:].sum()
     print(f"seed {n}x{n}: {scene.model.layout.n_dofs} unknowns, {len(its)} steps, "
-          f"{its.sum():.0f} Newton iterations ({its.mean():.2f}/step): first run "
+          f"{scene.newton.method} Newton, {n_fac:.0f} factorizations, "
+          f"{its.sum():.0f} iterations ({its.mean():.2f}/step): first run "
           f"{first:.1f} s, run after compile {second:.1f} s "
           f"({second / its.sum() * 1e3:.0f} ms per iteration incl. step overhead), "
           f"force {res.history['force_N'][-1]:.2f} N, peak RSS "
@@ -117,16 +146,19 @@ def main():
     ap.add_argument("--out", default="docs/figures")
     ap.add_argument("--one", type=int, help=argparse.SUPPRESS)
     ap.add_argument("--full", type=int, help="time the whole seed scene on this n x n mesh")
+    ap.add_argument("--newton", default="auto", choices=("auto", "newton", "modified"),
+                    help="solver.newton of the --full run")
     args = ap.parse_args()
     if args.one:
         print("RESULT " + json.dumps(one(args.one, args.linear)), flush=True)
         return
     if args.full:
-        return full(args.full)
+        return full(args.full, args.newton)
     meshes = [10, 20, 40] if args.quick else args.meshes
     rows = []
     print(f"{'mesh':>9} {'unknowns':>8} {'nonzeros':>9} {'assemble':>9} {'residual':>9} "
-          f"{'solve':>8} {'iteration':>9} {'peak RSS':>9} {'compile a/r/s':>15}")
+          f"{'solve':>8} {'iteration':>9} {'factor':>8} {'kept':>7} {'peak RSS':>9} "
+          f"{'compile a/r/s':>15}")
     for n in meshes:
         p = subprocess.run([sys.executable, __file__, "--one", str(n), "--linear", args.linear],
                            capture_output=True, text=True)
@@ -138,7 +170,8 @@ def main():
         rows.append(r)
         print(f"{n:>4}x{n:<4} {r['unknowns']:>8} {r['nonzeros']:>9} {r['assemble_s'] * 1e3:>7.1f}ms "
               f"{r['residual_s'] * 1e3:>7.1f}ms {r['solve_s'] * 1e3:>6.1f}ms "
-              f"{r['iteration_s'] * 1e3:>7.1f}ms {r['peak_rss_mib']:>6.0f}MiB "
+              f"{r['iteration_s'] * 1e3:>7.1f}ms {r['factor_s'] * 1e3:>6.1f}ms "
+              f"{r['kept_solve_s'] * 1e3:>5.1f}ms {r['peak_rss_mib']:>6.0f}MiB "
               f"{r['compile_assemble_s']:>5.1f}/{r['compile_residual_s']:.1f}/"
               f"{r['compile_solve_s']:.1f}s", flush=True)
     if len(rows) < 2:
@@ -146,7 +179,7 @@ def main():
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     keys = ("n", "unknowns", "nonzeros", "assemble_s", "residual_s", "solve_s", "iteration_s",
-            "peak_rss_mib", "compile_assemble_s", "compile_residual_s", "compile_solve_s")
+            "factor_s", "kept_solve_s", "kept_iteration_s", "peak_rss_mib", "compile_assemble_s", "compile_residual_s", "compile_solve_s")
     from jaxform.io import write_csv
 
     write_csv(out / "bench_scale.csv", {k: np.array([float(r[k]) for r in rows]) for k in keys})
@@ -161,8 +194,9 @@ def main():
     fig, ax = plt.subplots(figsize=(6.4, 4.6))
     for key, label, mk in (("assemble_s", "assembly (R and Jacobian)", "o"),
                            ("residual_s", "residual", "^"),
-                           ("solve_s", "sparse LU (klujax)", "s"),
-                           ("iteration_s", "Newton iteration", "D")):
+                           ("solve_s", "sparse LU (klujax): factor + solve", "s"),
+                           ("iteration_s", "Newton iteration", "D"),
+                           ("kept_iteration_s", "iteration with a kept LU", "v")):
         y = np.array([r[key] for r in rows])
         k, c = fit(nu[sel], y[sel])
         print(f"{label:>26}: time ~ unknowns^{k:.2f}")

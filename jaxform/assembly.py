@@ -60,6 +60,9 @@ class Indices:
     slot: jax.Array  # (n_raw,) raw entry -> unique slot
     bottom_reaction_dofs: jax.Array  # (n,) u_z dofs on the symmetry plane (for checks)
     load_facets: jax.Array  # (n_lf, 2) node ids of the facets carrying a traction load
+    # uint64 handle of the pattern's KLU symbolic analysis (jaxform.linear.klu_symbolic),
+    # set by the scene for the sparse backend; None: the solver analyses per solve
+    lu_symbolic: jax.Array | None = None
 
 
 @dataclass(frozen=True)

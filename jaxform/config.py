@@ -175,7 +175,9 @@ SCHEMA: dict[str, dict[str, Field]] = {
     },
     "solver": {
         "max_newton_iterations": Field("int", 25, 1, 1000,
-                                       doc="Newton iterations per step before a cutback"),
+                                       doc="Newton iterations per step before a cutback (modified "
+                                           "Newton: those with a new Jacobian; up to 3x as "
+                                           "many more with a kept factorization)"),
         "rtol": Field("float", 1e-10, 0.0, 1.0, False, False,
                       doc="relative residual tolerance of Newton"),
         "max_cutbacks": Field("int", 6, 0, 30, doc="times a failed step may be halved"),
@@ -184,6 +186,13 @@ SCHEMA: dict[str, dict[str, Field]] = {
                         doc="linear solver backend (auto: on CPU dense LU below 100 unknowns, "
                             "klujax sparse LU above; on a GPU dense LU below 20 000, "
                             "jax-sparse (cuSolver) above; see jaxform/linear.py)"),
+        "newton": Field("str", "auto", choices=("auto", "newton", "modified"),
+                        doc="newton: a new Jacobian and factorization every iteration; "
+                            "modified: one factorization kept across iterations and steps, "
+                            "refreshed when a step contracts the residual by less than "
+                            "2x (needs linear = dense or sparse); auto: modified on the "
+                            "sparse backend from MODIFIED_MIN_UNKNOWNS unknowns, newton "
+                            "below (see jaxform/solver.py)"),
         "chunk_steps": Field("int", 8, 1, 10000,
                              doc="load steps per compiled chunk (progress is reported between chunks)"),
     },

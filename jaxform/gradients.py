@@ -29,7 +29,7 @@ Contract
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import partial
 from typing import Any, Callable
 
@@ -46,6 +46,7 @@ from jaxform.simulate import (
     die_force,
     solve_step,
 )
+from jaxform.solver import NewtonSettings
 
 
 @jax.tree_util.register_dataclass
@@ -77,13 +78,13 @@ def _trajectory(model, linear, settings, symmetric_z, inputs: Inputs, times, sta
         # first attempt from the rate predictor, not differentiated (stop_gradient: no
         # tangent reaches it, so it has no reverse pass)
         sg = jax.lax.stop_gradient
-        x1, _, its1, code1, _, _ = solve_step(model, linear, settings, sg(st), t_new, sg(dt),
+        x1, _, its1, code1, _, _, _ = solve_step(model, linear, settings, sg(st), t_new, sg(dt),
                                               sg(inputs), idx, x_guess=guess)
         # the differentiated solve: from x1 where that converged (0 iterations, one
         # residual), else from the last state, like the forward run after a cutback.  No
         # lax.cond: under vmap a cond runs both branches, i.e. a whole second Newton solve
         # for every lane; here a lane that converged costs one residual evaluation.
-        x, g, its2, code, _, cstep = solve_step(model, linear, settings, st, t_new, dt,
+        x, g, its2, code, _, cstep, _ = solve_step(model, linear, settings, st, t_new, dt,
                                                 inputs, idx,
                                                 x_guess=jnp.where(code1 == OK, x1, st.x))
         its = its1 + its2
@@ -116,8 +117,17 @@ def trajectory(scene: Scene, inputs: Inputs | None = None, times=None) -> Trajec
     inputs = scene.inputs if inputs is None else inputs
     times = jnp.asarray(scene.step_targets() if times is None else times)
     state0 = initial_state_for(scene, inputs)
-    return _trajectory(scene.model, scene.linear, scene.newton, scene.symmetric_z, inputs,
+    return _trajectory(scene.model, scene.linear, exact_newton(scene.newton), scene.symmetric_z,
+                       inputs,
                        times, state0, scene.idx)
+
+
+def exact_newton(settings: NewtonSettings) -> NewtonSettings:
+    """A differentiable run solves each step by full Newton even where the scene asks for
+    modified Newton (``solver.newton = 'modified'``): the factorization it keeps is a
+    handle that would have to live across the vmapped scan, and the gradient is the same
+    (the reverse pass always solves with the exact Jacobian of the converged step)."""
+    return settings if settings.method == "newton" else replace(settings, method="newton")
 
 
 def schedule(scene: Scene, inputs: Inputs | None = None) -> np.ndarray:
@@ -126,8 +136,6 @@ def schedule(scene: Scene, inputs: Inputs | None = None) -> np.ndarray:
     that needed c cutbacks into 2**c equal sub-steps (the cutback halves the sub-step
     and never grows it again within a load step, so these are no longer than any sub-step
     the forward run took)."""
-    from dataclasses import replace
-
     from jaxform.simulate import simulate
 
     if scene.rezone_quality > 0.0:

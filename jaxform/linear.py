@@ -43,16 +43,38 @@ picks dense LU up to ``GPU_DENSE_LIMIT`` unknowns (an n x n float64 matrix of 3.
 written), ``jax-sparse`` above on CUDA.
 
 ``solve_transpose`` solves A^T y = b with the same pattern (for adjoints).
+
+Symbolic analysis once per pattern: a scene on the sparse backend carries the pattern's
+KLU analysis (:func:`klu_symbolic`, done outside jit, kept for the process) in
+``Indices.lu_symbolic``; each solve then factors numerically only (``solve_with_symbol``,
+the transposed solve of the reverse pass ``tsolve_with_symbol`` with the same analysis).
+
+A factorization kept across solves (:class:`Factorization`, for modified Newton):
+``refactor`` factors and frees the factorization it replaces, ``solve_factored`` runs the
+triangular solves alone, ``release`` frees.  Dense: LU factors and pivots as arrays.
+Sparse: klujax's numeric handle (a pointer held in a uint64 array), made inside the
+compiled program; klujax frees a handle only when it wraps it in a Python object, so
+:meth:`LinearSolver.release` frees it from inside the program through a host callback
+(``io_callback`` into ``klujax_cpp.KLUNumeric(...).close()``), ordered before the next
+factorization by a data dependency.  Measured (100 factorizations of a 20 000-unknown
+banded matrix in one program): resident memory flat with the free, +300 MB per 50
+without.  ``refactor`` makes a fresh factorization (KLU's ``klu_factor``, partial
+pivoting) and never ``klu_refactor`` (the old pivot order, which raises on a zero pivot:
+a contact multiplier row has one once its node touches); ``refactor_and_solve`` measured
+no faster than factor + solve at 100 x 100 anyway.
 """
 
 from __future__ import annotations
 
 import functools
+import hashlib
 import warnings
 from dataclasses import dataclass
 
 import jax
 import jax.numpy as jnp
+import numpy as np
+from jax.experimental import io_callback
 
 DENSE_LIMIT = 100  # unknowns; 'auto' picks dense below this
 BACKENDS = ("auto", "dense", "sparse", "jax-sparse")
@@ -60,20 +82,117 @@ GPU_DENSE_LIMIT = 20_000  # unknowns; 'auto' on a GPU picks dense LU below this
 SPARSE_GPU_PLATFORMS = ("cuda",)  # where jax.experimental.sparse.linalg.spsolve lowers
 
 
+@jax.tree_util.register_dataclass
+@dataclass(frozen=True)
+class Factorization:
+    """An LU factorization kept across Newton iterations and load steps (modified Newton).
+
+    dense: ``lu`` (n, n) packed LU factors and ``piv`` (n,) pivots, as from
+    ``jax.scipy.linalg.lu_factor``.  sparse: ``lu`` (1,) uint64, the handle of a KLU numeric
+    factorization held by klujax (``piv`` unused), valid only inside the run that made it:
+    :meth:`LinearSolver.refactor` frees the one it replaces, the run's owner frees the last
+    (:meth:`LinearSolver.release`).  ``valid`` is False before the first factorization;
+    ``count`` counts the factorizations made."""
+
+    lu: jax.Array
+    piv: jax.Array
+    valid: jax.Array
+    count: jax.Array
+
+
+def _free_numeric(handle, valid):
+    """Host side of :meth:`LinearSolver.release` (called from inside the compiled program)."""
+    import klujax_cpp
+
+    if bool(valid):
+        klujax_cpp.KLUNumeric([int(v) for v in np.asarray(handle).ravel()]).close()
+    return np.zeros((), np.int32)
+
+
+_SYMBOLIC: dict = {}  # KLU symbolic analyses, kept alive for the process (one per pattern)
+
+
+def klu_symbolic(rows, cols, n: int):
+    """KLU's symbolic analysis (fill-reducing ordering, block triangular form) of the
+    pattern, done once per pattern outside jit and kept for the process; returned as the
+    uint64 handle that :meth:`LinearSolver.solve` and friends take as ``symbolic``."""
+    import klujax
+
+    rows = np.asarray(rows, dtype=np.int32)
+    cols = np.asarray(cols, dtype=np.int32)
+    key = (n, hashlib.sha1(rows.tobytes() + cols.tobytes()).hexdigest())
+    if key not in _SYMBOLIC:
+        _SYMBOLIC[key] = klujax.analyze(rows, cols, n)
+    return jnp.asarray(_SYMBOLIC[key].raw, dtype=jnp.uint64)
+
+
 @dataclass(frozen=True)
 class LinearSolver:
+    """``symbolic``: the pattern's KLU analysis (:func:`klu_symbolic`) or None; the sparse
+    backend reuses it (factor + solve per call) instead of analysing per call."""
+
     backend: str = "dense"  # 'dense' | 'sparse'
 
-    def solve(self, rows, cols, vals, b, n: int):
+    def solve(self, rows, cols, vals, b, n: int, symbolic=None):
         if self.backend == "dense":
-            a = jnp.zeros((n, n), dtype=vals.dtype).at[rows, cols].set(vals)
-            return jnp.linalg.solve(a, b)
+            return jnp.linalg.solve(_dense(rows, cols, vals, n), b)
         import klujax  # lazy: see module docstring
 
-        return klujax.solve(rows.astype(jnp.int32), cols.astype(jnp.int32), vals, b)
+        rows, cols = rows.astype(jnp.int32), cols.astype(jnp.int32)
+        if symbolic is None:
+            return klujax.solve(rows, cols, vals, b)
+        return klujax.solve_with_symbol(rows, cols, vals, b, symbolic)
 
-    def solve_transpose(self, rows, cols, vals, b, n: int):
+    def solve_transpose(self, rows, cols, vals, b, n: int, symbolic=None):
+        if self.backend == "sparse" and symbolic is not None:
+            import klujax
+
+            return klujax.tsolve_with_symbol(rows.astype(jnp.int32), cols.astype(jnp.int32),
+                                             vals, b, symbolic)
         return self.solve(cols, rows, vals, b, n)
+
+    # -- a factorization kept across solves (modified Newton); dense and sparse only --
+
+    def empty_factorization(self, n: int, dtype) -> Factorization:
+        if self.backend == "dense":
+            lu, piv = jnp.zeros((n, n), dtype), jnp.zeros(n, jnp.int32)
+        else:
+            lu, piv = jnp.zeros(1, jnp.uint64), jnp.zeros(0, jnp.int32)
+        return Factorization(lu=lu, piv=piv, valid=jnp.asarray(False),
+                             count=jnp.asarray(0, jnp.int32))
+
+    def refactor(self, rows, cols, vals, n: int, symbolic, old: Factorization) -> Factorization:
+        """A new factorization of the matrix; the sparse one replaced is freed."""
+        if self.backend == "dense":
+            lu, piv = jax.scipy.linalg.lu_factor(_dense(rows, cols, vals, n))
+            return Factorization(lu=lu, piv=piv.astype(jnp.int32), valid=jnp.asarray(True),
+                                 count=old.count + 1)
+        import klujax
+
+        token = self.release(old)
+        handle = klujax.factor(rows.astype(jnp.int32), cols.astype(jnp.int32), vals,
+                               symbolic + token.astype(jnp.uint64))  # after the free
+        return Factorization(lu=handle.astype(jnp.uint64).reshape(1), piv=old.piv,
+                             valid=jnp.asarray(True), count=old.count + 1)
+
+    def solve_factored(self, fac: Factorization, b, symbolic):
+        if self.backend == "dense":
+            return jax.scipy.linalg.lu_solve((fac.lu, fac.piv), b)
+        import klujax
+
+        return klujax.solve_with_numeric(fac.lu, b, symbolic).reshape(b.shape)
+
+    def release(self, fac: Factorization):
+        """Free a sparse factorization (a no-op for dense or an invalid one); returns an
+        int32 zero to make later work depend on the free."""
+        if self.backend == "dense":
+            return jnp.zeros((), jnp.int32)
+        return io_callback(_free_numeric, jax.ShapeDtypeStruct((), jnp.int32), fac.lu,
+                           fac.valid, ordered=False)
+
+
+def _dense(rows, cols, vals, n: int):
+    return jnp.zeros((n, n), dtype=vals.dtype).at[rows, cols].set(vals)
 
 
 class LinearBackendWarning(UserWarning):
@@ -99,12 +218,12 @@ class JaxSparseSolver:
     tol: float = 1e-14
     reorder: int = 3
 
-    def solve(self, rows, cols, vals, b, n: int):
+    def solve(self, rows, cols, vals, b, n: int, symbolic=None):
         indptr = jnp.searchsorted(rows, jnp.arange(n + 1, dtype=rows.dtype), side="left")
         return _spsolve_sequential(vals, cols.astype(jnp.int32), indptr.astype(jnp.int32), b,
                                    self.tol, self.reorder)
 
-    def solve_transpose(self, rows, cols, vals, b, n: int):
+    def solve_transpose(self, rows, cols, vals, b, n: int, symbolic=None):
         rows_t, cols_t, vals_t = jax.lax.sort((cols, rows, vals), num_keys=2)
         return self.solve(rows_t, cols_t, vals_t, b, n)
 

@@ -29,6 +29,8 @@ The run ends when the ram stroke reaches ``die.reduction`` x the workpiece heigh
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import jax.numpy as jnp
 import numpy as np
 
@@ -38,12 +40,12 @@ from jaxform.config import ConfigError
 from jaxform.contact import ContactLaw
 from jaxform.dies import DieError, catmull_rom, check_profile, make_die, time_at_travel
 from jaxform.formulations import Formulation
-from jaxform.linear import choose_backend
+from jaxform.linear import choose_backend, klu_symbolic
 from jaxform.loads import FacetLoad
 from jaxform.materials import load_material
 from jaxform.precision import require_x64
 from jaxform.simulate import Inputs, Scene
-from jaxform.solver import NewtonSettings
+from jaxform.solver import NewtonSettings, choose_method
 
 FREE_SETS = ("top", "side", "outer", "inner")
 # Dirichlet conditions by node set: the displacement components held at 0
@@ -193,14 +195,21 @@ def build_scene(cfg: dict) -> Scene:
     if m["rezone_quality"] > 0.0 and not structured:
         raise ConfigError(f"mesh.rezone_quality > 0 needs a billet or ring scene on its "
                           f"structured mesh (this scene: {kind})")
+    linear = choose_backend(so["linear"], layout.n_dofs)
+    try:
+        method = choose_method(so["newton"], linear.backend, layout.n_dofs)
+    except ValueError as err:
+        raise ConfigError(str(err)) from None
+    if linear.backend == "sparse":  # KLU's symbolic analysis once per pattern, outside jit
+        idx = replace(idx, lu_symbolic=klu_symbolic(idx.rows, idx.cols, layout.n_dofs))
     return Scene(
         config=cfg,
         mesh=mesh,
         model=model,
         idx=idx,
-        linear=choose_backend(so["linear"], layout.n_dofs),
+        linear=linear,
         newton=NewtonSettings(max_iterations=so["max_newton_iterations"], rtol=so["rtol"],
-                              line_search=so["line_search"]),
+                              line_search=so["line_search"], method=method),
         inputs=Inputs(coords=jnp.asarray(mesh.coords), params=params, die=die,
                       c_contact=jnp.asarray(c), load=load),
         dt=tm["dt_s"],

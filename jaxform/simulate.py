@@ -157,30 +157,48 @@ def _step_adjoint(model: Model, x, args, gauss_bar):
                                         cstep, idx, gauss_bar)
 
 
-def _step_linear(model: Model, linear: LinearSolver, vals, b, args, transpose: bool):
-    idx = args[8]
-    solve = linear.solve_transpose if transpose else linear.solve
-    return solve(idx.rows, idx.cols, vals, b, model.layout.n_dofs)
+@dataclass(frozen=True)
+class StepLinear:
+    """The linear algebra of a step's Newton solve on the pattern in ``args``' Indices
+    (hashable: a static part of the compiled step).  Called: a solve (or a transposed
+    one, for the reverse pass); ``factor`` / ``solve_factored``: a factorization kept
+    across iterations and steps (modified Newton)."""
+
+    n: int
+    solver: LinearSolver
+
+    def __call__(self, vals, b, args, transpose: bool):
+        idx = args[8]
+        solve = self.solver.solve_transpose if transpose else self.solver.solve
+        return solve(idx.rows, idx.cols, vals, b, self.n, idx.lu_symbolic)
+
+    def factor(self, vals, args, old):
+        idx = args[8]
+        return self.solver.refactor(idx.rows, idx.cols, vals, self.n, idx.lu_symbolic, old)
+
+    def solve_factored(self, fac, b, args):
+        return self.solver.solve_factored(fac, b, args[8].lu_symbolic)
 
 
 def solve_step(model: Model, linear: LinearSolver, settings: NewtonSettings,
-               state: SimState, t_new, dt, inp: Inputs, idx: Indices, x_guess=None):
+               state: SimState, t_new, dt, inp: Inputs, idx: Indices, x_guess=None, fac=None):
     """One Newton solve from state (at t) to t_new = t + dt, starting from x_guess (or
-    state.x; state.x also when the guess is not a valid state).
+    state.x; state.x also when the guess is not a valid state); ``fac``: the kept
+    factorization for ``settings.method = 'modified'``.
 
     Differentiable (reverse mode) in ``state`` and ``inp`` by the implicit function theorem
-    (:func:`jaxform.solver.solve_implicit`).  Returns (x, gauss, its, code, hist, cstep)."""
+    (:func:`jaxform.solver.solve_implicit`).  Returns (x, gauss, its, code, hist, cstep, fac)."""
     cstep = contact_step(model, state, inp, idx)
     f_ext = applied_forces(model, inp, t_new, idx)
     args = (state.gauss, inp.coords, t_new, dt, inp.params, inp.die, inp.c_contact, cstep, idx,
             f_ext)
     x_fallback = jax.lax.stop_gradient(state.x)
     x0 = x_fallback if x_guess is None else jax.lax.stop_gradient(x_guess)
-    x, g, its, code, hist = solve_implicit(
+    x, g, its, code, hist, fac = solve_implicit(
         partial(_step_residual, model), partial(_step_residual_and_jacobian, model),
-        partial(_step_adjoint, model), partial(_step_linear, model, linear), settings, x0,
-        x_fallback, args)
-    return x, g, its, code, hist, cstep
+        partial(_step_adjoint, model), StepLinear(model.layout.n_dofs, linear), settings, x0,
+        x_fallback, args, fac)
+    return x, g, its, code, hist, cstep, fac
 
 
 def converged_state(model: Model, state: SimState, x, gauss, t_new, inp: Inputs,
@@ -197,9 +215,11 @@ def converged_state(model: Model, state: SimState, x, gauss, t_new, inp: Inputs,
                     contact_status=status.astype(state.contact_status.dtype))
 
 
-def macro_step(model, linear, settings, max_cutbacks, state: SimState, t_target, inp, idx):
-    """Advance to t_target, halving the sub-step on failure. Returns (state, info dict)."""
-    n_hist = settings.max_iterations + 1
+def macro_step(model, linear, settings, max_cutbacks, state: SimState, t_target, inp, idx,
+               fac=None):
+    """Advance to t_target, halving the sub-step on failure. Returns (state, info dict,
+    fac): ``fac`` the factorization kept by modified Newton (None for 'newton')."""
+    n_hist = settings.max_total_iterations + 1
 
     def cond(c):
         return ~c["done"]
@@ -209,8 +229,9 @@ def macro_step(model, linear, settings, max_cutbacks, state: SimState, t_target,
         # predictor: the last step's rate, extrapolated (exact for steady motion); not
         # after a failure in this step (the rate may be what failed), and never an invalid one
         use_rate = (c["level"] == 0).astype(st.x.dtype)
-        x, g, its, code, hist, cstep = solve_step(model, linear, settings, st, st.t + h, h, inp,
-                                                  idx, x_guess=st.x + use_rate * h * st.x_rate)
+        x, g, its, code, hist, cstep, fac_new = solve_step(
+            model, linear, settings, st, st.t + h, h, inp, idx,
+            x_guess=st.x + use_rate * h * st.x_rate, fac=c["fac"])
         ok = code == OK
         t_new = jnp.where(ok, st.t + h, st.t)
         conv = converged_state(model, st, x, g, st.t + h, inp, cstep, idx)
@@ -224,16 +245,16 @@ def macro_step(model, linear, settings, max_cutbacks, state: SimState, t_target,
             iterations=c["iterations"] + its, cutbacks=c["cutbacks"] + (~ok).astype(jnp.int32),
             code=jnp.where(failed, code, jnp.where(ok, OK, c["code"])),
             last_cause=jnp.where(ok, c["last_cause"], code),
-            hist=jnp.where(ok, hist, c["hist"]),
+            hist=jnp.where(ok, hist, c["hist"]), fac=fac_new,
         )
 
     init = dict(state=state, h=t_target - state.t, level=jnp.asarray(0), done=jnp.asarray(False),
                 iterations=jnp.asarray(0), cutbacks=jnp.asarray(0, jnp.int32),
                 code=jnp.asarray(OK), last_cause=jnp.asarray(OK),
-                hist=jnp.full(n_hist, jnp.inf))
+                hist=jnp.full(n_hist, jnp.inf), fac=fac)
     out = jax.lax.while_loop(cond, body, init)
     info = {k: out[k] for k in ("iterations", "cutbacks", "code", "hist")}
-    return out["state"], info
+    return out["state"], info, out["fac"]
 
 
 def applied_forces(model: Model, inp: Inputs, t, idx: Indices):
@@ -279,39 +300,44 @@ def step_outputs(model: Model, state: SimState, inp: Inputs, idx: Indices, symme
 
 @partial(jax.jit, static_argnums=(0, 1, 2, 4))
 def run_chunk(model, linear, settings, max_cutbacks, symmetric_z, state: SimState,
-              targets, active, inp: Inputs, idx: Indices, rezone_quality=0.0):
+              targets, active, inp: Inputs, idx: Indices, rezone_quality=0.0, fac=None):
     """lax.scan over a chunk of load steps; inactive steps (past the end, after a
     failure, or after a step that left an element corner quality below ``rezone_quality``:
-    the caller rezones and goes on) leave the state unchanged."""
+    the caller rezones and goes on) leave the state unchanged.  ``fac``: the factorization
+    modified Newton keeps (None for 'newton'), carried through and returned with
+    (state, outputs): the caller owns it and frees the last one."""
 
     def step(carry, tk):
-        st, failed, paused = carry
+        st, failed, paused, fac = carry
         t_target, act = tk
         run = act & ~failed & ~paused
 
-        def do(st):
-            return macro_step(model, linear, settings, max_cutbacks, st, t_target, inp, idx)
+        def do(st, fac):
+            return macro_step(model, linear, settings, max_cutbacks, st, t_target, inp, idx,
+                              fac)
 
-        def skip(st):
-            n_hist = settings.max_iterations + 1
+        def skip(st, fac):
+            n_hist = settings.max_total_iterations + 1
             return st, dict(iterations=jnp.asarray(0), cutbacks=jnp.asarray(0, jnp.int32),
-                            code=jnp.asarray(OK), hist=jnp.full(n_hist, jnp.inf))
+                            code=jnp.asarray(OK), hist=jnp.full(n_hist, jnp.inf)), fac
 
-        new, info = jax.lax.cond(run, do, skip, st)
+        new, info, fac_new = jax.lax.cond(run, do, skip, st, fac)
         failed = failed | (info["code"] != OK)
         pos = model.nodal_positions(new.x, inp.coords, idx)
         quality = min_quality(pos, idx.elements)
         paused = paused | (run & ~failed & (rezone_quality > 0.0) & (quality < rezone_quality))
         out = step_outputs(model, new, inp, idx, symmetric_z)
         out.update(info)
+        out["factorizations"] = (info["iterations"] if fac is None
+                                 else fac_new.count - fac.count)
         out["active"] = run
         out["mesh_quality"] = quality
         out["paused"] = paused
-        return (new, failed, paused), out
+        return (new, failed, paused, fac_new), out
 
-    init = (state, jnp.asarray(False), jnp.asarray(False))
-    (state, _, _), outs = jax.lax.scan(step, init, (targets, active))
-    return state, outs
+    init = (state, jnp.asarray(False), jnp.asarray(False), fac)
+    (state, _, _, fac), outs = jax.lax.scan(step, init, (targets, active))
+    return state, outs, fac
 
 
 @dataclass
@@ -359,7 +385,7 @@ def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Re
     st_args = (scene.model, scene.linear, scene.newton, jnp.asarray(scene.max_cutbacks),
                scene.symmetric_z)
     init = jax.device_get(step_outputs(scene.model, state, inp, scene.idx, scene.symmetric_z))
-    rows = [dict(init, iterations=0, cutbacks=0, code=OK, rezoned=0,
+    rows = [dict(init, iterations=0, factorizations=0, cutbacks=0, code=OK, rezoned=0,
                  mesh_quality=float(min_quality(np.asarray(scene.inputs.coords),
                                                 np.asarray(scene.mesh.elements))))]
     hists = []
@@ -367,51 +393,62 @@ def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Re
     failure = None
     trigger = scene.rezone_quality
     k0 = 0
-    while k0 < n and failure is None:
-        tk = np.full(c, targets[-1])
-        act = np.zeros(c, dtype=bool)
-        m = min(c, n - k0)
-        tk[:m], act[:m] = targets[k0:k0 + m], True
-        state_new, outs = run_chunk(*st_args, state, jnp.asarray(tk), jnp.asarray(act),
-                                    inp, scene.idx, jnp.asarray(trigger))
-        outs = jax.device_get(outs)
-        done = m
-        for j in range(m):
-            row = {k: v[j] for k, v in outs.items()}
-            if int(row["code"]) != OK:
-                t_fail = float(targets[k0 + j])
-                failure = (f"step {k0 + j + 1} (target time {t_fail:g} s, last converged time "
-                           f"{float(row['time_s']):g} s) failed after {scene.max_cutbacks} "
-                           f"cutbacks: {CAUSES.get(int(row['code']), 'unknown')}")
-                break
-            row["x"] = _absolute(scene, inp, row["x"])
-            row["rezoned"] = int(bool(row["paused"]))
-            rows.append(row)
-            hists.append(row["hist"])
-            if progress is not None:
-                progress(dict(step=k0 + j + 1, n_steps=n, **{k: row[k] for k in (
-                    "time_s", "stroke_mm", "force_N", "iterations", "cutbacks")}))
-            if row["paused"]:
-                done = j + 1
-                break
-        state = state_new
-        k0 += done
-        if rows[-1]["rezoned"] and (failure is not None or k0 >= n):
-            rows[-1]["rezoned"] = 0  # the run ends here: nothing to rezone for
-        if rows[-1]["rezoned"]:
-            try:
-                state, inp, report = rezone(scene, state, inp)
-            except RezoneError as err:
-                failure = f"step {k0}: {err}"
-            else:
-                rezones.append(report)
-                # a rezoning that could not raise the quality keeps the mesh; try again
-                # when the quality has fallen by another 10 %
-                trigger = (scene.rezone_quality if report.improved
-                           else 0.9 * report.quality_before)
-                rows[-1]["rezoned"] = int(report.improved)
-    hist_keys = ("time_s", "stroke_mm", "force_N", "iterations", "cutbacks", "friction_work_Nmm",
-                 "mesh_quality", "rezoned")
+    owned = [scene.linear.empty_factorization(scene.model.layout.n_dofs, state.x.dtype)
+             if scene.newton.method == "modified" else None]
+    try:
+        while k0 < n and failure is None:
+            tk = np.full(c, targets[-1])
+            act = np.zeros(c, dtype=bool)
+            m = min(c, n - k0)
+            tk[:m], act[:m] = targets[k0:k0 + m], True
+            fac, owned[0] = owned[0], None  # the chunk frees it when it refactors
+            state_new, outs, owned[0] = run_chunk(*st_args, state, jnp.asarray(tk),
+                                                  jnp.asarray(act), inp, scene.idx,
+                                                  jnp.asarray(trigger), fac)
+            outs = jax.device_get(outs)
+            done = m
+            for j in range(m):
+                row = {k: v[j] for k, v in outs.items()}
+                if int(row["code"]) != OK:
+                    t_fail = float(targets[k0 + j])
+                    failure = (f"step {k0 + j + 1} (target time {t_fail:g} s, last converged "
+                               f"time {float(row['time_s']):g} s) failed after "
+                               f"{scene.max_cutbacks} cutbacks: "
+                               f"{CAUSES.get(int(row['code']), 'unknown')}")
+                    break
+                row["x"] = _absolute(scene, inp, row["x"])
+                row["rezoned"] = int(bool(row["paused"]))
+                rows.append(row)
+                hists.append(row["hist"])
+                if progress is not None:
+                    progress(dict(step=k0 + j + 1, n_steps=n, **{k: row[k] for k in (
+                        "time_s", "stroke_mm", "force_N", "iterations", "cutbacks")}))
+                if row["paused"]:
+                    done = j + 1
+                    break
+            state = state_new
+            k0 += done
+            if rows[-1]["rezoned"] and (failure is not None or k0 >= n):
+                rows[-1]["rezoned"] = 0  # the run ends here: nothing to rezone for
+            if rows[-1]["rezoned"]:
+                try:
+                    state, inp, report = rezone(scene, state, inp)
+                except RezoneError as err:
+                    failure = f"step {k0}: {err}"
+                else:
+                    rezones.append(report)
+                    # a rezoning that could not raise the quality keeps the mesh; try again
+                    # when the quality has fallen by another 10 %
+                    trigger = (scene.rezone_quality if report.improved
+                               else 0.9 * report.quality_before)
+                    rows[-1]["rezoned"] = int(report.improved)
+    finally:
+        # the last factorization modified Newton kept is freed here; one a raising chunk
+        # held is lost, never freed twice
+        if owned[0] is not None:
+            jax.block_until_ready(scene.linear.release(owned[0]))
+    hist_keys = ("time_s", "stroke_mm", "force_N", "iterations", "factorizations", "cutbacks",
+                 "friction_work_Nmm", "mesh_quality", "rezoned")
     history = {k: np.array([float(r[k]) for r in rows]) for k in hist_keys}
     history["newton_iterations"] = history.pop("iterations")
     fields = {k: np.stack([np.asarray(r[k]) for r in rows])
