@@ -169,6 +169,10 @@ class LinearSolver:
                                  count=old.count + 1)
         import klujax
 
+        if symbolic is None:
+            raise ValueError("a kept sparse factorization needs the pattern's KLU analysis "
+                             "(Indices.lu_symbolic = jaxform.linear.klu_symbolic(rows, cols, "
+                             "n); build_scene sets it for the sparse backend)")
         token = self.release(old)
         handle = klujax.factor(rows.astype(jnp.int32), cols.astype(jnp.int32), vals,
                                symbolic + token.astype(jnp.uint64))  # after the free
