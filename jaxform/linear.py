@@ -56,9 +56,9 @@ Sparse: klujax's numeric handle (a pointer held in a uint64 array), made inside 
 compiled program; klujax frees a handle only when it wraps it in a Python object, so
 :meth:`LinearSolver.release` frees it from inside the program through a host callback
 (``io_callback`` into ``klujax_cpp.KLUNumeric(...).close()``), ordered before the next
-factorization by a data dependency.  Measured (100 factorizations of a 20 000-unknown
-banded matrix in one program): resident memory flat with the free, +300 MB per 50
-without.  ``refactor`` makes a fresh factorization (KLU's ``klu_factor``, partial
+factorization by a data dependency.  Measured (200 factorizations of a 20 000-unknown
+banded matrix, 50 per program call): resident memory 309 -> 321 MB with the free,
++300 MB per 50 without.  ``refactor`` makes a fresh factorization (KLU's ``klu_factor``, partial
 pivoting) and never ``klu_refactor`` (the old pivot order, which raises on a zero pivot:
 a contact multiplier row has one once its node touches); ``refactor_and_solve`` measured
 no faster than factor + solve at 100 x 100 anyway.
