@@ -32,23 +32,13 @@ from jaxform.config import load_config
 from jaxform.design import available_groups, build_problem
 from jaxform.scenes import build_scene
 from jaxform.simulate import simulate
+from timing import interleaved
 
 CONFIGS = {"seed": "configs/upsetting_seed.toml", "friction": "configs/upsetting_friction.toml"}
 
 
 def best(fn, repeat):
     return interleaved([fn], repeat)[0]
-
-
-def interleaved(fns, repeat):
-    """Best time of each of ``fns``, run in turn ``repeat`` times."""
-    times = [[] for _ in fns]
-    for _ in range(repeat):
-        for fn, ts in zip(fns, times):
-            t0 = time.perf_counter()
-            jax.block_until_ready(fn())
-            ts.append(time.perf_counter() - t0)
-    return [min(ts) for ts in times]
 
 
 def program_bytes(jitted, *args) -> float:

@@ -7,11 +7,12 @@
 Seed scene (configs/upsetting_seed.toml, q1q1, Anand) on n x n meshes, klujax sparse LU.
 Each size runs in its own subprocess (``--one n``, so that its peak resident memory,
 ``ru_maxrss``, is that size's alone) and times the compiled pieces of a Newton iteration
-separately, each best of 5 after compilation:
+separately, in turn, best of 5 rounds after compilation (``timing.interleaved``: a shared
+machine's drifting speed slows every piece alike, so the ratios hold):
 
-* ``assemble``: ``Model.residual_and_jacobian`` (element residuals, their jacfwd Jacobians
-  with the nested Anand local solves in chunks of 32 elements, contact blocks, the
-  segment_sum onto the pattern);
+* ``assemble``: ``Model.residual_and_jacobian`` (the residual pass with the nested Anand
+  local solves over the whole mesh, the jacfwd Jacobian pass at its solution in chunks of
+  ``Model.jacobian_chunk`` elements, contact blocks, the segment_sum onto the pattern);
 * ``residual``: ``Model.residual`` (one per line-search trial, i.e. one per iteration);
 * ``solve``: ``LinearSolver.solve`` on the fixed pattern (klujax: numeric factorization
   and solve in one call, with the pattern's symbolic analysis done once at set-up);
@@ -37,7 +38,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from timing import best_of, cold_and_warm
+from timing import cold_and_warm, interleaved
 
 SEED = "configs/upsetting_seed.toml"
 
@@ -51,6 +52,7 @@ def one(n: int, linear: str) -> dict:
     from jaxform.config import load_config
     from jaxform.scenes import build_scene
     from jaxform.simulate import applied_forces, contact_step
+    from jaxform.xla_options import jit
 
     jaxform.enable_x64()
     cfg = load_config(SEED, [f"mesh.nr={n}", f"mesh.nz={n}", f"solver.linear={linear}",
@@ -68,8 +70,9 @@ def one(n: int, linear: str) -> dict:
     cstep = contact_step(model, st, inp, idx)
     args = (st.gauss, inp.coords, t, dt, inp.params, inp.die, inp.c_contact, cstep, idx,
             applied_forces(model, inp, t, idx))
-    rj = jax.jit(model.residual_and_jacobian)
-    res = jax.jit(model.residual)
+    # compiled as the simulation compiles its programs (jaxform.xla_options)
+    rj = jit(model.residual_and_jacobian)
+    res = jit(model.residual)
     sym = idx.lu_symbolic
     solve = jax.jit(lambda r, c, v, b: sc.linear.solve(r, c, v, b, lay.n_dofs, sym))
     none = sc.linear.empty_factorization(lay.n_dofs, x.dtype)
@@ -86,31 +89,19 @@ def one(n: int, linear: str) -> dict:
     t0 = time.perf_counter()
     dx = jax.block_until_ready(solve(idx.rows, idx.cols, vals, -r))
     out["compile_solve_s"] = time.perf_counter() - t0
-    out["assemble_s"] = best_of(lambda: rj(x, *args), 5)
-    out["residual_s"] = best_of(lambda: res(x, *args), 5)
-    out["solve_s"] = best_of(lambda: solve(idx.rows, idx.cols, vals, -r), 5)
-    out["iteration_s"] = out["assemble_s"] + out["solve_s"] + out["residual_s"]
     fac = jax.block_until_ready(factor(vals))
-    out["factor_s"] = best_of_freed(lambda: factor(vals), sc.linear.release, 5)
-    out["kept_solve_s"] = best_of(lambda: kept_solve(fac, -r), 5)
+    # all pieces timed in turn, best of 5 rounds: their ratios survive a drifting machine
+    names = ("assemble_s", "residual_s", "solve_s", "factor_s", "kept_solve_s")
+    times = interleaved([lambda: rj(x, *args), lambda: res(x, *args),
+                         lambda: solve(idx.rows, idx.cols, vals, -r), lambda: factor(vals),
+                         lambda: kept_solve(fac, -r)], 5, release={3: sc.linear.release})
+    out.update(zip(names, times))
     jax.block_until_ready(sc.linear.release(fac))
+    out["iteration_s"] = out["assemble_s"] + out["solve_s"] + out["residual_s"]
     out["kept_iteration_s"] = out["residual_s"] + out["kept_solve_s"]
     out["solve_finite"] = bool(np.all(np.isfinite(np.asarray(dx))))
     out["peak_rss_mib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     return out
-
-
-def best_of_freed(make, release, repeats: int) -> float:
-    """best_of for a call that returns a factorization: each one freed after its timing."""
-    import jax
-
-    best = np.inf
-    for _ in range(repeats + 1):
-        t0 = time.perf_counter()
-        fac = jax.block_until_ready(make())
-        best = min(best, time.perf_counter() - t0)
-        jax.block_until_ready(release(fac))
-    return best
 
 
 def full(n: int, newton: str) -> None:

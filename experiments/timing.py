@@ -21,6 +21,30 @@ def best_of(fn, repeats: int) -> float:
     return best
 
 
+def interleaved(fns, repeats: int, release=None) -> list[float]:
+    """Best wall time (s) of each of ``fns`` (after one warm-up call each), the calls made
+    in turn ``repeats`` times: a machine whose speed drifts (a shared host) slows all of
+    them alike, so their ratios hold better than with one best-of after another.
+    ``release``: {index: function} called untimed on that call's result (e.g. to free a
+    sparse factorization)."""
+    import jax
+
+    release = release or {}
+    for i, fn in enumerate(fns):
+        out = jax.block_until_ready(fn())
+        if i in release:
+            jax.block_until_ready(release[i](out))
+    best = [np.inf] * len(fns)
+    for _ in range(repeats):
+        for i, fn in enumerate(fns):
+            t0 = time.perf_counter()
+            out = jax.block_until_ready(fn())
+            best[i] = min(best[i], time.perf_counter() - t0)
+            if i in release:
+                jax.block_until_ready(release[i](out))
+    return best
+
+
 def cold_and_warm(cfg: dict):
     """(scene, result, first run's wall time incl. compilation, second run's) of the
     scene of a validated config; the second run reuses the first's compiled program."""

@@ -34,6 +34,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from jaxform.design.problem import DesignProblem
 from jaxform.formulations import CAUSES, OK
 from jaxform.gradients import GradientRunError
+from jaxform.xla_options import jit
 
 AXIS = "batch"
 
@@ -64,11 +65,11 @@ class BatchProblem:
     def _program(self, fn):
         batched = jax.vmap(fn)
         if self.mesh is None:
-            return jax.jit(batched)
+            return jit(batched)
         spec = PartitionSpec(AXIS)
         # check_vma=False: the lanes are independent and the Newton/scan carries start from
         # replicated constants, which the varying-manual-axes check would reject
-        return jax.jit(jax.shard_map(batched, mesh=self.mesh, in_specs=spec, out_specs=spec,
+        return jit(jax.shard_map(batched, mesh=self.mesh, in_specs=spec, out_specs=spec,
                                      check_vma=False))
 
     @cached_property

@@ -24,6 +24,7 @@ def _material_point(args) -> int:
     from jaxform.materialpoint import uniaxial_compression
     from jaxform.materials import load_material
     from jaxform.plot import stress_strain
+    from jaxform.xla_options import jit
 
     law, params = load_material(args.material)
     if args.strain <= 0 or args.strain > 3:
@@ -46,7 +47,7 @@ def _material_point(args) -> int:
         return uniaxial_compression(law, params, final_strain=args.strain, n_steps=args.steps, **kw)
 
     t0 = time.perf_counter()
-    res = jax.jit(jax.vmap(one))(jnp.asarray(loads, dtype=jnp.float64))
+    res = jit(jax.vmap(one))(jnp.asarray(loads, dtype=jnp.float64))
     res = {k: np.asarray(v) for k, v in res.items()}
     print(f"material point: {len(loads)} loadings x {args.steps} steps in "
           f"{time.perf_counter() - t0:.2f} s (including compilation)")

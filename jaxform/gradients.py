@@ -47,6 +47,7 @@ from jaxform.simulate import (
     solve_step,
 )
 from jaxform.solver import NewtonSettings
+from jaxform.xla_options import jit
 
 
 @jax.tree_util.register_dataclass
@@ -70,7 +71,7 @@ class GradientRunError(RuntimeError):
     """A step of a differentiable run did not converge."""
 
 
-@partial(jax.jit, static_argnums=(0, 1, 2, 3))
+@partial(jit, static_argnums=(0, 1, 2, 3))
 def _trajectory(model, linear, settings, symmetric_z, inputs: Inputs, times, state0, idx):
     def step(st: SimState, t_new):
         dt = t_new - st.t

@@ -42,6 +42,7 @@ from jaxform.postprocess import extra_history
 from jaxform.precision import require_x64
 from jaxform.rezone import RezoneError, min_quality, rezone
 from jaxform.solver import NewtonSettings, solve_implicit
+from jaxform.xla_options import jit
 
 
 @jax.tree_util.register_dataclass
@@ -298,7 +299,7 @@ def step_outputs(model: Model, state: SimState, inp: Inputs, idx: Indices, symme
     )
 
 
-@partial(jax.jit, static_argnums=(0, 1, 2, 4))
+@partial(jit, static_argnums=(0, 1, 2, 4))
 def run_chunk(model, linear, settings, max_cutbacks, symmetric_z, state: SimState,
               targets, active, inp: Inputs, idx: Indices, rezone_quality=0.0, fac=None):
     """lax.scan over a chunk of load steps; inactive steps (past the end, after a

@@ -27,6 +27,7 @@ from jaxform.design import objectives as obj
 from jaxform.design import parametrize as par
 from jaxform.gradients import check, schedule, trajectory
 from jaxform.simulate import Scene
+from jaxform.xla_options import jit
 
 GROUPS = ("material", "friction", "speed", "preform", "nodes", "die")
 
@@ -51,11 +52,11 @@ class DesignProblem:
 
     @cached_property
     def _value(self):
-        return jax.jit(self._j)
+        return jit(self._j)
 
     @cached_property
     def _value_and_grad(self):
-        return jax.jit(jax.value_and_grad(self._j, has_aux=True))
+        return jit(jax.value_and_grad(self._j, has_aux=True))
 
     def value(self, design):
         if self.single_program:
