@@ -13,16 +13,24 @@ In jit: element residuals are vmapped over elements; their Jacobians come from
 ``jax.jacfwd`` of the same function (no hand-derived tangent), and are summed into the
 pattern with one segment_sum.  Dirichlet rows become identity rows.
 
-The element Jacobians are computed in chunks of ``Model.jacobian_chunk`` elements (a
-``lax.map`` over chunks, each chunk vmapped; the element list is padded with copies of
-element 0 to a multiple of the chunk, so one body is compiled).  The jacfwd intermediates
-of all elements at once (12 tangents x 4 Gauss points x 3 x 3 per element) do not fit in
-cache, and the vmapped program is memory bound: measured on the 100x100 seed mesh (10 000
-elements, 2-core CPU shared with other jobs, best of 4, interleaved) 1.12 s unchunked
-against 0.34 s in chunks of 32 (a second run: 1.62 s against 0.71-0.77 s with chunks of 8,
-16 or 32); 40x40: 0.20 s against 0.10 s (chunks of 64 or 256).  The values are the same up
-to summation order (1e-15 relative).  The residual alone gains nothing from chunking and
-stays one vmap.
+The assembly is two passes.  The residual pass vmaps the element function over all
+elements at once: it gives R and the new Gauss state, and the material's local solves
+(the nested Anand roots) run vectorized over every Gauss point of the mesh.  The Jacobian
+pass then differentiates the element function at that state (``solution``: each material
+update takes the converged point it is given instead of solving again, and differentiates
+there, :mod:`jaxform.materials.base`), so its forward-mode tangents run no solver loop.
+Same Jacobian as differentiating straight through the solving residual (tested at 1e-11,
+measured 1e-14).
+
+The Jacobian pass runs in chunks of ``Model.jacobian_chunk`` elements (a ``lax.map`` over
+chunks, each chunk vmapped; the element list is padded with copies of element 0 to a
+multiple of the chunk, so one body is compiled): the jacfwd intermediates of all elements
+at once (12 tangents x 4 Gauss points x 3 x 3 per element) fall out of cache, and tiny
+chunks pay a per-operation overhead.  Measured 2026-11-23 (100x100 seed mesh, two-pass, CPU
+programs compiled as in :mod:`jaxform.xla_options`, best of 10, interleaved): residual and
+Jacobian 212 / 193 / 184 / 195 ms in chunks of 128 / 256 / 512 / 1024; 160x160 637 / 610 /
+543 / 582 ms; 40x40 (1 600 elements) 55-68 ms for every chunk size and one vmap.  The values
+are the same up to summation order (1e-14 relative).
 
 External (dead) loads enter as a given force vector: R = f_int + contact - f_ext
 (:mod:`jaxform.loads`).  A scene without contact candidates (n_contact = 0, e.g. a clamped
@@ -151,27 +159,36 @@ class Model:
     law: object
     layout: Layout
     contact: ContactLaw = ContactLaw()
-    jacobian_chunk: int = 32  # elements per chunk of the element Jacobians; 0: one vmap
+    jacobian_chunk: int = 512  # elements per chunk of the element Jacobians; 0: one vmap
 
     # -- element level --------------------------------------------------------------
     def _element_fn(self, params, dt):
         form, law = self.formulation, self.law
 
-        def fn(dofs_flat, x_ref, gstate):
+        def fn(dofs_flat, x_ref, gstate, solution=None):
             dofs = dofs_flat.reshape(4, form.n_fields)
-            r, gnew, code = form.residual(law, params, dt, x_ref, dofs, gstate)
+            r, gnew, code = form.residual(law, params, dt, x_ref, dofs, gstate, solution)
             return r.ravel(), (r.ravel(), gnew, code)
 
         return fn
 
-    def _element_jacobians(self, fn, xe, x_ref, gstate):
+    def _element_residuals(self, fn, x, coords, gstate, idx: Indices):
+        """The residual pass: (dofs, reference coordinates, r_e, new Gauss state, codes)
+        of every element, one vmap (the material's local solves run vectorized over the
+        whole mesh)."""
+        xe, x_ref = self._gather(x, idx), coords[idx.elements]
+        r_e, (_, gnew, ok_e) = jax.vmap(fn)(xe, x_ref, gstate)
+        return xe, x_ref, r_e, gnew, ok_e
+
+    def _element_jacobians(self, fn, xe, x_ref, gstate, solution: GaussState):
         """vmap(jacfwd(fn, has_aux=True)) over the elements, in chunks of
-        ``jacobian_chunk`` (see the module docstring); returns what the plain vmap
-        returns (for the element function: (k_e, (r_e, gnew, ok_e)))."""
+        ``jacobian_chunk`` (see the module docstring), at the new Gauss state
+        ``solution`` of the residual pass (no local solve is repeated); returns what the
+        plain vmap returns (for the element function: (k_e, (r_e, gnew, ok_e)))."""
         jac = jax.vmap(jax.jacfwd(fn, has_aux=True))
         n_el, b = xe.shape[0], self.jacobian_chunk
         if b <= 0 or n_el <= b:
-            return jac(xe, x_ref, gstate)
+            return jac(xe, x_ref, gstate, solution)
         n_pad = -n_el % b
 
         def chunked(a):  # pad with copies of element 0 (a valid element), split in chunks
@@ -179,7 +196,8 @@ class Model:
                 a = jnp.concatenate([a, jnp.broadcast_to(a[:1], (n_pad,) + a.shape[1:])])
             return a.reshape((-1, b) + a.shape[1:])
 
-        out = jax.lax.map(lambda c: jac(*c), jax.tree_util.tree_map(chunked, (xe, x_ref, gstate)))
+        out = jax.lax.map(lambda c: jac(*c),
+                          jax.tree_util.tree_map(chunked, (xe, x_ref, gstate, solution)))
         return jax.tree_util.tree_map(lambda a: a.reshape((-1,) + a.shape[2:])[:n_el], out)
 
     def _gather(self, x, idx: Indices):
@@ -196,7 +214,7 @@ class Model:
         """Global residual; returns (R, new Gauss state, status code, force scale).
         f_ext: external nodal forces (n_dofs,) at t, or None."""
         fn = self._element_fn(params, dt)
-        r_e, (_, gnew, ok_e) = jax.vmap(fn)(self._gather(x, idx), coords[idx.elements], gstate)
+        _, _, r_e, gnew, ok_e = self._element_residuals(fn, x, coords, gstate, idx)
         return self._finish_residual(x, r_e, gnew, ok_e, coords, t, die, c_contact, cstep, idx,
                                      f_ext)
 
@@ -225,8 +243,8 @@ class Model:
         """(R, Jacobian values on the pattern, new Gauss state, status code, force scale).
         A dead load f_ext adds nothing to the Jacobian."""
         fn = self._element_fn(params, dt)
-        k_e, (r_e, gnew, ok_e) = self._element_jacobians(
-            fn, self._gather(x, idx), coords[idx.elements], gstate)
+        xe, x_ref, r_e, gnew, ok_e = self._element_residuals(fn, x, coords, gstate, idx)
+        k_e, _ = self._element_jacobians(fn, xe, x_ref, gstate, gnew)
         r, gnew, ok, scale = self._finish_residual(x, r_e, gnew, ok_e, coords, t, die,
                                                    c_contact, cstep, idx, f_ext)
         vals = self._jacobian_values(x, k_e, coords, t, die, c_contact, cstep, idx)
@@ -243,12 +261,12 @@ class Model:
         local material solves."""
         fn = self._element_fn(params, dt)
 
-        def fn_state(dofs_flat, x_ref, gs):
-            r, (_, gnew, code) = fn(dofs_flat, x_ref, gs)
+        def fn_state(dofs_flat, x_ref, gs, solution):
+            r, (_, gnew, code) = fn(dofs_flat, x_ref, gs, solution)
             return (r, gnew), code
 
-        (k_e, dg_e), _ = self._element_jacobians(
-            fn_state, self._gather(x, idx), coords[idx.elements], gstate)
+        xe, x_ref, _, g_conv, _ = self._element_residuals(fn, x, coords, gstate, idx)
+        (k_e, dg_e), _ = self._element_jacobians(fn_state, xe, x_ref, gstate, g_conv)
         n_e, n_d = k_e.shape[0], k_e.shape[-1]
         xg_e = sum(jnp.einsum("ek,ekd->ed", gb.reshape(n_e, -1), dg.reshape(n_e, -1, n_d))
                    for gb, dg in zip(jax.tree_util.tree_leaves(g_bar),

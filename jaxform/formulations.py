@@ -78,7 +78,11 @@ class Formulation:
     def n_fields(self) -> int:
         return 3 if self.kind == "q1q1" else 2
 
-    def residual(self, law, params, dt, x_ref, dofs, gstate: GaussState):
+    def residual(self, law, params, dt, x_ref, dofs, gstate: GaussState,
+                 solution: GaussState | None = None):
+        """``solution``: this element's new Gauss state from an earlier evaluation at the
+        same dofs (the material updates then skip their local solves: see
+        :mod:`jaxform.materials.base`); None solves."""
         axi = self.axisymmetric
         u = dofs[:, :2]
         dndx, radius, weight, det_ref = el.gauss_geometry(x_ref, axi)
@@ -93,10 +97,11 @@ class Formulation:
             f_mat = f
         f_rel = jnp.einsum("gij,gjk->gik", f_mat, inv3(gstate.F))
 
-        def point(fr, st):
-            return planar_point_update(law, self.alpha, fr, st, params, dt)
+        def point(fr, st, known):
+            return planar_point_update(law, self.alpha, fr, st, params, dt, known)
 
-        sigma, mat_new, ok = jax.vmap(point)(f_rel, gstate.mat)
+        known = None if solution is None else solution.mat
+        sigma, mat_new, ok = jax.vmap(point)(f_rel, gstate.mat, known)
         ok = ok > 0.5
         if self.kind == "q1q1":
             p_hat = el.N_GP @ dofs[:, 2]
@@ -156,28 +161,30 @@ def _planar_matrix(v):
     return jnp.array([[v[0], v[1], z], [v[2], v[3], z], [z, z, v[4]]])
 
 
-def _point(law, alpha, f, state, params, dt):
-    stress, new, ok = law.update(step_kinematics(f, alpha, planar=True), state, params, dt)
+def _point(law, alpha, f, state, params, dt, solution=None):
+    stress, new, ok = law.update(step_kinematics(f, alpha, planar=True), state, params, dt,
+                                 solution)
     return stress, new, jnp.where(ok, 1.0, 0.0).astype(stress.dtype)
 
 
 @partial(jax.custom_jvp, nondiff_argnums=(0, 1))
-def planar_point_update(law, alpha, f, state, params, dt):
-    """``law.update(step_kinematics(f, alpha, planar=True), state, params, dt)`` with the
-    ``ok`` flag as a float (1.0 / 0.0), differentiated as described above."""
-    return _point(law, alpha, f, state, params, dt)
+def planar_point_update(law, alpha, f, state, params, dt, solution=None):
+    """``law.update(step_kinematics(f, alpha, planar=True), state, params, dt, solution)``
+    with the ``ok`` flag as a float (1.0 / 0.0), differentiated as described above.
+    ``solution`` says where the local solve converges; it is not differentiated."""
+    return _point(law, alpha, f, state, params, dt, solution)
 
 
 def _planar_point_update_jvp(law, alpha, primals, tangents):
-    f, state, params, dt = primals
-    df, d_state, d_params, d_dt = tangents
+    f, state, params, dt, solution = primals
+    df, d_state, d_params, d_dt, _ = tangents
 
     def in_f(v):
-        out = _point(law, alpha, _planar_matrix(v), state, params, dt)
+        out = _point(law, alpha, _planar_matrix(v), state, params, dt, solution)
         return out, out
 
     if type(df) is SymbolicZero:  # e.g. a derivative in the parameters alone
-        out = _point(law, alpha, f, state, params, dt)
+        out = _point(law, alpha, f, state, params, dt, solution)
         t_out = jax.tree_util.tree_map(jnp.zeros_like, out)
     else:
         jac, out = jax.jacfwd(in_f, has_aux=True)(_planar_components(f))
@@ -188,7 +195,7 @@ def _planar_point_update_jvp(law, alpha, primals, tangents):
         inst = jax.tree_util.tree_map(
             lambda t, p: jnp.zeros_like(p) if type(t) is SymbolicZero else t,
             others, (state, params, dt))
-        _, t_rest = jax.jvp(lambda s, p, d: _point(law, alpha, f, s, p, d),
+        _, t_rest = jax.jvp(lambda s, p, d: _point(law, alpha, f, s, p, d, solution),
                             (state, params, dt), inst)
         t_out = jax.tree_util.tree_map(jnp.add, t_out, t_rest)
     return out, t_out

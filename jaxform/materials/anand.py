@@ -32,6 +32,7 @@ differentiated by the implicit function theorem, nested.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 
 import jax
 import jax.numpy as jnp
@@ -117,6 +118,20 @@ def _s_residual(s, args):
     return s - s_n - jnp.exp(y) * hardening_rate(s, rate, p)
 
 
+def _flow_residual(y, s, sig_tr, log_dt, p: AnandParams):
+    """Eq. 4.6b in the unknown y = log(d_eqps), with the inverse flow law (MPa)."""
+    log_dt_a = log_dt + p.log_a_eff()
+    return 3.0 * p.G_MPa * jnp.exp(y) + s / p.xi * _asinh_exp(p.m * (y - log_dt_a)) - sig_tr
+
+
+def _local_residual(z, args):
+    """Both backward-Euler equations at z = (y, s): flow (MPa) and hardening (MPa)."""
+    sig_tr, s_n, log_dt, p = args
+    y, s = z[0], z[1]
+    return jnp.stack([_flow_residual(y, s, sig_tr, log_dt, p),
+                      _s_residual(s, (y, s_n, log_dt, p))])
+
+
 @dataclass(frozen=True)
 class Anand:
     """Anand elasto-viscoplastic law (strategy: local-solve tolerances and caps)."""
@@ -155,15 +170,10 @@ class Anand:
     def _y_residual(self, y, args):
         sig_tr, s_n, log_dt, p = args
         s, _ = self._s_of_y(y, s_n, log_dt, p)
-        log_dt_a = log_dt + p.log_a_eff()
-        return 3.0 * p.G_MPa * jnp.exp(y) + s / p.xi * _asinh_exp(p.m * (y - log_dt_a)) - sig_tr
+        return _flow_residual(y, s, sig_tr, log_dt, p)
 
-    def return_map(self, sig_tr, s_n, dt, p: AnandParams):
-        """Solve eq. 4.6b given the trial equivalent stress (> 0).
-
-        Returns (d_eqps, s_new, sigma_new, converged).
-        """
-        log_dt = jnp.log(dt)
+    def local_solve(self, sig_tr, s_n, log_dt, p: AnandParams):
+        """The nested safeguarded solve: (y = log d_eqps, s_new, converged as 1.0/0.0)."""
         y_hi = jnp.log(sig_tr / (3.0 * p.G_MPa))
         y_lo = y_hi - 200.0
         log_dt_a = log_dt + p.log_a_eff()
@@ -176,20 +186,43 @@ class Anand:
             self.max_outer,
         )
         s_new, conv_s = self._s_of_y(y, s_n, log_dt, p)
+        return y, s_new, conv_y * conv_s
+
+    def return_map(self, sig_tr, s_n, dt, p: AnandParams, solution=None):
+        """Solve eq. 4.6b given the trial equivalent stress (> 0).
+
+        ``solution``: ``(d_eqps, s_new)`` of this same return map when it was already
+        solved (at the same input): taken as the converged point without solving again,
+        the derivatives taken there (the Jacobian pass of the assembly).
+        Returns (d_eqps, s_new, sigma_new, converged).
+        """
+        log_dt = jnp.log(dt)
+        if solution is None:
+            y, s_new, conv = _local_solution(self, sig_tr, s_n, log_dt, p)
+        else:
+            d_known, s_known = solution
+            # log of the known increment, kept inside the solve's bracket: an increment
+            # lost to rounding in eqps_new - eqps_old (below 1e-16 of eqps) flows at the
+            # bracket's lower end, where the flow is negligible as it is at the root
+            y_hi = jnp.log(sig_tr / (3.0 * p.G_MPa))
+            y_known = jnp.clip(jnp.log(jnp.maximum(d_known, 1e-300)), y_hi - 200.0, y_hi)
+            y, s_new, conv = _solution_at(y_known, s_known, sig_tr, s_n, log_dt, p)
         deqps = jnp.exp(y)
         sigma_new = sig_tr - 3.0 * p.G_MPa * deqps
-        ok = (conv_y > 0.5) & (conv_s > 0.5) & jnp.isfinite(sigma_new) & jnp.isfinite(s_new)
+        ok = (conv > 0.5) & jnp.isfinite(sigma_new) & jnp.isfinite(s_new)
         return deqps, s_new, sigma_new, ok
 
     # -- the material update ----------------------------------------------------------
-    def update(self, kin: StepKinematics, state_old: MaterialState, params: AnandParams, dt):
+    def update(self, kin: StepKinematics, state_old: MaterialState, params: AnandParams, dt,
+               solution: MaterialState | None = None):
         p = params
         trial = elastic_trial(state_old.stress, kin.dE, p.G_MPa, p.K_MPa)
         sig_tr, positive = trial_equivalent(trial)
         # A trial stress this small flows by less than 1e-80 of itself: elastic exactly.
         flows = positive & (sig_tr > 1e-12 * state_old.s)
         sig_safe = jnp.where(flows, sig_tr, state_old.s)
-        deqps, s_new, sig_new, ok_local = self.return_map(sig_safe, state_old.s, dt, p)
+        known = None if solution is None else (solution.eqps - state_old.eqps, solution.s)
+        deqps, s_new, sig_new, ok_local = self.return_map(sig_safe, state_old.s, dt, p, known)
         deqps = jnp.where(flows, deqps, 0.0)
         s_new = jnp.where(flows, s_new, state_old.s)
         sig_new = jnp.where(flows, sig_new, sig_tr)
@@ -198,3 +231,52 @@ class Anand:
         new = MaterialState(stress=stress, s=s_new, eqps=state_old.eqps + deqps)
         ok = kin.ok & (ok_local | ~flows) & jnp.all(jnp.isfinite(stress))
         return stress, new, ok
+
+
+# -- the local solution, differentiated once at the converged point -----------------------
+# The solve above is nested (a root in s inside every evaluation of the root in y), so
+# differentiating it root by root repeats the inner solve in every derivative evaluation
+# of the outer one.  At the converged (y, s) both equations hold, and the implicit
+# function theorem gives the tangent from the 2x2 Jacobian of the pair (jax.jacfwd of
+# _local_residual, computed from the primal values alone):
+#     d(y, s) = -[dR/d(y, s)]^{-1} (dR/d(args) . d(args)).
+# Same derivative, no solve in the tangent: the consistent tangent of a Gauss point
+# costs its update plus two residual evaluations.
+@partial(jax.custom_jvp, nondiff_argnums=(0,))
+def _local_solution(law: Anand, sig_tr, s_n, log_dt, p: AnandParams):
+    return law.local_solve(sig_tr, s_n, log_dt, p)
+
+
+def _implicit_tangent(y, s, primals, tangents):
+    """d(y, s) at a root (y, s) of _local_residual(., primals), for d(primals) = tangents."""
+    z = jnp.stack([y, s])
+    jz = jax.jacfwd(_local_residual)(z, primals)
+    _, dr = jax.jvp(lambda a: _local_residual(z, a), (primals,), (tangents,))
+    det = jz[0, 0] * jz[1, 1] - jz[0, 1] * jz[1, 0]
+    regular = det != 0.0
+    inv_det = jnp.where(regular, 1.0 / jnp.where(regular, det, 1.0), 0.0)
+    dy = -(jz[1, 1] * dr[0] - jz[0, 1] * dr[1]) * inv_det
+    ds = -(jz[0, 0] * dr[1] - jz[1, 0] * dr[0]) * inv_det
+    return dy, ds
+
+
+@_local_solution.defjvp
+def _local_solution_jvp(law, primals, tangents):
+    y, s, conv = _local_solution(law, *primals)
+    dy, ds = _implicit_tangent(y, s, primals, tangents)
+    return (y, s, conv), (dy, ds, jnp.zeros_like(conv))
+
+
+# The same solution when its point is already known (see Anand.return_map's `solution`):
+# the value is the given (y, s), the derivative that of the root through it.  The
+# tangents of y and s themselves are ignored: they name where the root is, not an input.
+@jax.custom_jvp
+def _solution_at(y, s, sig_tr, s_n, log_dt, p: AnandParams):
+    return y, s, jnp.ones_like(y)
+
+
+@_solution_at.defjvp
+def _solution_at_jvp(primals, tangents):
+    y, s, *args = primals
+    dy, ds = _implicit_tangent(y, s, tuple(args), tuple(tangents[2:]))
+    return (y, s, jnp.ones_like(y)), (dy, ds, jnp.zeros_like(y))

@@ -4,7 +4,7 @@ A material law is a small immutable object (its *strategy*: tolerances, iteratio
 caps) with two pure functions of one material point:
 
 ``law.initial_state(params) -> MaterialState``
-``law.update(kin, state_old, params, dt) -> (stress, state_new, ok)``
+``law.update(kin, state_old, params, dt, solution=None) -> (stress, state_new, ok)``
 
 * ``kin`` is a :class:`jaxform.kinematics.StepKinematics` (rotation R and
   rotation-neutralized strain increment dE of the step);
@@ -14,6 +14,11 @@ caps) with two pure functions of one material point:
   differentiated, e.g. for material identification);
 * ``dt`` is the step's time increment in s;
 * ``stress`` is the Cauchy stress at t_{n+1} (3x3, MPa, current configuration);
+* ``solution`` (optional) is the ``state_new`` this same update returned before for the
+  same input.  A law with a local solve takes it as the converged point instead of solving
+  again, and differentiates there; a closed-form law ignores it.  The assembly's Jacobian
+  pass uses it: the residual pass has solved every point already, vectorized over the
+  whole mesh, and the Jacobian pass runs in chunks where the solve's loops cost most.
 * ``ok`` is a bool: False when the local solve did not converge or the kinematics were
   invalid.  The caller (global Newton / step cutback) decides what to do; the update
   never raises and never returns NaN for finite input.
