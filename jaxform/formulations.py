@@ -97,11 +97,11 @@ class Formulation:
             f_mat = f
         f_rel = jnp.einsum("gij,gjk->gik", f_mat, inv3(gstate.F))
 
-        def point(fr, st, known):
-            return planar_point_update(law, self.alpha, fr, st, params, dt, known)
+        def point(fr, st, converged):
+            return planar_point_update(law, self.alpha, fr, st, params, dt, converged)
 
-        known = None if solution is None else solution.mat
-        sigma, mat_new, ok = jax.vmap(point)(f_rel, gstate.mat, known)
+        converged = None if solution is None else solution.mat
+        sigma, mat_new, ok = jax.vmap(point)(f_rel, gstate.mat, converged)
         ok = ok > 0.5
         if self.kind == "q1q1":
             p_hat = el.N_GP @ dofs[:, 2]

@@ -25,8 +25,10 @@ where s(y) is the root of the hardening equation for the plastic strain incremen
 which is bracketed by [min(s_n, s*), max(s_n, s*)] (backward Euler cannot overshoot s*).
 F is bracketed by y in [log(sigma_trial/3G) - 200, log(sigma_trial/3G)] (all the trial
 stress relaxed at the upper end).  Both are solved by Newton safeguarded with bisection
-(:mod:`jaxform.implicit`), so the solve converges for any finite step and rate, and is
-differentiated by the implicit function theorem, nested.
+(:mod:`jaxform.implicit`), so the solve converges for any finite step and rate.  The
+solution is differentiated by the implicit function theorem once, at the converged pair
+(y, s), from the 2x2 Jacobian of both equations (``_local_solution`` below), not root by
+root through the nesting.
 """
 
 from __future__ import annotations
