@@ -63,14 +63,16 @@ class BatchProblem:
     mesh: Mesh | None = None  # 1-D device mesh for sharding; None: the default device
 
     def _program(self, fn):
-        batched = jax.vmap(fn)
+        """fn(design, idx) vmapped over the designs (the scene's pattern ``idx`` shared,
+        an argument rather than a constant of the program), sharded over the mesh."""
+        batched = jax.vmap(fn, in_axes=(0, None))
         if self.mesh is None:
             return jit(batched)
         spec = PartitionSpec(AXIS)
         # check_vma=False: the lanes are independent and the Newton/scan carries start from
         # replicated constants, which the varying-manual-axes check would reject
-        return jit(jax.shard_map(batched, mesh=self.mesh, in_specs=spec, out_specs=spec,
-                                     check_vma=False))
+        return jit(jax.shard_map(batched, mesh=self.mesh, in_specs=(spec, PartitionSpec()),
+                                 out_specs=spec, check_vma=False))
 
     @cached_property
     def _value(self):
@@ -80,8 +82,8 @@ class BatchProblem:
     def _value_and_grad(self):
         vg = jax.value_and_grad(self.problem._j, has_aux=True)
 
-        def fn(d):
-            (val, traj), grad = vg(d)
+        def fn(d, idx):
+            (val, traj), grad = vg(d, idx)
             return val, grad, traj
 
         return self._program(fn)
@@ -103,14 +105,14 @@ class BatchProblem:
         """(J (B,), trajectories with a leading batch axis). Raises GradientRunError
         naming the first design whose run failed."""
         placed, n = self._place(designs)
-        val, traj = _trim(self._value(placed), n)
+        val, traj = _trim(self._value(placed, self.problem.scene.idx), n)
         check_batch(traj)
         return val, traj
 
     def value_and_grad(self, designs):
         """(J (B,), dJ/d design with a leading batch axis, trajectories)."""
         placed, n = self._place(designs)
-        val, grad, traj = _trim(self._value_and_grad(placed), n)
+        val, grad, traj = _trim(self._value_and_grad(placed, self.problem.scene.idx), n)
         check_batch(traj)
         return val, grad, traj
 

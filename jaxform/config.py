@@ -193,6 +193,14 @@ SCHEMA: dict[str, dict[str, Field]] = {
                             "2x (needs linear = dense or sparse); auto: modified on the "
                             "sparse backend from MODIFIED_MIN_UNKNOWNS unknowns, newton "
                             "below (see jaxform/solver.py)"),
+        "adjoint_memory_mb": Field("float", 4096.0, 0.0, None,
+                                   doc="memory (MB) a gradient run may hold in forward "
+                                       "factorizations kept for its reverse pass, which then "
+                                       "refines each step's adjoint solve with the kept "
+                                       "factors instead of factoring again; the last steps "
+                                       "that fit are kept, the others factor in the reverse "
+                                       "pass (0: none kept; ~69 MB a step at 100 x 100 with "
+                                       "klujax; see jaxform/gradients.py)"),
         "chunk_steps": Field("int", 8, 1, 10000,
                              doc="load steps per compiled chunk (progress is reported between chunks)"),
     },

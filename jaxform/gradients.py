@@ -25,6 +25,15 @@ Contract
   gradient is that of the branch active at the converged solution of each step: exact
   wherever no node sits exactly on a switch (the common case), one-sided where one does.
   A finite-difference step that changes the active set sees a kink the gradient does not.
+* ``trajectory(..., reuse_factorizations=True)`` (what :func:`value_and_grad` and the
+  design problems' gradients use): the first solve of each of the last
+  :func:`kept_steps` steps keeps its last factorization (the Jacobian one Newton step
+  from the root) for the reverse pass, which refines with it instead of factoring
+  J(x*) again; the others free it at once.  The memory held is bounded by the scene's
+  ``solver.adjoint_memory_mb`` (klujax: ~69 MB a step at 100 x 100).  The klujax
+  handles come back in ``Trajectory.factorizations`` and the caller frees them with
+  :func:`release` after the reverse pass; a reverse pass after that is undefined, so
+  differentiate such a run once (one jax.grad / value_and_grad / vjp call), not under vmap.
 """
 
 from __future__ import annotations
@@ -38,6 +47,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxform.formulations import CAUSES, OK, GaussState
+from jaxform.linear import Factorization
 from jaxform.simulate import (
     Inputs,
     Scene,
@@ -65,35 +75,54 @@ class Trajectory:
     coords: jax.Array  # (n_nodes, 2) initial nodal positions (mm)
     codes: jax.Array  # (n,) status code of each step (0 = converged)
     iterations: jax.Array  # (n,) Newton iterations of each step
+    # klujax factorizations kept for the reverse pass ((n,) leading axis; None when none
+    # were kept): handles the caller frees with release() once the reverse pass is done
+    factorizations: Factorization | None = None
 
 
 class GradientRunError(RuntimeError):
     """A step of a differentiable run did not converge."""
 
 
-@partial(jit, static_argnums=(0, 1, 2, 3))
-def _trajectory(model, linear, settings, symmetric_z, inputs: Inputs, times, state0, idx):
-    def step(st: SimState, t_new):
+@partial(jit, static_argnums=(0, 1, 2, 3, 8))
+def _trajectory(model, linear, settings, symmetric_z, inputs: Inputs, times, state0, idx,
+                n_kept=0):
+    n_steps = times.shape[0]
+
+    def step(st: SimState, xs):
+        t_new, keep = xs
         dt = t_new - st.t
         guess = st.x + dt * st.x_rate
         # first attempt from the rate predictor, not differentiated (stop_gradient: no
-        # tangent reaches it, so it has no reverse pass)
+        # tangent reaches it, so it has no reverse pass); with n_kept, it factors and
+        # solves with the factors and returns its last factorization
         sg = jax.lax.stop_gradient
-        x1, _, its1, code1, _, _, _ = solve_step(model, linear, settings, sg(st), t_new, sg(dt),
-                                              sg(inputs), idx, x_guess=guess)
+        fac0 = (linear.empty_factorization(st.x.shape[0], st.x.dtype) if n_kept else None)
+        x1, _, its1, code1, _, _, fac1 = solve_step(model, linear, settings, sg(st), t_new,
+                                                    sg(dt), sg(inputs), idx, x_guess=guess,
+                                                    fac=fac0)
+        kept = None
+        if n_kept:  # steps past the memory budget free it now
+            fac1 = sg(fac1)  # integer handles: no tangent, and an io_callback has no JVP
+            linear.release(replace(fac1, valid=fac1.valid & ~keep))
+            kept = replace(fac1, valid=fac1.valid & keep)
         # the differentiated solve: from x1 where that converged (0 iterations, one
         # residual), else from the last state, like the forward run after a cutback.  No
         # lax.cond: under vmap a cond runs both branches, i.e. a whole second Newton solve
-        # for every lane; here a lane that converged costs one residual evaluation.
+        # for every lane; here a lane that converged costs one residual evaluation.  Its
+        # reverse pass refines with the kept factorization (of the iterate before x1).
         x, g, its2, code, _, cstep, _ = solve_step(model, linear, settings, st, t_new, dt,
                                                 inputs, idx,
-                                                x_guess=jnp.where(code1 == OK, x1, st.x))
+                                                x_guess=jnp.where(code1 == OK, x1, st.x),
+                                                adjoint_fac=kept)
         its = its1 + its2
         new = converged_state(model, st, x, g, t_new, inputs, cstep, idx)
-        out = (t_new, die_force(model, x, inputs, t_new, idx), new.friction_work, code, its)
+        out = (t_new, die_force(model, x, inputs, t_new, idx), new.friction_work, code, its,
+               kept if linear.backend == "sparse" else None)
         return new, out
 
-    final, (t, force, fw, codes, its) = jax.lax.scan(step, state0, times)
+    keep_steps = jnp.arange(n_steps) >= n_steps - n_kept  # the last n_kept steps
+    final, (t, force, fw, codes, its, kept) = jax.lax.scan(step, state0, (times, keep_steps))
     zero = jnp.zeros((1,), dtype=t.dtype)
     t_all = jnp.concatenate([zero, t])
     f0 = die_force(model, state0.x, inputs, jnp.asarray(0.0, t.dtype), idx)
@@ -109,18 +138,61 @@ def _trajectory(model, linear, settings, symmetric_z, inputs: Inputs, times, sta
         coords=inputs.coords,
         codes=codes,
         iterations=its,
+        factorizations=kept,
     )
 
 
-def trajectory(scene: Scene, inputs: Inputs | None = None, times=None) -> Trajectory:
+def trajectory(scene: Scene, inputs: Inputs | None = None, times=None,
+               reuse_factorizations: bool = False, idx=None) -> Trajectory:
     """Run ``scene`` (with ``inputs`` in place of ``scene.inputs``) over the step end
-    times ``times`` (default: the scene's schedule).  Traceable and differentiable."""
+    times ``times`` (default: the scene's schedule).  Traceable and differentiable.
+
+    ``idx``: ``scene.idx`` as an argument of the caller's jit, for callers that compile a
+    program around this (the design problems, the batches): the pattern then enters the
+    program as an argument, not as a constant, which XLA would constant-fold (45 s of
+    the compile sorting the 100 x 100 pattern inside klujax's solve).
+
+    ``reuse_factorizations``: keep each step's last forward factorization, for the last
+    :func:`kept_steps` steps (``scene.adjoint_memory_mb``), so that the reverse pass
+    refines its adjoint solves with them instead of factoring each step's Jacobian
+    again.  Only for one reverse-mode differentiation (jax.grad, value_and_grad, one
+    vjp) outside vmap; the caller then frees them with :func:`release` (the entry points
+    :func:`value_and_grad` and the design problems do both)."""
     inputs = scene.inputs if inputs is None else inputs
     times = jnp.asarray(scene.step_targets() if times is None else times)
+    n_kept = kept_steps(scene, times.shape[0]) if reuse_factorizations else 0
+    if n_kept and _under_vmap((inputs, times)):
+        raise ValueError("trajectory(reuse_factorizations=True) under jax.vmap: a vmapped "
+                         "Newton loop runs finished lanes too, which would free factorizations "
+                         "still in use; run batches without it (as jaxform.batch does)")
     state0 = initial_state_for(scene, inputs)
     return _trajectory(scene.model, scene.linear, exact_newton(scene.newton), scene.symmetric_z,
-                       inputs,
-                       times, state0, scene.idx)
+                       inputs, times, state0, scene.idx if idx is None else idx, n_kept)
+
+
+def _under_vmap(tree) -> bool:
+    """Whether any leaf is being batched by jax.vmap (its tracer type, which JAX does not
+    export; a check that can only miss, never refuse a run that is not batched)."""
+    return any(type(a).__name__ == "BatchTracer" for a in jax.tree_util.tree_leaves(tree))
+
+
+def kept_steps(scene: Scene, n_steps: int) -> int:
+    """How many steps of an n_steps run may keep a factorization for the reverse pass:
+    as many as ``scene.adjoint_memory_mb`` holds (:meth:`LinearSolver.factor_bytes`),
+    none on a backend that cannot keep one (jax-sparse)."""
+    if scene.linear.backend not in ("dense", "sparse") or scene.adjoint_memory_mb <= 0:
+        return 0
+    n = scene.model.layout.n_dofs
+    size = scene.linear.factor_bytes(n, scene.idx.rows.shape[0], scene.idx.lu_symbolic)
+    return int(min(n_steps, scene.adjoint_memory_mb * 2**20 // size))
+
+
+def release(scene: Scene, traj: Trajectory) -> Trajectory:
+    """Free the factorizations a run kept for its reverse pass (outside jit, after the
+    reverse pass); ``traj`` without them."""
+    if traj.factorizations is not None:
+        scene.linear.release_now(jax.device_get(traj.factorizations))
+    return replace(traj, factorizations=None)
 
 
 def exact_newton(settings: NewtonSettings) -> NewtonSettings:
@@ -182,9 +254,10 @@ def value_and_grad(objective: Callable[[Any, Trajectory], jax.Array], scene: Sce
 
     def j(d):
         inputs, times = to_inputs(d)
-        traj = trajectory(scene, inputs, times)
+        traj = trajectory(scene, inputs, times, reuse_factorizations=True)
         return objective(d, traj), traj
 
     (val, traj), grad = jax.value_and_grad(j, has_aux=True)(design)
+    traj = release(scene, jax.block_until_ready(traj))
     check(traj)
     return val, grad, traj

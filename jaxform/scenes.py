@@ -220,4 +220,5 @@ def build_scene(cfg: dict) -> Scene:
         symmetric_z=kind in ("billet", "ring"),
         rezone_quality=m["rezone_quality"],
         grid=(m["nr"], m["nz"]) if structured else None,
+        adjoint_memory_mb=so["adjoint_memory_mb"],
     )

@@ -36,7 +36,7 @@ from jaxform.contact import ContactStep, nodal_average, shear_bounds, tributary_
 from jaxform.dies import RigidDie
 from jaxform.formulations import CAUSES, OK, GaussState, initial_gauss_state
 from jaxform.kinematics import deviator, safe_norm_eq
-from jaxform.linear import LinearSolver
+from jaxform.linear import LinearSolver, matvec
 from jaxform.loads import FacetLoad, external_forces, total_force
 from jaxform.postprocess import extra_history
 from jaxform.precision import require_x64
@@ -88,6 +88,7 @@ class Scene:
     symmetric_z: bool = True  # half-height model: stroke = 2 x die travel
     rezone_quality: float = 0.0  # rezone when the worst corner quality drops below (0: never)
     grid: tuple[int, int] | None = None  # (nr, nz) of a structured mesh (rezoning needs it)
+    adjoint_memory_mb: float = 0.0  # forward factorizations a gradient run may keep (MB)
 
     @property
     def n_steps(self) -> int:
@@ -163,7 +164,8 @@ class StepLinear:
     """The linear algebra of a step's Newton solve on the pattern in ``args``' Indices
     (hashable: a static part of the compiled step).  Called: a solve (or a transposed
     one, for the reverse pass); ``factor`` / ``solve_factored``: a factorization kept
-    across iterations and steps (modified Newton)."""
+    across iterations and steps (modified Newton) or for the reverse pass; ``matvec``:
+    J y (J^T y), to refine a solve with a kept factorization."""
 
     n: int
     solver: LinearSolver
@@ -177,15 +179,24 @@ class StepLinear:
         idx = args[8]
         return self.solver.refactor(idx.rows, idx.cols, vals, self.n, idx.lu_symbolic, old)
 
-    def solve_factored(self, fac, b, args):
-        return self.solver.solve_factored(fac, b, args[8].lu_symbolic)
+    def solve_factored(self, fac, b, args, transpose: bool = False):
+        return self.solver.solve_factored(fac, b, args[8].lu_symbolic, transpose)
+
+    def matvec(self, vals, y, args, transpose: bool):
+        idx = args[8]
+        rows, cols = (idx.cols, idx.rows) if transpose else (idx.rows, idx.cols)
+        return matvec(rows, cols, vals, y, self.n)
+
 
 
 def solve_step(model: Model, linear: LinearSolver, settings: NewtonSettings,
-               state: SimState, t_new, dt, inp: Inputs, idx: Indices, x_guess=None, fac=None):
+               state: SimState, t_new, dt, inp: Inputs, idx: Indices, x_guess=None, fac=None,
+               adjoint_fac=None):
     """One Newton solve from state (at t) to t_new = t + dt, starting from x_guess (or
     state.x; state.x also when the guess is not a valid state); ``fac``: the kept
-    factorization for ``settings.method = 'modified'``.
+    factorization for ``settings.method = 'modified'``, or for 'newton' one that each
+    iteration replaces, the last returned; ``adjoint_fac``: a factorization near the root
+    for the reverse pass to reuse (see :func:`jaxform.solver.solve_implicit`).
 
     Differentiable (reverse mode) in ``state`` and ``inp`` by the implicit function theorem
     (:func:`jaxform.solver.solve_implicit`).  Returns (x, gauss, its, code, hist, cstep, fac)."""
@@ -198,7 +209,7 @@ def solve_step(model: Model, linear: LinearSolver, settings: NewtonSettings,
     x, g, its, code, hist, fac = solve_implicit(
         partial(_step_residual, model), partial(_step_residual_and_jacobian, model),
         partial(_step_adjoint, model), StepLinear(model.layout.n_dofs, linear), settings, x0,
-        x_fallback, args, fac)
+        x_fallback, args, fac, adjoint_fac)
     return x, g, its, code, hist, cstep, fac
 
 

@@ -25,7 +25,11 @@ aux = G(x*, a)) is differentiated too: xbar gains (dG/dx)^T auxbar before the so
 abar gains (dG/da)^T auxbar.  Per step the reverse pass costs one Jacobian assembly
 (forward mode over the element dofs, whose tangents also give (dG/dx)^T auxbar), one
 transposed solve, and one linearization of (R, G) in the arguments transposed once with
-the cotangent (-y, auxbar).  Where R is only piecewise smooth (contact and friction
+the cotangent (-y, auxbar).  The transposed solve factors J(x*) unless the forward pass
+kept a factorization of a nearby Jacobian (``adjoint_fac``: the last Newton iteration's,
+one step from x*); then it is iterative refinement with that one (:func:`adjoint_solve`:
+a few triangular solves and products with J^T, to a componentwise backward error of a
+few ulps), and a new factorization only where refinement stalls.  Where R is only piecewise smooth (contact and friction
 switch between branches at an active-set change), the derivative is that of the branch
 active at x*: exact away from a switch, one-sided at it.
 
@@ -114,13 +118,19 @@ def _start(residual, x0, x_fallback):
 
 
 def newton(residual, residual_and_jacobian, linear_solve, x0, settings: NewtonSettings,
-           x_fallback=None):
+           x_fallback=None, factor=None, solve_factored=None, fac0=None):
     """Solve R(x) = 0 from x0 (or from x_fallback if x0 is not a valid state, e.g. a
     predictor that inverts an element).
 
     residual(x) -> (R, aux, code, scale); residual_and_jacobian(x) -> (R, vals, aux, code,
     scale); linear_solve(vals, b) -> solution.  Returns (x, aux, iterations, code,
-    history) with history[k] = ||R_k|| / scale_k (NaN-free; inf where not reached).
+    history, fac) with history[k] = ||R_k|| / scale_k (NaN-free; inf where not reached).
+
+    With ``factor(vals, old) -> fac`` (which frees ``old``), ``solve_factored(fac, b)`` and
+    ``fac0``, each iteration factors and then solves with the factors (the same work as
+    linear_solve), and the factorization of the last iteration is returned as ``fac``
+    (``fac0`` if there was none), for the caller to reuse: the Jacobian of the iterate
+    before the root, within one Newton step of it.  Without them ``fac`` is None.
     """
     s = settings
     x0, r0, aux0, code0, scale0 = _start(residual, x0, x_fallback)
@@ -129,13 +139,17 @@ def newton(residual, residual_and_jacobian, linear_solve, x0, settings: NewtonSe
     conv0 = (code0 == OK) & (n0 <= s.rtol * scale0)
 
     def cond(c):
-        x, aux, it, code, rn, conv, hist = c
+        x, aux, it, code, rn, conv, hist, fac = c
         return (~conv) & (code == OK) & (it < s.max_iterations)
 
     def body(c):
-        x, aux, it, code, rn, conv, hist = c
+        x, aux, it, code, rn, conv, hist, fac = c
         r, vals, _, code_j, scale = residual_and_jacobian(x)
-        dx = linear_solve(vals, -r)
+        if factor is None:
+            dx = linear_solve(vals, -r)
+        else:
+            fac = factor(vals, fac)
+            dx = solve_factored(fac, -r)
         rnorm = jnp.linalg.norm(r)
 
         def trial(alpha):
@@ -163,12 +177,12 @@ def newton(residual, residual_and_jacobian, linear_solve, x0, settings: NewtonSe
         conv = (codet == OK) & (rtn <= s.rtol * scalet)
         hist = hist.at[it + 1].set(rtn / scalet)
         code = jnp.where(jnp.isfinite(dx).all(), codet, jnp.maximum(codet, 4))
-        return xt, auxt, it + 1, code, rtn, conv, hist
+        return xt, auxt, it + 1, code, rtn, conv, hist, fac
 
-    init = (x0, aux0, jnp.asarray(0), code0, n0, conv0, hist0)
-    x, aux, it, code, rn, conv, hist = jax.lax.while_loop(cond, body, init)
+    init = (x0, aux0, jnp.asarray(0), code0, n0, conv0, hist0, fac0)
+    x, aux, it, code, rn, conv, hist, fac = jax.lax.while_loop(cond, body, init)
     code = jnp.where(conv, OK, jnp.where(code == OK, NEWTON_NOT_CONVERGED, code))
-    return x, aux, it, code, hist
+    return x, aux, it, code, hist, fac
 
 
 def modified_newton(residual, residual_and_jacobian, factor, solve_factored, x0, fac0,
@@ -261,37 +275,115 @@ def modified_newton(residual, residual_and_jacobian, factor, solve_factored, x0,
     return out["x"], out["aux"], out["it"], code, out["hist"], out["fac"]
 
 
+REFINE_MAX_STEPS = 8  # refinement steps with a kept factorization before factoring afresh
+REFINE_TARGET = 4.0 * np.finfo(np.float64).eps  # refinement goes on to this backward error
+REFINE_TOL = 1e-14  # ... or until it stalls, and is accepted if it reached this
+
+
+def refined_solve(solve_near, matvec, abs_matvec, b, max_steps: int = REFINE_MAX_STEPS,
+                  target: float = REFINE_TARGET, tol: float = REFINE_TOL):
+    """Solve A y = b by iterative refinement, y <- y + M(b - A y), where M = ``solve_near``
+    applies the inverse of a nearby matrix (a factorization of it), ``matvec`` applies A
+    and ``abs_matvec`` |A| (entrywise absolute values).
+
+    The measure is the componentwise backward error max_i |b - A y|_i / (|A| |y| + |b|)_i
+    (Oettli-Prager: the smallest relative change of each entry of A and b that makes y
+    exact), which rows of very different scale (displacements and contact multipliers)
+    do not dilute as a normwise one does.  Refinement goes on while it is above
+    ``target`` (a few ulps, what a direct solve reaches), for at most ``max_steps``, and
+    while each step at least halves it (each contracts the error by about ||I - M A||: a
+    factorization that is not of a nearby matrix stalls at once).  Converged: at most
+    ``tol``.  Returns (y, steps, converged)."""
+    def backward_error(y, r):
+        den = abs_matvec(jnp.abs(y)) + jnp.abs(b)
+        ratio = jnp.abs(r) / jnp.where(den > 0, den, 1.0)
+        return jnp.max(jnp.where(den > 0, ratio, jnp.where(r == 0, 0.0, jnp.inf)))
+
+    def cond(c):
+        k, _, _, e, e_prev = c
+        return (e > target) & (k < max_steps) & (e <= 0.5 * e_prev)
+
+    def body(c):
+        k, y, r, e, _ = c
+        y = y + solve_near(r)
+        r = b - matvec(y)
+        return k + 1, y, r, backward_error(y, r), e
+
+    y0 = jnp.zeros_like(b)
+    init = (jnp.asarray(0), y0, b, backward_error(y0, b), jnp.asarray(jnp.inf, b.dtype))
+    k, y, _, e, _ = jax.lax.while_loop(cond, body, init)
+    return y, k, e <= tol
+
+
+def adjoint_solve(linear, vals, b, args, fac=None, use=None):
+    """y with J^T y = b, J given by ``vals``: by :func:`refined_solve` with the kept
+    factorization ``fac`` of a nearby Jacobian where ``use`` (a traced bool), else, or
+    where refinement does not reach the tolerance, by a fresh transposed solve."""
+    def fresh():
+        return linear(vals, b, args, True)
+
+    if fac is None:
+        return fresh()
+
+    def refined():
+        return refined_solve(lambda r: linear.solve_factored(fac, r, args, True),
+                             lambda y: linear.matvec(vals, y, args, True),
+                             lambda y: linear.matvec(jnp.abs(vals), y, args, True), b)
+
+    def skipped():
+        return jnp.zeros_like(b), jnp.asarray(0), jnp.asarray(False)
+
+    y, _, ok = jax.lax.cond(use, refined, skipped)
+    return jax.lax.cond(ok, lambda: y, fresh)
+
+
 @partial(jax.custom_vjp, nondiff_argnums=(0, 1, 2, 3, 4))
 def solve_implicit(fn, fn_jac, fn_adj, linear, settings: NewtonSettings, x0, x_fallback, args,
-                   fac=None):
+                   fac=None, adjoint_fac=None):
     """Newton from x0 (x_fallback if x0 is invalid) on fn(., args) = 0, differentiable in
-    ``args`` by the implicit function theorem (x0, x_fallback and fac get no derivative).
+    ``args`` by the implicit function theorem (x0, x_fallback and the factorizations get no
+    derivative).
 
     fn(x, args) -> (R, aux, code, scale); fn_jac(x, args) -> (R, vals, aux, code, scale);
     fn_adj(x, args, aux_bar) -> (vals, (daux/dx)^T aux_bar), for the reverse pass;
-    linear(vals, b, args, transpose) -> solution of J y = b (or J^T y = b); with
-    ``settings.method = 'modified'`` also linear.factor(vals, args, old) -> a
-    :class:`jaxform.linear.Factorization` and linear.solve_factored(fac, b, args), and
-    ``fac`` is the factorization to start from.  Returns (x, aux, iterations, code,
-    history, fac) like :func:`newton` (fac: the one kept, None for 'newton').  The
-    functions must be hashable and close over no traced value: everything traced goes
-    through ``args``.  The reverse pass solves with the exact Jacobian at the converged x
-    whichever the method (the last kept factorization is of an earlier state).
+    linear(vals, b, args, transpose) -> solution of J y = b (or J^T y = b); where
+    factorizations are kept also linear.factor(vals, args, old) -> a
+    :class:`jaxform.linear.Factorization` (freeing ``old``), linear.solve_factored(fac, b,
+    args, transpose) and linear.matvec(vals, y, args, transpose).
+
+    ``fac``: with ``settings.method = 'modified'`` the factorization to start from; with
+    'newton', if given, each iteration factors and solves with the factors (freeing
+    ``fac`` at the first) and the last iteration's factorization is returned (see
+    :func:`newton`).  Either way the caller owns the one returned.
+    ``adjoint_fac``: a factorization of a Jacobian near this root, which the caller keeps
+    alive through the reverse pass; where valid and this solve took no iteration (x0 was
+    already the root it was factored near), the reverse pass solves by
+    :func:`adjoint_solve` with it instead of factoring J(x*) again.
+
+    Returns (x, aux, iterations, code, history, fac) like :func:`newton`.  The functions
+    must be hashable and close over no traced value: everything traced goes through
+    ``args``.  The reverse pass solves with the exact Jacobian at the converged x whichever
+    the method (refined to a componentwise backward error of a few ulps when it reuses a
+    factorization).
     """
     if settings.method == "modified":
         return modified_newton(lambda x: fn(x, args), lambda x: fn_jac(x, args),
                                lambda vals, old: linear.factor(vals, args, old),
                                lambda f, b: linear.solve_factored(f, b, args), x0, fac,
                                settings, x_fallback=x_fallback)
-    out = newton(lambda x: fn(x, args), lambda x: fn_jac(x, args),
-                 lambda vals, b: linear(vals, b, args, False), x0, settings,
-                 x_fallback=x_fallback)
-    return (*out, fac)
+    kept = {} if fac is None else dict(
+        factor=lambda vals, old: linear.factor(vals, args, old),
+        solve_factored=lambda f, b: linear.solve_factored(f, b, args), fac0=fac)
+    return newton(lambda x: fn(x, args), lambda x: fn_jac(x, args),
+                  lambda vals, b: linear(vals, b, args, False), x0, settings,
+                  x_fallback=x_fallback, **kept)
 
 
-def _solve_implicit_fwd(fn, fn_jac, fn_adj, linear, settings, x0, x_fallback, args, fac=None):
-    out = solve_implicit(fn, fn_jac, fn_adj, linear, settings, x0, x_fallback, args, fac)
-    return out, (out[0], args, fac)
+def _solve_implicit_fwd(fn, fn_jac, fn_adj, linear, settings, x0, x_fallback, args, fac=None,
+                        adjoint_fac=None):
+    out = solve_implicit(fn, fn_jac, fn_adj, linear, settings, x0, x_fallback, args, fac,
+                         adjoint_fac)
+    return out, (out[0], out[2], args, fac, adjoint_fac)
 
 
 def _solve_implicit_bwd(fn, fn_jac, fn_adj, linear, settings, res, cot):
@@ -303,10 +395,11 @@ def _solve_implicit_bwd(fn, fn_jac, fn_adj, linear, settings, res, cot):
     respect to ``args`` only, and once, with the cotangent (-y, auxbar): one
     linearization and one transposition instead of a linearization in (x, args) and two
     transpositions (measured on the seed scene: see experiments/bench_gradient.py)."""
-    x, args, fac = res
+    x, its, args, fac, adjoint_fac = res
     x_bar, aux_bar = cot[0], cot[1]
     vals, xg_bar = fn_adj(x, args, aux_bar)
-    y = linear(vals, x_bar + xg_bar, args, True)
+    use = None if adjoint_fac is None else adjoint_fac.valid & (its == 0)
+    y = adjoint_solve(linear, vals, x_bar + xg_bar, args, adjoint_fac, use)
 
     def r_and_aux(a):
         r, aux, _, _ = fn(x, a)
@@ -314,7 +407,8 @@ def _solve_implicit_bwd(fn, fn_jac, fn_adj, linear, settings, res, cot):
 
     _, vjp = jax.vjp(r_and_aux, args)
     (a_bar,) = vjp((-y, aux_bar))
-    return jnp.zeros_like(x), jnp.zeros_like(x), a_bar, _zero_cotangent(fac)
+    return (jnp.zeros_like(x), jnp.zeros_like(x), a_bar, _zero_cotangent(fac),
+            _zero_cotangent(adjoint_fac))
 
 
 def _zero_cotangent(tree):

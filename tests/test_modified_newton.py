@@ -38,7 +38,8 @@ def residual_and_jacobian(x):
 @pytest.mark.parametrize("backend", ["dense", "sparse"])
 def test_modified_newton_finds_the_newton_root_with_fewer_factorizations(backend):
     """Same root as full Newton to 1e-13 (rtol 1e-14 of a unit force scale), fewer
-    factorizations than iterations, and the last factorization handed back for reuse."""
+    factorizations than iterations, and the last factorization handed back for reuse.
+    Full Newton with factorizations kept takes full Newton's iterates."""
     lin = LinearSolver(backend)
     symbolic = None
     if backend == "sparse":
@@ -55,9 +56,22 @@ def test_modified_newton_finds_the_newton_root_with_fewer_factorizations(backend
             lambda f, b: lin.solve_factored(f, b, symbolic), x0, fac, settings)
 
     x, aux, its, code, hist, fac = solve(jnp.zeros(N), lin.empty_factorization(N, B.dtype))
-    x_ref, _, its_ref, code_ref, _ = newton(
+    x_ref, _, its_ref, code_ref, hist_ref, none = newton(
         residual, residual_and_jacobian, lambda v, b: lin.solve(ROWS, COLS, v, b, N), jnp.zeros(N),
         NewtonSettings(rtol=1e-14))
+    assert none is None
+    # full Newton that factors, solves with the factors and hands back the last
+    # factorization (what a gradient run keeps for its reverse pass): the same iterates
+    x_k, _, its_k, code_k, hist_k, fac_k = jax.jit(lambda x0, fac: newton(
+        residual, residual_and_jacobian, None, x0, NewtonSettings(rtol=1e-14),
+        factor=lambda vals, old: lin.refactor(ROWS, COLS, vals, N, symbolic, old),
+        solve_factored=lambda f, b: lin.solve_factored(f, b, symbolic), fac0=fac))(
+            jnp.zeros(N), lin.empty_factorization(N, B.dtype))
+    assert int(code_k) == OK and int(its_k) == int(its_ref)
+    np.testing.assert_allclose(np.asarray(hist_k), np.asarray(hist_ref), rtol=1e-12)
+    assert float(jnp.max(jnp.abs(x_k - x_ref))) <= 1e-15
+    assert bool(fac_k.valid) and int(fac_k.count) == int(its_ref)  # one per iteration
+    jax.block_until_ready(lin.release(fac_k))
     assert int(code) == OK and int(code_ref) == OK
     assert float(jnp.max(jnp.abs(x - x_ref))) <= 1e-13
     assert float(jnp.max(jnp.abs(residual(x)[0]))) <= 1e-13

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import csv
 from dataclasses import dataclass
-from functools import cached_property
+from functools import cached_property, partial
 from pathlib import Path
 
 import jax
@@ -25,7 +25,7 @@ import numpy as np
 from jaxform.config import ConfigError
 from jaxform.design import objectives as obj
 from jaxform.design import parametrize as par
-from jaxform.gradients import check, schedule, trajectory
+from jaxform.gradients import check, release, schedule, trajectory
 from jaxform.simulate import Scene
 from jaxform.xla_options import jit
 
@@ -45,9 +45,11 @@ class DesignProblem:
     def run_inputs(self, design):
         return par.apply_all(self.groups, design, self.scene.inputs, jnp.asarray(self.times))
 
-    def _j(self, design):
+    def _j(self, design, idx, reuse_factorizations: bool = False):
+        """(J, trajectory) of a design; ``idx`` is ``scene.idx``, passed through the
+        compiled program's arguments (see :func:`jaxform.gradients.trajectory`)."""
         inputs, times = self.run_inputs(design)
-        traj = trajectory(self.scene, inputs, times)
+        traj = trajectory(self.scene, inputs, times, reuse_factorizations, idx=idx)
         return self.objective(traj, inputs), traj
 
     @cached_property
@@ -56,18 +58,26 @@ class DesignProblem:
 
     @cached_property
     def _value_and_grad(self):
-        return jit(jax.value_and_grad(self._j, has_aux=True))
+        # the reverse pass reuses the forward factorizations that fit the scene's
+        # adjoint_memory_mb; they are freed by _released once the program has run
+        return jit(jax.value_and_grad(partial(self._j, reuse_factorizations=True),
+                                      has_aux=True))
+
+    def _released(self, traj):
+        return release(self.scene, jax.block_until_ready(traj))
 
     def value(self, design):
         if self.single_program:
-            (val, traj), _ = self._value_and_grad(design)
+            (val, traj), _ = self._value_and_grad(design, self.scene.idx)
         else:
-            val, traj = self._value(design)
+            val, traj = self._value(design, self.scene.idx)
+        traj = self._released(traj)
         check(traj)
         return val, traj
 
     def value_and_grad(self, design):
-        (val, traj), grad = self._value_and_grad(design)
+        (val, traj), grad = self._value_and_grad(design, self.scene.idx)
+        traj = self._released(traj)
         check(traj)
         return val, grad, traj
 
