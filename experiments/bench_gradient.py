@@ -102,6 +102,8 @@ def main():
                     help="compare the reverse pass with and without kept factorizations "
                          "on an N x N seed mesh instead")
     ap.add_argument("--steps", type=int, default=6)
+    ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
+                    help="config overrides for the scenes (e.g. solver.adjoint_memory_mb=0)")
     args = ap.parse_args()
     jaxform.enable_x64()
     if args.adjoint:
@@ -110,7 +112,7 @@ def main():
     rows = []
     for name in args.scenes:
         scene = build_scene(load_config(CONFIGS[name], ["output.fields=false",
-                                                       "output.plots=false"]))
+                                                       "output.plots=false", *args.set]))
         problem = build_problem(scene, groups=available_groups(scene))
         u = problem.start
         t0 = time.perf_counter()
