@@ -65,9 +65,10 @@ no faster than factor + solve at 100 x 100 anyway.
 
 The reverse pass of a gradient run reuses such factorizations too (see
 :mod:`jaxform.gradients`): ``solve_factored(..., transpose=True)`` (KLU's ``tsolve``,
-or LU with ``trans=1``), :func:`matvec` on the pattern for the refinement, :meth:`LinearSolver.factor_bytes` for the memory budget (KLU's own fill
-estimate), :meth:`LinearSolver.release_now` for the owner to free the handles a compiled
-program returned.
+or LU with ``trans=1``), :func:`matvec` on the pattern for the refinement,
+:meth:`LinearSolver.factor_bytes` for the memory budget (KLU's own fill estimate),
+:meth:`LinearSolver.release_now` for the owner to free the handles a compiled program
+returned.
 """
 
 from __future__ import annotations

@@ -188,7 +188,6 @@ class StepLinear:
         return matvec(rows, cols, vals, y, self.n)
 
 
-
 def solve_step(model: Model, linear: LinearSolver, settings: NewtonSettings,
                state: SimState, t_new, dt, inp: Inputs, idx: Indices, x_guess=None, fac=None,
                adjoint_fac=None):

@@ -29,9 +29,10 @@ the cotangent (-y, auxbar).  The transposed solve factors J(x*) unless the forwa
 kept a factorization of a nearby Jacobian (``adjoint_fac``: the last Newton iteration's,
 one step from x*); then it is iterative refinement with that one (:func:`adjoint_solve`:
 a few triangular solves and products with J^T, to a componentwise backward error of a
-few ulps), and a new factorization only where refinement stalls.  Where R is only piecewise smooth (contact and friction
-switch between branches at an active-set change), the derivative is that of the branch
-active at x*: exact away from a switch, one-sided at it.
+few ulps), and a new factorization only where refinement stalls.  Where R is only
+piecewise smooth (contact and friction switch between branches at an active-set change),
+the derivative is that of the branch active at x*: exact away from a switch, one-sided
+at it.
 
 Each call site of ``residual`` is compiled separately (~1-2 s of XLA time each on 2 cores),
 so the start (x0, else the fallback) and the line search each evaluate it from one site
