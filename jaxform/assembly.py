@@ -47,7 +47,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxform.contact import ContactLaw, ContactStep
-from jaxform.formulations import NOT_FINITE, Formulation, GaussState
+from jaxform.formulations import Formulation, GaussState
+from jaxform.status import NOT_FINITE
 
 
 @jax.tree_util.register_dataclass

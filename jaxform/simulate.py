@@ -34,7 +34,7 @@ from jaxform import mesh as meshing
 from jaxform.assembly import Indices, Model, StepContext
 from jaxform.contact import ContactStep, nodal_average, shear_bounds, tributary_areas
 from jaxform.dies import RigidDie
-from jaxform.formulations import CAUSES, OK, GaussState, initial_gauss_state
+from jaxform.formulations import GaussState, initial_gauss_state
 from jaxform.kinematics import deviator, safe_norm_eq
 from jaxform.linear import LinearSolver, matvec
 from jaxform.loads import FacetLoad, external_forces, total_force
@@ -42,6 +42,7 @@ from jaxform.postprocess import extra_history
 from jaxform.precision import require_x64
 from jaxform.rezone import RezoneError, min_quality, rezone
 from jaxform.solver import NewtonSettings, solve_implicit
+from jaxform.status import CAUSES, OK
 from jaxform.xla_options import jit
 
 
