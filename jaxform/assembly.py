@@ -110,6 +110,11 @@ class Layout:
     def n_dofs(self) -> int:
         return self.n_node_dofs + 2 * self.n_contact
 
+    def nodal(self, x):
+        """The nodal block of x, (n_nodes, n_fields): u_r, u_z[, p] per node (a view for
+        NumPy arrays).  The one place that knows the layout of x's nodal part."""
+        return x[: self.n_node_dofs].reshape(self.n_nodes, self.n_fields)
+
 
 def build_indices(mesh, n_fields: int, fixed_dofs: np.ndarray, contact_nodes: np.ndarray,
                   reaction_dofs: np.ndarray | None = None,
@@ -223,9 +228,7 @@ class Model:
         return x[idx.edofs]
 
     def nodal_positions(self, x, coords, idx: Indices):
-        nf = self.layout.n_fields
-        u = x[: self.layout.n_node_dofs].reshape(-1, nf)[:, :2]
-        return coords + u
+        return coords + self.layout.nodal(x)[:, :2]
 
     # -- global ---------------------------------------------------------------------
     def residual(self, x, ctx: StepContext):

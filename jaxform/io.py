@@ -22,7 +22,7 @@ def read_csv(path: Path) -> dict[str, np.ndarray]:
 def nodal_fields(scene, x: np.ndarray):
     """Split an unknown vector into displacement (n, 2), nodal pressure (n,) or None, multipliers."""
     lay = scene.model.layout
-    nodal = np.asarray(x[: lay.n_node_dofs]).reshape(lay.n_nodes, lay.n_fields)
+    nodal = lay.nodal(np.asarray(x))
     pressure = nodal[:, 2] if lay.n_fields == 3 else None
     return nodal[:, :2], pressure, np.asarray(x[lay.n_node_dofs:])
 

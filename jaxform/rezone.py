@@ -317,7 +317,7 @@ def rezone(scene, state, inputs):
     elements = np.asarray(scene.mesh.elements)
     ref = np.asarray(inputs.coords)
     x = np.asarray(state.x)
-    nodal = x[: lay.n_node_dofs].reshape(lay.n_nodes, nf)
+    nodal = lay.nodal(x)
     pos = ref + nodal[:, :2]
     t = float(state.t)
     pinned = np.unique(np.asarray(scene.idx.fixed) // nf)
@@ -342,7 +342,7 @@ def rezone(scene, state, inputs):
     gauss = replace(state.gauss, F=eye, mat=mat)
 
     rate = np.asarray(state.x_rate)
-    rate_nodal = rate[: lay.n_node_dofs].reshape(lay.n_nodes, nf)
+    rate_nodal = lay.nodal(rate)
     new_rate_nodal = _interpolate(rate_nodal, elements, e_nd, xi_nd)
     new_nodal = np.zeros_like(nodal)
     if nf == 3:  # q1q1 nodal pressure

@@ -378,8 +378,7 @@ def _absolute(scene: Scene, inp: Inputs, x: np.ndarray) -> np.ndarray:
         return x
     lay = scene.model.layout
     x = np.array(x)
-    nodal = x[: lay.n_node_dofs].reshape(lay.n_nodes, lay.n_fields)
-    nodal[:, :2] += shift
+    lay.nodal(x)[:, :2] += shift  # a view: shifts x in place
     return x
 
 
