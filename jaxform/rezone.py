@@ -14,7 +14,10 @@ sparsity pattern stay) and moves the nodes (:func:`smooth`):
    if it raises the worst corner quality of its elements; a side node's move must not
    change the material volume (by more than 1e-4 of its elements'), so free-surface
    corners are not cut off, except along the die; grid corners slide too unless they
-   carry a Dirichlet condition (axis, mid-plane);
+   carry a Dirichlet condition (axis, mid-plane); the slivers that nodes sliding along
+   a curved die or along the chords of a curved side cut off or add are then put back
+   (:func:`restore_volume`: the free boundary nodes move along their normals by one
+   common distance that makes the volume what it was before the rezoning, to 1e-12);
 2. the state is carried to the new mesh: Gauss-point fields (stress, deformation
    resistance, equivalent plastic strain) are extrapolated to the nodes in each old
    element, averaged at the nodes, limited to the range of the Gauss values around the
@@ -140,8 +143,7 @@ def smooth(pos: np.ndarray, nr: int, nz: int, gap_fn, axisymmetric: bool = True,
         for a in nodes:
             around[a].append(e)
     patch = [elements[np.array(a)] for a in around]
-    # the boundary as one counter-clockwise loop: bottom, right, top, left side
-    loop = np.concatenate([ids[0, :-1], ids[:-1, -1], ids[-1, :0:-1], ids[:0:-1, 0]])
+    loop = _boundary_loop(nr, nz)
     side_id = np.concatenate([np.full(nr, 0), np.full(nz, 3), np.full(nr, 1), np.full(nz, 2)])
     touch = np.asarray(touching)[side_id]  # of each loop node's side (corners: the first)
     corner_mask = np.isin(loop, [ids[0, 0], ids[0, -1], ids[-1, 0], ids[-1, -1]])
@@ -209,15 +211,72 @@ def rezoned_positions(pos: np.ndarray, nr: int, nz: int, die, t: float,
     t = jnp.asarray(t)
 
     def gap_fn(points):
-        # padded to a fixed batch so that one compiled program serves every call
+        # padded to whole batches so that one compiled program serves every call
         m = len(points)
-        pad = np.zeros((_BATCH, 2))
+        pad = np.broadcast_to(points[:1], (-m % _BATCH + m, 2)).copy()
         pad[:m] = points
-        pad[m:] = points[0]
-        g, n = _gaps_at(die, jnp.asarray(pad), t)
-        return np.asarray(g)[:m], np.asarray(n)[:m]
+        out = [_gaps_at(die, jnp.asarray(pad[k:k + _BATCH]), t)
+               for k in range(0, len(pad), _BATCH)]
+        g, n = (np.concatenate([np.asarray(o[i]) for o in out]) for i in (0, 1))
+        return g[:m], n[:m]
 
-    return smooth(pos, nr, nz, gap_fn, axisymmetric, pinned=set(int(a) for a in pinned))
+    pinned = set(int(a) for a in pinned)
+    new = smooth(pos, nr, nz, gap_fn, axisymmetric, pinned=pinned)
+    ids = _grid_ids(nr, nz)
+    v_old = _volumes(pos[_grid_elements(ids)], axisymmetric).sum()
+    return restore_volume(new, nr, nz, v_old, gap_fn, axisymmetric, pinned)
+
+
+def _boundary_loop(nr: int, nz: int) -> np.ndarray:
+    """The grid's boundary nodes as one counter-clockwise loop: bottom, right, top, left."""
+    ids = _grid_ids(nr, nz)
+    return np.concatenate([ids[0, :-1], ids[:-1, -1], ids[-1, :0:-1], ids[:0:-1, 0]])
+
+
+def restore_volume(pos: np.ndarray, nr: int, nz: int, v_target: float, gap_fn,
+                   axisymmetric: bool = True, pinned=(), contact_tol: float = 1e-6,
+                   rtol: float = 1e-12) -> np.ndarray:
+    """Positions with the material volume (area) brought back to ``v_target``: the free
+    boundary nodes (neither pinned by a Dirichlet condition nor on the die) move along
+    their outward normals by one common distance d, solved by Newton on the volume (a
+    polynomial of degree <= 3 in d).  Smoothing moves side nodes along chords of a curved
+    boundary and slides nodes along a curved die, which cuts or adds thin slivers; this
+    puts the lost volume back where the boundary is free.  A node that the offset would
+    push into the die is left out and d solved again.  Without free nodes the positions
+    are returned as they are (the caller reports the volume change)."""
+    elements = _grid_elements(_grid_ids(nr, nz))
+    loop = _boundary_loop(nr, nz)
+    x = pos.copy()
+    edge = np.roll(x[loop], -1, axis=0) - x[loop]  # edge m joins loop[m] -> loop[m + 1]
+    en = np.column_stack([edge[:, 1], -edge[:, 0]])  # outward for a counter-clockwise loop
+    en /= np.maximum(np.linalg.norm(en, axis=1, keepdims=True), 1e-300)
+    normal = en + np.roll(en, 1, axis=0)  # the two edges at each loop node
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
+    free = np.array([int(a) not in pinned for a in loop])
+    free &= gap_fn(x[loop])[0] > contact_tol
+    scale = abs(v_target)
+    for _ in range(4):
+        if not free.any():
+            return pos
+        dirs = np.zeros_like(x)
+        dirs[loop[free]] = normal[free]
+
+        def vol(d):
+            return _volumes((x + d * dirs)[elements], axisymmetric).sum() - v_target
+
+        d = 0.0
+        h = 1e-7 * np.sqrt(scale / max(len(loop), 1))
+        for _ in range(30):
+            f = vol(d)
+            if abs(f) <= rtol * scale:
+                break
+            d -= f * 2.0 * h / (vol(d + h) - vol(d - h))
+        moved = x + d * dirs
+        inside = free & (gap_fn(moved[loop])[0] < 0.0)
+        if not inside.any():
+            return moved
+        free &= ~inside
+    return pos
 
 
 _BATCH = 32
