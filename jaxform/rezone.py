@@ -48,6 +48,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxform import element as el
+from jaxform.geometry import polygon_measure
 
 
 class RezoneError(RuntimeError):
@@ -99,17 +100,6 @@ def _chain_points(chain: np.ndarray, s_target: np.ndarray) -> np.ndarray:
                             np.interp(s_target, s, chain[:, 1])])
 
 
-def _volumes(p: np.ndarray, axisymmetric: bool) -> np.ndarray:
-    """Volumes (axisymmetric: of revolution, Pappus) or areas (plane strain) of quads
-    given by their corner positions (..., 4, 2)."""
-    xa, ya = p[..., 0], p[..., 1]
-    xb, yb = xa[..., _NEXT], ya[..., _NEXT]
-    cross = xa * yb - xb * ya
-    if axisymmetric:
-        return 2.0 * np.pi * np.sum(cross * (xa + xb), axis=-1) / 6.0
-    return 0.5 * np.sum(cross, axis=-1)
-
-
 def smooth(pos: np.ndarray, nr: int, nz: int, gap_fn, axisymmetric: bool = True,
            sweeps: int = 100, touching=(False, True, True, True), volume_tol: float = 1e-4,
            move_tol: float = 1e-4, contact_tol: float = 1e-6, pinned=()) -> np.ndarray:
@@ -150,7 +140,7 @@ def smooth(pos: np.ndarray, nr: int, nz: int, gap_fn, axisymmetric: bool = True,
     nb = {int(a): (int(loop[m - 1]), int(loop[(m + 1) % len(loop)]),
                    bool(touch[m] and touch[m - 1]), bool(corner_mask[m]))
           for m, a in enumerate(loop)}
-    v_start = {a: _volumes(x[patch[a]], axisymmetric).sum() for a in nb}
+    v_start = {a: polygon_measure(x[patch[a]], axisymmetric).sum() for a in nb}
     dirs = np.array([[np.cos(a), np.sin(a)] for a in np.linspace(0, 2 * np.pi, 8, endpoint=False)])
     steps = np.array([0.25, 0.0625])
     fractions = np.array([1.0, 0.5, 0.25])
@@ -192,7 +182,7 @@ def smooth(pos: np.ndarray, nr: int, nz: int, gap_fn, axisymmetric: bool = True,
             g = gap_fn(pts)[0]
             ok = (q > q[0] + 1e-9) & (g >= min(g[0], 0.0) - 1e-12)
             if on_side and not on_die:
-                v = _volumes(corners_xy, axisymmetric).sum(axis=1)
+                v = polygon_measure(corners_xy, axisymmetric).sum(axis=1)
                 ok &= (np.abs(v - v[0]) <= volume_tol * abs(v[0])) & (
                     np.abs(v - v_start[a]) <= volume_tol * abs(v_start[a]))
             if not ok.any():
@@ -223,7 +213,7 @@ def rezoned_positions(pos: np.ndarray, nr: int, nz: int, die, t: float,
     pinned = set(int(a) for a in pinned)
     new = smooth(pos, nr, nz, gap_fn, axisymmetric, pinned=pinned)
     ids = _grid_ids(nr, nz)
-    v_old = _volumes(pos[_grid_elements(ids)], axisymmetric).sum()
+    v_old = polygon_measure(pos[_grid_elements(ids)], axisymmetric).sum()
     return restore_volume(new, nr, nz, v_old, gap_fn, axisymmetric, pinned)
 
 
@@ -262,7 +252,7 @@ def restore_volume(pos: np.ndarray, nr: int, nz: int, v_target: float, gap_fn,
         dirs[loop[free]] = normal[free]
 
         def vol(d):
-            return _volumes((x + d * dirs)[elements], axisymmetric).sum() - v_target
+            return polygon_measure((x + d * dirs)[elements], axisymmetric).sum() - v_target
 
         d = 0.0
         h = 1e-7 * np.sqrt(scale / max(len(loop), 1))

@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 
 from jaxform import element as el
+from jaxform.geometry import polygon_measure
 from jaxform.mesh import rectangle
-from jaxform.rezone import (_interpolate, _locate, _volumes, corner_qualities, gauss_to_nodes,
+from jaxform.rezone import (_interpolate, _locate, corner_qualities, gauss_to_nodes,
                             min_quality, restore_volume, smooth)
 
 
@@ -43,7 +44,7 @@ def test_smoothing_raises_the_quality_and_keeps_the_volume():
         for side, col, val in ((ids[0], 1, 0.0), (ids[-1], 1, 2.0), (ids[:, 0], 0, 0.0),
                                (ids[:, -1], 0, 3.0)):
             assert np.max(np.abs(new[side, col] - val)) <= 1e-12
-        v0, v1 = _volumes(pos[elements], axi).sum(), _volumes(new[elements], axi).sum()
+        v0, v1 = polygon_measure(pos[elements], axi).sum(), polygon_measure(new[elements], axi).sum()
         assert abs(v1 / v0 - 1.0) <= 1e-12
 
 
@@ -72,12 +73,12 @@ def test_rezoning_restores_the_volume_under_a_curved_die():
     assert np.max(np.abs(circle_die(pos[ids[-1]])[0])) <= 1e-12
     pinned = set(np.concatenate([ids[0], ids[:, 0]]).tolist())  # mid-plane, axis
     for axi in (True, False):
-        v0 = _volumes(pos[elements], axi).sum()
+        v0 = polygon_measure(pos[elements], axi).sum()
         new = smooth(pos, nr, nz, circle_die, axisymmetric=axi, pinned=pinned)
-        v_smooth = _volumes(new[elements], axi).sum()
+        v_smooth = polygon_measure(new[elements], axi).sum()
         assert abs(v_smooth / v0 - 1.0) > 1e-6  # the smoothing did change the volume
         out = restore_volume(new, nr, nz, v0, circle_die, axi, pinned)
-        assert abs(_volumes(out[elements], axi).sum() / v0 - 1.0) <= 1e-12
+        assert abs(polygon_measure(out[elements], axi).sum() / v0 - 1.0) <= 1e-12
         on_die = np.nonzero(np.abs(circle_die(new)[0]) <= 1e-6)[0]
         fixed = np.array(sorted(pinned | set(on_die.tolist())))
         assert np.array_equal(out[fixed], new[fixed])
