@@ -18,7 +18,8 @@ from fd_check import jacobian_fd_error
 from jaxform.assembly import internal_forces
 from jaxform.cli import main
 from jaxform.config import load_config
-from jaxform.io import nodal_fields, read_csv
+from jaxform.io import read_csv
+from jaxform.postprocess import nodal_fields
 from jaxform.materialpoint import uniaxial_compression
 from jaxform.scenes import build_scene
 from jaxform.simulate import SimulationError, simulate, step_context
