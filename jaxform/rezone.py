@@ -100,9 +100,25 @@ def _chain_points(chain: np.ndarray, s_target: np.ndarray) -> np.ndarray:
                             np.interp(s_target, s, chain[:, 1])])
 
 
+@dataclass(frozen=True)
+class Smoothing:
+    """Settings of :func:`smooth`: at most ``sweeps`` sweeps; a side node's moves change
+    the volume of its elements by at most ``volume_tol`` of theirs; sweeps end when no
+    node moves by more than ``move_tol`` x its element size; a node within
+    ``contact_tol`` mm of the die is on it; ``touching`` the sides (bottom, top, left,
+    right) the die may touch; ``die_volume_free``: nodes on the die slide along it with
+    no volume limit (False: the side nodes' limit holds for them too)."""
+
+    sweeps: int = 100
+    volume_tol: float = 1e-4
+    move_tol: float = 1e-4
+    contact_tol: float = 1e-6
+    touching: tuple[bool, bool, bool, bool] = (False, True, True, True)
+    die_volume_free: bool = True
+
+
 def smooth(pos: np.ndarray, nr: int, nz: int, gap_fn, axisymmetric: bool = True,
-           sweeps: int = 100, touching=(False, True, True, True), volume_tol: float = 1e-4,
-           move_tol: float = 1e-4, contact_tol: float = 1e-6, pinned=()) -> np.ndarray:
+           pinned=(), settings: Smoothing = Smoothing()) -> np.ndarray:
     """Quality-driven ("smart") smoothing of a structured grid.
 
     Each node in turn is offered: the centre of its neighbours (interior: the mean of the
@@ -115,16 +131,18 @@ def smooth(pos: np.ndarray, nr: int, nz: int, gap_fn, axisymmetric: bool = True,
     around a side node) by at most ``volume_tol`` of theirs, in that move and in all of
     that node's moves together (interior moves never change it).  Exception: a side node
     that lies on the die (|gap| <= ``contact_tol`` mm) between two neighbours on the die
-    slides along the die itself (its offers are projected onto it), with no volume limit:
+    slides along the die itself (its offers are projected onto it), with no volume limit
+    (unless ``settings.die_volume_free`` is False):
     the boundary there is the die, and the volume between the die and the chords of the
     boundary (material that a convex die corner overlaps) is no material.  A corner of
     the grid slides like a side node along its two neighbours on the boundary (the sides
     meet at a smooth point when a free surface folds onto the die, as the ring's sides at
     high friction) unless it is in ``pinned`` (nodes with a Dirichlet condition: sliding
     would move them off the axis or the mid-plane).
-    Sweeps end when no node moves by more than ``move_tol`` x its element size.
-    ``touching`` says which sides (bottom, top, left, right) the die may touch;
-    ``gap_fn(points (m, 2)) -> (g (m,), n (m, 2))``."""
+    Sweeps end when no node moves by more than ``move_tol`` x its element size
+    (:class:`Smoothing`); ``gap_fn(points (m, 2)) -> (g (m,), n (m, 2))``."""
+    sweeps, volume_tol, move_tol = settings.sweeps, settings.volume_tol, settings.move_tol
+    contact_tol = settings.contact_tol
     ids = _grid_ids(nr, nz)
     elements = _grid_elements(ids)
     x = pos.copy()
@@ -135,7 +153,7 @@ def smooth(pos: np.ndarray, nr: int, nz: int, gap_fn, axisymmetric: bool = True,
     patch = [elements[np.array(a)] for a in around]
     loop = _boundary_loop(nr, nz)
     side_id = np.concatenate([np.full(nr, 0), np.full(nz, 3), np.full(nr, 1), np.full(nz, 2)])
-    touch = np.asarray(touching)[side_id]  # of each loop node's side (corners: the first)
+    touch = np.asarray(settings.touching)[side_id]  # of each loop node's side (corners: the first)
     corner_mask = np.isin(loop, [ids[0, 0], ids[0, -1], ids[-1, 0], ids[-1, -1]])
     nb = {int(a): (int(loop[m - 1]), int(loop[(m + 1) % len(loop)]),
                    bool(touch[m] and touch[m - 1]), bool(corner_mask[m]))
@@ -181,7 +199,7 @@ def smooth(pos: np.ndarray, nr: int, nz: int, gap_fn, axisymmetric: bool = True,
             q = corner_qualities(corners_xy, None).min(axis=(1, 2))
             g = gap_fn(pts)[0]
             ok = (q > q[0] + 1e-9) & (g >= min(g[0], 0.0) - 1e-12)
-            if on_side and not on_die:
+            if on_side and not (on_die and settings.die_volume_free):
                 v = polygon_measure(corners_xy, axisymmetric).sum(axis=1)
                 ok &= (np.abs(v - v[0]) <= volume_tol * abs(v[0])) & (
                     np.abs(v - v_start[a]) <= volume_tol * abs(v_start[a]))
@@ -211,10 +229,16 @@ def rezoned_positions(pos: np.ndarray, nr: int, nz: int, die, t: float,
         return g[:m], n[:m]
 
     pinned = set(int(a) for a in pinned)
-    new = smooth(pos, nr, nz, gap_fn, axisymmetric, pinned=pinned)
-    ids = _grid_ids(nr, nz)
-    v_old = polygon_measure(pos[_grid_elements(ids)], axisymmetric).sum()
-    return restore_volume(new, nr, nz, v_old, gap_fn, axisymmetric, pinned)
+    elements = _grid_elements(_grid_ids(nr, nz))
+    v_old = polygon_measure(pos[elements], axisymmetric).sum()
+    # nodes on the die slide freely first; where the free surface cannot take back what
+    # that cut off (a die nearly filled), they slide under the side nodes' volume limit
+    for settings in (Smoothing(), Smoothing(die_volume_free=False)):
+        new = smooth(pos, nr, nz, gap_fn, axisymmetric, pinned, settings)
+        new = restore_volume(new, nr, nz, v_old, gap_fn, axisymmetric, pinned)
+        if abs(polygon_measure(new[elements], axisymmetric).sum() / v_old - 1.0) <= 1e-10:
+            break
+    return new
 
 
 def _boundary_loop(nr: int, nz: int) -> np.ndarray:
@@ -224,12 +248,12 @@ def _boundary_loop(nr: int, nz: int) -> np.ndarray:
 
 
 def restore_volume(pos: np.ndarray, nr: int, nz: int, v_target: float, gap_fn,
-                   axisymmetric: bool = True, pinned=(), contact_tol: float = 1e-6,
-                   rtol: float = 1e-12) -> np.ndarray:
+                   axisymmetric: bool = True, pinned=(),
+                   contact_tol: float = 1e-6) -> np.ndarray:
     """Positions with the material volume (area) brought back to ``v_target``: the free
     boundary nodes (neither pinned by a Dirichlet condition nor on the die) move along
     their outward normals by one common distance d, solved by Newton on the volume (a
-    polynomial of degree <= 3 in d).  Smoothing moves side nodes along chords of a curved
+    polynomial of degree <= 3 in d, to 1e-12 of it).  Smoothing moves side nodes along chords of a curved
     boundary and slides nodes along a curved die, which cuts or adds thin slivers; this
     puts the lost volume back where the boundary is free.  A node that the offset would
     push into the die is left out and d solved again.  Without free nodes the positions
@@ -258,7 +282,7 @@ def restore_volume(pos: np.ndarray, nr: int, nz: int, v_target: float, gap_fn,
         h = 1e-7 * np.sqrt(scale / max(len(loop), 1))
         for _ in range(30):
             f = vol(d)
-            if abs(f) <= rtol * scale:
+            if abs(f) <= 1e-12 * scale:
                 break
             d -= f * 2.0 * h / (vol(d + h) - vol(d - h))
         moved = x + d * dirs
