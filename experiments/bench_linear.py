@@ -37,7 +37,7 @@ def jacobian(n: int):
     import jaxform
     from jaxform.config import load_config
     from jaxform.scenes import build_scene
-    from jaxform.simulate import applied_forces, contact_step
+    from jaxform.simulate import step_context
 
     jaxform.enable_x64()
     cfg = load_config(SEED, [f"mesh.nr={n}", f"mesh.nz={n}", "output.fields=false",
@@ -51,9 +51,8 @@ def jacobian(n: int):
     u = x[: lay.n_node_dofs].reshape(-1, lay.n_fields)
     u[:, 0], u[:, 1] = 0.5 * e * coords[:, 0], -e * coords[:, 1]
     t = jnp.asarray(sc.dt)
-    args = (st.gauss, inp.coords, t, t, inp.params, inp.die, inp.c_contact,
-            contact_step(model, st, inp, idx), idx, applied_forces(model, inp, t, idx))
-    r, vals, *_ = jax.jit(model.residual_and_jacobian)(jnp.asarray(x), *args)
+    ctx = step_context(model, st, inp, idx, t, t)
+    r, vals, *_ = jax.jit(model.residual_and_jacobian)(jnp.asarray(x), ctx)
     return (np.asarray(idx.rows), np.asarray(idx.cols), np.asarray(vals), -np.asarray(r),
             lay.n_dofs)
 

@@ -138,7 +138,7 @@ def run_jaxform(n: int, element: str, split: bool = True) -> dict:
     import jaxform
     from jaxform.config import load_config
     from jaxform.scenes import build_scene
-    from jaxform.simulate import applied_forces, contact_step, simulate
+    from jaxform.simulate import simulate, step_context
 
     jaxform.enable_x64()
     cfg = load_config(jaxform_config(n, element))
@@ -167,19 +167,18 @@ def run_jaxform(n: int, element: str, split: bool = True) -> dict:
         model, idx, inp, st = scene.model, scene.idx, scene.inputs, res.final_state
         t = st.t
         dt = jax.numpy.asarray(scene.dt)
-        args = (st.gauss, inp.coords, t, dt, inp.params, inp.die, inp.c_contact,
-                contact_step(model, st, inp, idx), idx, applied_forces(model, inp, t, idx))
+        ctx = step_context(model, st, inp, idx, t, dt)
         x = st.x
         rj = jax.jit(model.residual_and_jacobian)
         rf = jax.jit(model.residual)
         solve = jax.jit(lambda r, c, v, b: scene.linear.solve(r, c, v, b, lay.n_dofs))
-        r, vals, *_ = rj(x, *args)
+        r, vals, *_ = rj(x, ctx)
         fn = model._element_fn(inp.params, dt)
         elem = jax.jit(lambda x, g: jax.vmap(jax.jacfwd(fn, has_aux=True))(
             model._gather(x, idx), inp.coords[idx.elements], g))
-        out["assembly_s"] = best_of(lambda: rj(x, *args), 3)
+        out["assembly_s"] = best_of(lambda: rj(x, ctx), 3)
         out["element_s"] = best_of(lambda: elem(x, st.gauss), 3)
-        out["residual_s"] = best_of(lambda: rf(x, *args), 3)
+        out["residual_s"] = best_of(lambda: rf(x, ctx), 3)
         out["linear_s"] = best_of(lambda: solve(idx.rows, idx.cols, vals, -r), 3)
     out["peak_rss_mib"] = _rss_mib()
     return out

@@ -51,7 +51,7 @@ def one(n: int, linear: str) -> dict:
     import jaxform
     from jaxform.config import load_config
     from jaxform.scenes import build_scene
-    from jaxform.simulate import applied_forces, contact_step
+    from jaxform.simulate import step_context
     from jaxform.xla_options import jit
 
     jaxform.enable_x64()
@@ -67,9 +67,7 @@ def one(n: int, linear: str) -> dict:
     u[:, 0], u[:, 1] = 0.5 * e * coords[:, 0], -e * coords[:, 1]
     x = jnp.asarray(x)
     t, dt = jnp.asarray(sc.dt), jnp.asarray(sc.dt)
-    cstep = contact_step(model, st, inp, idx)
-    args = (st.gauss, inp.coords, t, dt, inp.params, inp.die, inp.c_contact, cstep, idx,
-            applied_forces(model, inp, t, idx))
+    ctx = step_context(model, st, inp, idx, t, dt)
     # compiled as the simulation compiles its programs (jaxform.xla_options)
     rj = jit(model.residual_and_jacobian)
     res = jit(model.residual)
@@ -81,10 +79,10 @@ def one(n: int, linear: str) -> dict:
     out = {"n": n, "unknowns": lay.n_dofs, "nonzeros": lay.n_nonzeros,
            "backend": sc.linear.backend}
     t0 = time.perf_counter()
-    r, vals, *_ = jax.block_until_ready(rj(x, *args))
+    r, vals, *_ = jax.block_until_ready(rj(x, ctx))
     out["compile_assemble_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    jax.block_until_ready(res(x, *args))
+    jax.block_until_ready(res(x, ctx))
     out["compile_residual_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     dx = jax.block_until_ready(solve(idx.rows, idx.cols, vals, -r))
@@ -92,7 +90,7 @@ def one(n: int, linear: str) -> dict:
     fac = jax.block_until_ready(factor(vals))
     # all pieces timed in turn, best of 5 rounds: their ratios survive a drifting machine
     names = ("assemble_s", "residual_s", "solve_s", "factor_s", "kept_solve_s")
-    times = interleaved([lambda: rj(x, *args), lambda: res(x, *args),
+    times = interleaved([lambda: rj(x, ctx), lambda: res(x, ctx),
                          lambda: solve(idx.rows, idx.cols, vals, -r), lambda: factor(vals),
                          lambda: kept_solve(fac, -r)], 5, release={3: sc.linear.release})
     out.update(zip(names, times))

@@ -28,7 +28,7 @@ import numpy as np
 
 import jaxform
 from jaxform.config import load_config
-from jaxform.io import nodal_fields
+from jaxform.postprocess import nodal_fields
 from jaxform.postprocess import pressure_oscillation
 from jaxform.scenes import build_scene
 from jaxform.simulate import simulate

@@ -47,7 +47,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxform.contact import ContactLaw, ContactStep
-from jaxform.formulations import NOT_FINITE, Formulation, GaussState
+from jaxform.formulations import Formulation, GaussState
+from jaxform.status import NOT_FINITE
 
 
 @jax.tree_util.register_dataclass
@@ -73,6 +74,24 @@ class Indices:
     lu_symbolic: jax.Array | None = None
 
 
+@jax.tree_util.register_dataclass
+@dataclass(frozen=True)
+class StepContext:
+    """Everything a step's residual reads besides the unknowns x (a PyTree, traced; built
+    once per step by :func:`jaxform.simulate.step_context`)."""
+
+    gauss: GaussState  # converged Gauss state at the start of the step
+    coords: jax.Array  # reference nodal coordinates (mm)
+    t: jax.Array  # time at the end of the step (s)
+    dt: jax.Array  # step size (s)
+    params: object  # material parameters
+    die: object  # the rigid die (jaxform.dies.RigidDie) or None
+    c_contact: jax.Array  # complementarity scale (N/mm)
+    cstep: ContactStep | None  # contact constants of the step (None: no candidates)
+    idx: Indices
+    f_ext: jax.Array | None = None  # external nodal forces at t (N), or None
+
+
 @dataclass(frozen=True)
 class Layout:
     """Static sizes (hashable: part of the compiled program's identity)."""
@@ -90,6 +109,11 @@ class Layout:
     @property
     def n_dofs(self) -> int:
         return self.n_node_dofs + 2 * self.n_contact
+
+    def nodal(self, x):
+        """The nodal block of x, (n_nodes, n_fields): u_r, u_z[, p] per node (a view for
+        NumPy arrays).  The one place that knows the layout of x's nodal part."""
+        return x[: self.n_node_dofs].reshape(self.n_nodes, self.n_fields)
 
 
 def build_indices(mesh, n_fields: int, fixed_dofs: np.ndarray, contact_nodes: np.ndarray,
@@ -204,23 +228,19 @@ class Model:
         return x[idx.edofs]
 
     def nodal_positions(self, x, coords, idx: Indices):
-        nf = self.layout.n_fields
-        u = x[: self.layout.n_node_dofs].reshape(-1, nf)[:, :2]
-        return coords + u
+        return coords + self.layout.nodal(x)[:, :2]
 
     # -- global ---------------------------------------------------------------------
-    def residual(self, x, gstate: GaussState, coords, t, dt, params, die, c_contact,
-                 cstep: ContactStep, idx: Indices, f_ext=None):
-        """Global residual; returns (R, new Gauss state, status code, force scale).
-        f_ext: external nodal forces (n_dofs,) at t, or None."""
-        fn = self._element_fn(params, dt)
-        _, _, r_e, gnew, ok_e = self._element_residuals(fn, x, coords, gstate, idx)
-        return self._finish_residual(x, r_e, gnew, ok_e, coords, t, die, c_contact, cstep, idx,
-                                     f_ext)
+    def residual(self, x, ctx: StepContext):
+        """Global residual; returns (R, new Gauss state, status code, force scale)."""
+        fn = self._element_fn(ctx.params, ctx.dt)
+        _, _, r_e, gnew, ok_e = self._element_residuals(fn, x, ctx.coords, ctx.gauss, ctx.idx)
+        return self._finish_residual(x, r_e, gnew, ok_e, ctx)
 
-    def _contact_fn(self, die, t, c_contact, cstep):
+    def _contact_fn(self, ctx: StepContext):
         def fn(v, k):  # v = (x_r, x_z, lambda_n, lambda_t) of candidate k
-            r_u, comp = self.contact.pair_terms(die, v[:2], v[2:], t, c_contact, cstep, k)
+            r_u, comp = self.contact.pair_terms(ctx.die, v[:2], v[2:], ctx.t, ctx.c_contact,
+                                                ctx.cstep, k)
             return jnp.concatenate([r_u, comp])
 
         return fn
@@ -229,29 +249,27 @@ class Model:
         pos = self.nodal_positions(x, coords, idx)[idx.contact_nodes]
         return jnp.concatenate([pos, x[idx.mult_dofs]], axis=1)
 
-    def contact_report(self, x, coords, t, die, c_contact, cstep: ContactStep, idx: Indices):
+    def contact_report(self, x, ctx: StepContext):
         """Per candidate at a converged x: (status 0/1/2, normal, tangent, slip increment)."""
         if self.layout.n_contact == 0:
             z = jnp.zeros((0, 2), dtype=x.dtype)
             return jnp.zeros(0, jnp.int32), z, z, jnp.zeros(0, dtype=x.dtype)
-        v = self._contact_vars(x, coords, idx)
+        v = self._contact_vars(x, ctx.coords, ctx.idx)
         return jax.vmap(lambda vk, k: self.contact.pair_status(
-            die, vk[:2], vk[2:], t, c_contact, cstep, k))(v, jnp.arange(self.layout.n_contact))
+            ctx.die, vk[:2], vk[2:], ctx.t, ctx.c_contact, ctx.cstep, k))(
+                v, jnp.arange(self.layout.n_contact))
 
-    def residual_and_jacobian(self, x, gstate, coords, t, dt, params, die, c_contact,
-                              cstep: ContactStep, idx: Indices, f_ext=None):
+    def residual_and_jacobian(self, x, ctx: StepContext):
         """(R, Jacobian values on the pattern, new Gauss state, status code, force scale).
-        A dead load f_ext adds nothing to the Jacobian."""
-        fn = self._element_fn(params, dt)
-        xe, x_ref, r_e, gnew, ok_e = self._element_residuals(fn, x, coords, gstate, idx)
-        k_e, _ = self._element_jacobians(fn, xe, x_ref, gstate, gnew)
-        r, gnew, ok, scale = self._finish_residual(x, r_e, gnew, ok_e, coords, t, die,
-                                                   c_contact, cstep, idx, f_ext)
-        vals = self._jacobian_values(x, k_e, coords, t, die, c_contact, cstep, idx)
-        return r, vals, gnew, ok, scale
+        A dead load ctx.f_ext adds nothing to the Jacobian."""
+        fn = self._element_fn(ctx.params, ctx.dt)
+        xe, x_ref, r_e, gnew, ok_e = self._element_residuals(fn, x, ctx.coords, ctx.gauss,
+                                                             ctx.idx)
+        k_e, _ = self._element_jacobians(fn, xe, x_ref, ctx.gauss, gnew)
+        r, gnew, ok, scale = self._finish_residual(x, r_e, gnew, ok_e, ctx)
+        return r, self._jacobian_values(x, k_e, ctx), gnew, ok, scale
 
-    def jacobian_and_state_vjp(self, x, gstate, coords, t, dt, params, die, c_contact,
-                               cstep: ContactStep, idx: Indices, g_bar: GaussState):
+    def jacobian_and_state_vjp(self, x, ctx: StepContext, g_bar: GaussState):
         """(Jacobian values on the pattern, (dG/dx)^T g_bar) at x, G the new Gauss state.
 
         For the reverse pass of a converged step: the forward-mode pass over the element
@@ -259,27 +277,28 @@ class Model:
         new Gauss state in the same tangents; contracting it with the cotangent g_bar
         right away costs a few small products instead of a reverse pass through the
         local material solves."""
-        fn = self._element_fn(params, dt)
+        fn = self._element_fn(ctx.params, ctx.dt)
 
         def fn_state(dofs_flat, x_ref, gs, solution):
             r, (_, gnew, code) = fn(dofs_flat, x_ref, gs, solution)
             return (r, gnew), code
 
-        xe, x_ref, _, g_conv, _ = self._element_residuals(fn, x, coords, gstate, idx)
-        (k_e, dg_e), _ = self._element_jacobians(fn_state, xe, x_ref, gstate, g_conv)
+        xe, x_ref, _, g_conv, _ = self._element_residuals(fn, x, ctx.coords, ctx.gauss, ctx.idx)
+        (k_e, dg_e), _ = self._element_jacobians(fn_state, xe, x_ref, ctx.gauss, g_conv)
         n_e, n_d = k_e.shape[0], k_e.shape[-1]
         xg_e = sum(jnp.einsum("ek,ekd->ed", gb.reshape(n_e, -1), dg.reshape(n_e, -1, n_d))
                    for gb, dg in zip(jax.tree_util.tree_leaves(g_bar),
                                      jax.tree_util.tree_leaves(dg_e)))
-        xg = jnp.zeros(self.layout.n_dofs, dtype=x.dtype).at[idx.edofs].add(xg_e)
-        return self._jacobian_values(x, k_e, coords, t, die, c_contact, cstep, idx), xg
+        xg = jnp.zeros(self.layout.n_dofs, dtype=x.dtype).at[ctx.idx.edofs].add(xg_e)
+        return self._jacobian_values(x, k_e, ctx), xg
 
-    def _jacobian_values(self, x, k_e, coords, t, die, c_contact, cstep, idx: Indices):
+    def _jacobian_values(self, x, k_e, ctx: StepContext):
         """Element and contact blocks summed into the pattern; Dirichlet rows identity."""
+        idx = ctx.idx
         # contact blocks (4 x 4 per candidate)
         if self.layout.n_contact:
-            k_c = jax.vmap(jax.jacfwd(self._contact_fn(die, t, c_contact, cstep)))(
-                self._contact_vars(x, coords, idx), jnp.arange(self.layout.n_contact))
+            k_c = jax.vmap(jax.jacfwd(self._contact_fn(ctx)))(
+                self._contact_vars(x, ctx.coords, idx), jnp.arange(self.layout.n_contact))
         else:
             k_c = jnp.zeros((0, 4, 4), dtype=x.dtype)
         n = self.layout.n_dofs
@@ -290,14 +309,14 @@ class Model:
         is_fixed = fixed_row[idx.rows]
         return jnp.where(is_fixed, jnp.where(idx.rows == idx.cols, 1.0, 0.0), vals)
 
-    def _finish_residual(self, x, r_e, gnew, ok_e, coords, t, die, c_contact, cstep, idx,
-                         f_ext=None):
+    def _finish_residual(self, x, r_e, gnew, ok_e, ctx: StepContext):
+        idx, f_ext = ctx.idx, ctx.f_ext
         n = self.layout.n_dofs
         r = jnp.zeros(n, dtype=x.dtype).at[idx.edofs].add(r_e)
         lam = x[idx.mult_dofs]
         if self.layout.n_contact:
-            rc = jax.vmap(self._contact_fn(die, t, c_contact, cstep))(
-                self._contact_vars(x, coords, idx), jnp.arange(self.layout.n_contact))
+            rc = jax.vmap(self._contact_fn(ctx))(
+                self._contact_vars(x, ctx.coords, idx), jnp.arange(self.layout.n_contact))
             r = r.at[idx.contact_dofs].add(rc[:, :2])
             r = r.at[idx.mult_dofs].set(rc[:, 2:])
         if f_ext is not None:

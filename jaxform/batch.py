@@ -32,7 +32,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from jaxform.design.problem import DesignProblem
-from jaxform.formulations import CAUSES, OK
+from jaxform.status import CAUSES, OK
 from jaxform.gradients import GradientRunError
 from jaxform.xla_options import jit
 

@@ -12,7 +12,8 @@ from typing import Callable
 import numpy as np
 
 from jaxform.config import dump_config, load_config
-from jaxform.io import nodal_fields, write_csv, write_vtu_series
+from jaxform.io import write_csv, write_vtu_series
+from jaxform.postprocess import nodal_fields
 from jaxform.scenes import build_scene
 from jaxform.simulate import Result, SimulationError, simulate
 

@@ -36,22 +36,9 @@ from jaxform import element as el
 from jaxform.kinematics import step_kinematics
 from jaxform.materials.base import MaterialState
 from jaxform.smallmat import det3, inv2, inv3
+from jaxform.status import INVERTED, LOCAL_SOLVE_FAILED, OK
 
 KINDS = ("q1q1", "q1p0", "q4")
-
-# status codes, shared with the solver (larger = worse)
-OK = 0
-NEWTON_NOT_CONVERGED = 1
-LOCAL_SOLVE_FAILED = 2
-INVERTED = 3
-NOT_FINITE = 4
-CAUSES = {
-    OK: "converged",
-    NEWTON_NOT_CONVERGED: "Newton did not converge",
-    LOCAL_SOLVE_FAILED: "the local material solve failed",
-    INVERTED: "an element inverted (det F <= 0)",
-    NOT_FINITE: "the residual is not finite",
-}
 
 
 @jax.tree_util.register_dataclass

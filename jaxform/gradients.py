@@ -46,7 +46,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxform.formulations import CAUSES, OK, GaussState
+from jaxform.formulations import GaussState
 from jaxform.linear import Factorization
 from jaxform.simulate import (
     Inputs,
@@ -57,6 +57,7 @@ from jaxform.simulate import (
     solve_step,
 )
 from jaxform.solver import NewtonSettings
+from jaxform.status import CAUSES, OK
 from jaxform.xla_options import jit
 
 

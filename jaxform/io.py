@@ -6,6 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
+from jaxform.postprocess import contact_profile, nodal_fields
+
 
 def write_csv(path: Path, columns: dict[str, np.ndarray], fmt: str = "%.10g") -> None:
     """Write equal-length columns with a header line of their names."""
@@ -19,19 +21,9 @@ def read_csv(path: Path) -> dict[str, np.ndarray]:
     return {n: np.asarray(data[n]) for n in data.dtype.names}
 
 
-def nodal_fields(scene, x: np.ndarray):
-    """Split an unknown vector into displacement (n, 2), nodal pressure (n,) or None, multipliers."""
-    lay = scene.model.layout
-    nodal = np.asarray(x[: lay.n_node_dofs]).reshape(lay.n_nodes, lay.n_fields)
-    pressure = nodal[:, 2] if lay.n_fields == 3 else None
-    return nodal[:, :2], pressure, np.asarray(x[lay.n_node_dofs:])
-
-
 def _contact_point_data(scene, result, k: int, n_nodes: int) -> dict:
     """Contact fields on the nodes (0 away from the candidates): pressure, shear traction
     (MPa), status (0 open, 1 stick, 2 slip), accumulated slip (mm)."""
-    from jaxform.postprocess import contact_profile
-
     cp = contact_profile(scene, result.fields["x"][k], result.fields["slip_mm"][k],
                          result.fields["contact_status"][k])
     nodes = np.asarray(scene.idx.contact_nodes)

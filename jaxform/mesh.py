@@ -20,6 +20,8 @@ from typing import Callable
 
 import numpy as np
 
+from jaxform.geometry import polygon_measure
+
 
 @dataclass(frozen=True)
 class Mesh:
@@ -195,8 +197,7 @@ def billet_quarter(
 
 def element_areas(coords: np.ndarray, elements: np.ndarray) -> np.ndarray:
     """Signed areas (shoelace); positive for counter-clockwise quads."""
-    x, y = coords[elements, 0], coords[elements, 1]
-    return 0.5 * np.sum(x * np.roll(y, -1, axis=1) - np.roll(x, -1, axis=1) * y, axis=1)
+    return polygon_measure(coords[elements], axisymmetric=False)
 
 
 def _named_cells(m, cell_type: str, dim: int) -> dict[str, np.ndarray]:

@@ -17,7 +17,6 @@ from __future__ import annotations
 import numpy as np
 
 from jaxform.dies import sample_rounded
-from jaxform.io import nodal_fields
 
 
 def positions(scene, x) -> np.ndarray:
@@ -25,6 +24,14 @@ def positions(scene, x) -> np.ndarray:
     preform that replaced it) plus the displacement in ``x``."""
     u, _, _ = nodal_fields(scene, x)
     return np.asarray(scene.inputs.coords) + u
+
+
+def nodal_fields(scene, x: np.ndarray):
+    """Split an unknown vector into displacement (n, 2), nodal pressure (n,) or None, multipliers."""
+    lay = scene.model.layout
+    nodal = lay.nodal(np.asarray(x))
+    pressure = nodal[:, 2] if lay.n_fields == 3 else None
+    return nodal[:, :2], pressure, np.asarray(x[lay.n_node_dofs:])
 
 
 def _mid_height_node(scene, name: str) -> int:

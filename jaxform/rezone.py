@@ -14,7 +14,10 @@ sparsity pattern stay) and moves the nodes (:func:`smooth`):
    if it raises the worst corner quality of its elements; a side node's move must not
    change the material volume (by more than 1e-4 of its elements'), so free-surface
    corners are not cut off, except along the die; grid corners slide too unless they
-   carry a Dirichlet condition (axis, mid-plane);
+   carry a Dirichlet condition (axis, mid-plane); the slivers that nodes sliding along
+   a curved die or along the chords of a curved side cut off or add are then put back
+   (:func:`restore_volume`: the free boundary nodes move along their normals by one
+   common distance that makes the volume what it was before the rezoning, to 1e-12);
 2. the state is carried to the new mesh: Gauss-point fields (stress, deformation
    resistance, equivalent plastic strain) are extrapolated to the nodes in each old
    element, averaged at the nodes, limited to the range of the Gauss values around the
@@ -45,6 +48,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxform import element as el
+from jaxform.geometry import polygon_measure
 
 
 class RezoneError(RuntimeError):
@@ -96,20 +100,25 @@ def _chain_points(chain: np.ndarray, s_target: np.ndarray) -> np.ndarray:
                             np.interp(s_target, s, chain[:, 1])])
 
 
-def _volumes(p: np.ndarray, axisymmetric: bool) -> np.ndarray:
-    """Volumes (axisymmetric: of revolution, Pappus) or areas (plane strain) of quads
-    given by their corner positions (..., 4, 2)."""
-    xa, ya = p[..., 0], p[..., 1]
-    xb, yb = xa[..., _NEXT], ya[..., _NEXT]
-    cross = xa * yb - xb * ya
-    if axisymmetric:
-        return 2.0 * np.pi * np.sum(cross * (xa + xb), axis=-1) / 6.0
-    return 0.5 * np.sum(cross, axis=-1)
+@dataclass(frozen=True)
+class Smoothing:
+    """Settings of :func:`smooth`: at most ``sweeps`` sweeps; a side node's moves change
+    the volume of its elements by at most ``volume_tol`` of theirs; sweeps end when no
+    node moves by more than ``move_tol`` x its element size; a node within
+    ``contact_tol`` mm of the die is on it; ``touching`` the sides (bottom, top, left,
+    right) the die may touch; ``die_volume_free``: nodes on the die slide along it with
+    no volume limit (False: the side nodes' limit holds for them too)."""
+
+    sweeps: int = 100
+    volume_tol: float = 1e-4
+    move_tol: float = 1e-4
+    contact_tol: float = 1e-6
+    touching: tuple[bool, bool, bool, bool] = (False, True, True, True)
+    die_volume_free: bool = True
 
 
 def smooth(pos: np.ndarray, nr: int, nz: int, gap_fn, axisymmetric: bool = True,
-           sweeps: int = 100, touching=(False, True, True, True), volume_tol: float = 1e-4,
-           move_tol: float = 1e-4, contact_tol: float = 1e-6, pinned=()) -> np.ndarray:
+           pinned=(), settings: Smoothing = Smoothing()) -> np.ndarray:
     """Quality-driven ("smart") smoothing of a structured grid.
 
     Each node in turn is offered: the centre of its neighbours (interior: the mean of the
@@ -122,16 +131,18 @@ def smooth(pos: np.ndarray, nr: int, nz: int, gap_fn, axisymmetric: bool = True,
     around a side node) by at most ``volume_tol`` of theirs, in that move and in all of
     that node's moves together (interior moves never change it).  Exception: a side node
     that lies on the die (|gap| <= ``contact_tol`` mm) between two neighbours on the die
-    slides along the die itself (its offers are projected onto it), with no volume limit:
+    slides along the die itself (its offers are projected onto it), with no volume limit
+    (unless ``settings.die_volume_free`` is False):
     the boundary there is the die, and the volume between the die and the chords of the
     boundary (material that a convex die corner overlaps) is no material.  A corner of
     the grid slides like a side node along its two neighbours on the boundary (the sides
     meet at a smooth point when a free surface folds onto the die, as the ring's sides at
     high friction) unless it is in ``pinned`` (nodes with a Dirichlet condition: sliding
     would move them off the axis or the mid-plane).
-    Sweeps end when no node moves by more than ``move_tol`` x its element size.
-    ``touching`` says which sides (bottom, top, left, right) the die may touch;
-    ``gap_fn(points (m, 2)) -> (g (m,), n (m, 2))``."""
+    Sweeps end when no node moves by more than ``move_tol`` x its element size
+    (:class:`Smoothing`); ``gap_fn(points (m, 2)) -> (g (m,), n (m, 2))``."""
+    sweeps, volume_tol, move_tol = settings.sweeps, settings.volume_tol, settings.move_tol
+    contact_tol = settings.contact_tol
     ids = _grid_ids(nr, nz)
     elements = _grid_elements(ids)
     x = pos.copy()
@@ -140,15 +151,14 @@ def smooth(pos: np.ndarray, nr: int, nz: int, gap_fn, axisymmetric: bool = True,
         for a in nodes:
             around[a].append(e)
     patch = [elements[np.array(a)] for a in around]
-    # the boundary as one counter-clockwise loop: bottom, right, top, left side
-    loop = np.concatenate([ids[0, :-1], ids[:-1, -1], ids[-1, :0:-1], ids[:0:-1, 0]])
+    loop = _boundary_loop(nr, nz)
     side_id = np.concatenate([np.full(nr, 0), np.full(nz, 3), np.full(nr, 1), np.full(nz, 2)])
-    touch = np.asarray(touching)[side_id]  # of each loop node's side (corners: the first)
+    touch = np.asarray(settings.touching)[side_id]  # of each loop node's side (corners: the first)
     corner_mask = np.isin(loop, [ids[0, 0], ids[0, -1], ids[-1, 0], ids[-1, -1]])
     nb = {int(a): (int(loop[m - 1]), int(loop[(m + 1) % len(loop)]),
                    bool(touch[m] and touch[m - 1]), bool(corner_mask[m]))
           for m, a in enumerate(loop)}
-    v_start = {a: _volumes(x[patch[a]], axisymmetric).sum() for a in nb}
+    v_start = {a: polygon_measure(x[patch[a]], axisymmetric).sum() for a in nb}
     dirs = np.array([[np.cos(a), np.sin(a)] for a in np.linspace(0, 2 * np.pi, 8, endpoint=False)])
     steps = np.array([0.25, 0.0625])
     fractions = np.array([1.0, 0.5, 0.25])
@@ -189,8 +199,8 @@ def smooth(pos: np.ndarray, nr: int, nz: int, gap_fn, axisymmetric: bool = True,
             q = corner_qualities(corners_xy, None).min(axis=(1, 2))
             g = gap_fn(pts)[0]
             ok = (q > q[0] + 1e-9) & (g >= min(g[0], 0.0) - 1e-12)
-            if on_side and not on_die:
-                v = _volumes(corners_xy, axisymmetric).sum(axis=1)
+            if on_side and not (on_die and settings.die_volume_free):
+                v = polygon_measure(corners_xy, axisymmetric).sum(axis=1)
                 ok &= (np.abs(v - v[0]) <= volume_tol * abs(v[0])) & (
                     np.abs(v - v_start[a]) <= volume_tol * abs(v_start[a]))
             if not ok.any():
@@ -209,15 +219,78 @@ def rezoned_positions(pos: np.ndarray, nr: int, nz: int, die, t: float,
     t = jnp.asarray(t)
 
     def gap_fn(points):
-        # padded to a fixed batch so that one compiled program serves every call
+        # padded to whole batches so that one compiled program serves every call
         m = len(points)
-        pad = np.zeros((_BATCH, 2))
+        pad = np.broadcast_to(points[:1], (-m % _BATCH + m, 2)).copy()
         pad[:m] = points
-        pad[m:] = points[0]
-        g, n = _gaps_at(die, jnp.asarray(pad), t)
-        return np.asarray(g)[:m], np.asarray(n)[:m]
+        out = [_gaps_at(die, jnp.asarray(pad[k:k + _BATCH]), t)
+               for k in range(0, len(pad), _BATCH)]
+        g, n = (np.concatenate([np.asarray(o[i]) for o in out]) for i in (0, 1))
+        return g[:m], n[:m]
 
-    return smooth(pos, nr, nz, gap_fn, axisymmetric, pinned=set(int(a) for a in pinned))
+    pinned = set(int(a) for a in pinned)
+    elements = _grid_elements(_grid_ids(nr, nz))
+    v_old = polygon_measure(pos[elements], axisymmetric).sum()
+    # nodes on the die slide freely first; where the free surface cannot take back what
+    # that cut off (a die nearly filled), they slide under the side nodes' volume limit
+    for settings in (Smoothing(), Smoothing(die_volume_free=False)):
+        new = smooth(pos, nr, nz, gap_fn, axisymmetric, pinned, settings)
+        new = restore_volume(new, nr, nz, v_old, gap_fn, axisymmetric, pinned)
+        if abs(polygon_measure(new[elements], axisymmetric).sum() / v_old - 1.0) <= 1e-10:
+            break
+    return new
+
+
+def _boundary_loop(nr: int, nz: int) -> np.ndarray:
+    """The grid's boundary nodes as one counter-clockwise loop: bottom, right, top, left."""
+    ids = _grid_ids(nr, nz)
+    return np.concatenate([ids[0, :-1], ids[:-1, -1], ids[-1, :0:-1], ids[:0:-1, 0]])
+
+
+def restore_volume(pos: np.ndarray, nr: int, nz: int, v_target: float, gap_fn,
+                   axisymmetric: bool = True, pinned=(),
+                   contact_tol: float = 1e-6) -> np.ndarray:
+    """Positions with the material volume (area) brought back to ``v_target``: the free
+    boundary nodes (neither pinned by a Dirichlet condition nor on the die) move along
+    their outward normals by one common distance d, solved by Newton on the volume (a
+    polynomial of degree <= 3 in d, to 1e-12 of it).  Smoothing moves side nodes along chords of a curved
+    boundary and slides nodes along a curved die, which cuts or adds thin slivers; this
+    puts the lost volume back where the boundary is free.  A node that the offset would
+    push into the die is left out and d solved again.  Without free nodes the positions
+    are returned as they are (the caller reports the volume change)."""
+    elements = _grid_elements(_grid_ids(nr, nz))
+    loop = _boundary_loop(nr, nz)
+    x = pos.copy()
+    edge = np.roll(x[loop], -1, axis=0) - x[loop]  # edge m joins loop[m] -> loop[m + 1]
+    en = np.column_stack([edge[:, 1], -edge[:, 0]])  # outward for a counter-clockwise loop
+    en /= np.maximum(np.linalg.norm(en, axis=1, keepdims=True), 1e-300)
+    normal = en + np.roll(en, 1, axis=0)  # the two edges at each loop node
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
+    free = np.array([int(a) not in pinned for a in loop])
+    free &= gap_fn(x[loop])[0] > contact_tol
+    scale = abs(v_target)
+    for _ in range(4):
+        if not free.any():
+            return pos
+        dirs = np.zeros_like(x)
+        dirs[loop[free]] = normal[free]
+
+        def vol(d):
+            return polygon_measure((x + d * dirs)[elements], axisymmetric).sum() - v_target
+
+        d = 0.0
+        h = 1e-7 * np.sqrt(scale / max(len(loop), 1))
+        for _ in range(30):
+            f = vol(d)
+            if abs(f) <= 1e-12 * scale:
+                break
+            d -= f * 2.0 * h / (vol(d + h) - vol(d - h))
+        moved = x + d * dirs
+        inside = free & (gap_fn(moved[loop])[0] < 0.0)
+        if not inside.any():
+            return moved
+        free &= ~inside
+    return pos
 
 
 _BATCH = 32
@@ -317,7 +390,7 @@ def rezone(scene, state, inputs):
     elements = np.asarray(scene.mesh.elements)
     ref = np.asarray(inputs.coords)
     x = np.asarray(state.x)
-    nodal = x[: lay.n_node_dofs].reshape(lay.n_nodes, nf)
+    nodal = lay.nodal(x)
     pos = ref + nodal[:, :2]
     t = float(state.t)
     pinned = np.unique(np.asarray(scene.idx.fixed) // nf)
@@ -342,7 +415,7 @@ def rezone(scene, state, inputs):
     gauss = replace(state.gauss, F=eye, mat=mat)
 
     rate = np.asarray(state.x_rate)
-    rate_nodal = rate[: lay.n_node_dofs].reshape(lay.n_nodes, nf)
+    rate_nodal = lay.nodal(rate)
     new_rate_nodal = _interpolate(rate_nodal, elements, e_nd, xi_nd)
     new_nodal = np.zeros_like(nodal)
     if nf == 3:  # q1q1 nodal pressure

@@ -31,10 +31,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxform import mesh as meshing
-from jaxform.assembly import Indices, Model
+from jaxform.assembly import Indices, Model, StepContext
 from jaxform.contact import ContactStep, nodal_average, shear_bounds, tributary_areas
 from jaxform.dies import RigidDie
-from jaxform.formulations import CAUSES, OK, GaussState, initial_gauss_state
+from jaxform.formulations import GaussState, initial_gauss_state
 from jaxform.kinematics import deviator, safe_norm_eq
 from jaxform.linear import LinearSolver, matvec
 from jaxform.loads import FacetLoad, external_forces, total_force
@@ -42,6 +42,7 @@ from jaxform.postprocess import extra_history
 from jaxform.precision import require_x64
 from jaxform.rezone import RezoneError, min_quality, rezone
 from jaxform.solver import NewtonSettings, solve_implicit
+from jaxform.status import CAUSES, OK
 from jaxform.xla_options import jit
 
 
@@ -141,27 +142,31 @@ def contact_step(model: Model, state: SimState, inp: Inputs, idx: Indices) -> Co
                        frictionless=idx.contact_fixed_r)
 
 
-def _step_residual(model: Model, x, args):
-    gauss, coords, t, dt, params, die, c_contact, cstep, idx, f_ext = args
-    return model.residual(x, gauss, coords, t, dt, params, die, c_contact, cstep, idx,
-                          f_ext=f_ext)
+def _step_residual(model: Model, x, ctx: StepContext):
+    return model.residual(x, ctx)
 
 
-def _step_residual_and_jacobian(model: Model, x, args):
-    gauss, coords, t, dt, params, die, c_contact, cstep, idx, f_ext = args
-    return model.residual_and_jacobian(x, gauss, coords, t, dt, params, die, c_contact,
-                                       cstep, idx, f_ext=f_ext)
+def _step_residual_and_jacobian(model: Model, x, ctx: StepContext):
+    return model.residual_and_jacobian(x, ctx)
 
 
-def _step_adjoint(model: Model, x, args, gauss_bar):
-    gauss, coords, t, dt, params, die, c_contact, cstep, idx, f_ext = args
-    return model.jacobian_and_state_vjp(x, gauss, coords, t, dt, params, die, c_contact,
-                                        cstep, idx, gauss_bar)
+def _step_adjoint(model: Model, x, ctx: StepContext, gauss_bar):
+    return model.jacobian_and_state_vjp(x, ctx, gauss_bar)
+
+
+def step_context(model: Model, state: SimState, inp: Inputs, idx: Indices, t_new,
+                 dt) -> StepContext:
+    """The step data of a step from ``state`` to t_new = state.t + dt: the one place that
+    builds a :class:`jaxform.assembly.StepContext`."""
+    return StepContext(gauss=state.gauss, coords=inp.coords, t=t_new, dt=dt, params=inp.params,
+                       die=inp.die, c_contact=inp.c_contact,
+                       cstep=contact_step(model, state, inp, idx), idx=idx,
+                       f_ext=applied_forces(model, inp, t_new, idx))
 
 
 @dataclass(frozen=True)
 class StepLinear:
-    """The linear algebra of a step's Newton solve on the pattern in ``args``' Indices
+    """The linear algebra of a step's Newton solve on the pattern in the StepContext's Indices
     (hashable: a static part of the compiled step).  Called: a solve (or a transposed
     one, for the reverse pass); ``factor`` / ``solve_factored``: a factorization kept
     across iterations and steps (modified Newton) or for the reverse pass; ``matvec``:
@@ -170,20 +175,20 @@ class StepLinear:
     n: int
     solver: LinearSolver
 
-    def __call__(self, vals, b, args, transpose: bool):
-        idx = args[8]
+    def __call__(self, vals, b, ctx: StepContext, transpose: bool):
+        idx = ctx.idx
         solve = self.solver.solve_transpose if transpose else self.solver.solve
         return solve(idx.rows, idx.cols, vals, b, self.n, idx.lu_symbolic)
 
-    def factor(self, vals, args, old):
-        idx = args[8]
+    def factor(self, vals, ctx: StepContext, old):
+        idx = ctx.idx
         return self.solver.refactor(idx.rows, idx.cols, vals, self.n, idx.lu_symbolic, old)
 
-    def solve_factored(self, fac, b, args, transpose: bool = False):
-        return self.solver.solve_factored(fac, b, args[8].lu_symbolic, transpose)
+    def solve_factored(self, fac, b, ctx: StepContext, transpose: bool = False):
+        return self.solver.solve_factored(fac, b, ctx.idx.lu_symbolic, transpose)
 
-    def matvec(self, vals, y, args, transpose: bool):
-        idx = args[8]
+    def matvec(self, vals, y, ctx: StepContext, transpose: bool):
+        idx = ctx.idx
         rows, cols = (idx.cols, idx.rows) if transpose else (idx.rows, idx.cols)
         return matvec(rows, cols, vals, y, self.n)
 
@@ -199,25 +204,24 @@ def solve_step(model: Model, linear: LinearSolver, settings: NewtonSettings,
 
     Differentiable (reverse mode) in ``state`` and ``inp`` by the implicit function theorem
     (:func:`jaxform.solver.solve_implicit`).  Returns (x, gauss, its, code, hist, cstep, fac)."""
-    cstep = contact_step(model, state, inp, idx)
-    f_ext = applied_forces(model, inp, t_new, idx)
-    args = (state.gauss, inp.coords, t_new, dt, inp.params, inp.die, inp.c_contact, cstep, idx,
-            f_ext)
+    ctx = step_context(model, state, inp, idx, t_new, dt)
     x_fallback = jax.lax.stop_gradient(state.x)
     x0 = x_fallback if x_guess is None else jax.lax.stop_gradient(x_guess)
     x, g, its, code, hist, fac = solve_implicit(
         partial(_step_residual, model), partial(_step_residual_and_jacobian, model),
         partial(_step_adjoint, model), StepLinear(model.layout.n_dofs, linear), settings, x0,
-        x_fallback, args, fac, adjoint_fac)
-    return x, g, its, code, hist, cstep, fac
+        x_fallback, ctx, fac, adjoint_fac)
+    return x, g, its, code, hist, ctx.cstep, fac
 
 
 def converged_state(model: Model, state: SimState, x, gauss, t_new, inp: Inputs,
                     cstep: ContactStep, idx: Indices) -> SimState:
     """The state after a converged step from ``state`` to (x, gauss) at t_new: the rate for
     the next predictor, the friction work and slip of the step, the contact status."""
-    status, _, _, slip = model.contact_report(x, inp.coords, t_new, inp.die, inp.c_contact,
-                                              cstep, idx)
+    ctx = StepContext(gauss=state.gauss, coords=inp.coords, t=t_new, dt=t_new - state.t,
+                      params=inp.params, die=inp.die, c_contact=inp.c_contact, cstep=cstep,
+                      idx=idx)
+    status, _, _, slip = model.contact_report(x, ctx)
     lam_t = x[idx.mult_dofs[:, 1]]
     return SimState(x=x, gauss=gauss, t=t_new,
                     x_rate=jax.lax.stop_gradient((x - state.x) / (t_new - state.t)),
@@ -374,8 +378,7 @@ def _absolute(scene: Scene, inp: Inputs, x: np.ndarray) -> np.ndarray:
         return x
     lay = scene.model.layout
     x = np.array(x)
-    nodal = x[: lay.n_node_dofs].reshape(lay.n_nodes, lay.n_fields)
-    nodal[:, :2] += shift
+    lay.nodal(x)[:, :2] += shift  # a view: shifts x in place
     return x
 
 

@@ -48,7 +48,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxform.formulations import NEWTON_NOT_CONVERGED, OK
+from jaxform.status import NEWTON_NOT_CONVERGED, OK
 
 
 METHODS = ("newton", "modified")

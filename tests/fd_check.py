@@ -5,15 +5,15 @@ import jax.numpy as jnp
 import numpy as np
 
 
-def jacobian_fd_error(sc, x, args, h_rel):
+def jacobian_fd_error(sc, x, ctx, h_rel):
     """Frobenius relative error of the assembled Jacobian at x against 4-point central
     differences of the global residual, step h_rel x max(|x_j|, 1e-3) per unknown.
-    ``args`` are the residual's arguments after x."""
-    _, vals, *_ = sc.model.residual_and_jacobian(x, *args)
+    ``ctx``: the step's StepContext (jaxform.simulate.step_context)."""
+    _, vals, *_ = sc.model.residual_and_jacobian(x, ctx)
     n = sc.model.layout.n_dofs
     jac = np.zeros((n, n))
     jac[np.asarray(sc.idx.rows), np.asarray(sc.idx.cols)] = np.asarray(vals)
-    res_fn = jax.jit(lambda y: sc.model.residual(y, *args)[0])
+    res_fn = jax.jit(lambda y: sc.model.residual(y, ctx)[0])
     scale = np.maximum(np.abs(np.asarray(x)), 1e-3)
     fd = np.zeros((n, n))
     for j in range(n):

@@ -17,7 +17,7 @@ from fd_check import jacobian_fd_error
 from jaxform.config import load_config
 from jaxform.postprocess import positions
 from jaxform.scenes import build_scene
-from jaxform.simulate import contact_step, simulate
+from jaxform.simulate import simulate, step_context
 
 BILLET = {
     "billet": {"diameter_mm": 5.0, "height_mm": 7.5},
@@ -80,12 +80,10 @@ def test_jacobian_with_friction_stick_and_slip():
     st = res.final_state
     status = np.asarray(st.contact_status)
     assert (status == 1).any() and (status == 2).any(), status
-    cstep = contact_step(sc.model, st, sc.inputs, sc.idx)
+    ctx = step_context(sc.model, st, sc.inputs, sc.idx, st.t + 0.2, 0.2)
     # the next step's converged solution, nudged: the active set does not change within h
     x = st.x + 0.2 * st.x_rate
-    args = (st.gauss, sc.inputs.coords, st.t + 0.2, 0.2, sc.inputs.params, sc.inputs.die,
-            sc.inputs.c_contact, cstep, sc.idx)
-    err = jacobian_fd_error(sc, x, args, h_rel=1e-7)
+    err = jacobian_fd_error(sc, x, ctx, h_rel=1e-7)
     assert err <= 1e-6, err
 
 

@@ -12,7 +12,7 @@ import pytest
 from test_upsetting import scene, seed_run
 
 from jaxform.config import ConfigError
-from jaxform.formulations import OK
+from jaxform.status import OK
 from jaxform.linear import LinearSolver
 from jaxform.simulate import simulate
 from jaxform.solver import NewtonSettings, choose_method, modified_newton, newton

@@ -18,10 +18,12 @@ from fd_check import jacobian_fd_error
 from jaxform.assembly import internal_forces
 from jaxform.cli import main
 from jaxform.config import load_config
-from jaxform.io import nodal_fields, read_csv
+from jaxform.io import read_csv
+from jaxform.postprocess import nodal_fields
 from jaxform.materialpoint import uniaxial_compression
 from jaxform.scenes import build_scene
-from jaxform.simulate import SimulationError, contact_step, simulate
+from jaxform.simulate import SimulationError, simulate, step_context
+from jaxform.status import OK
 from reference_ode import anand_uniaxial_reference
 
 BASE = {
@@ -99,9 +101,8 @@ def test_global_jacobian_against_finite_differences(element):
     st = res.final_state
     rng = np.random.default_rng(1)
     x = st.x + 1e-4 * jnp.asarray(rng.standard_normal(st.x.shape)) * (st.x != 0)
-    args = (st.gauss, sc.inputs.coords, st.t + 0.5, 0.5, sc.inputs.params, sc.inputs.die,
-            sc.inputs.c_contact, contact_step(sc.model, st, sc.inputs, sc.idx), sc.idx)
-    err = jacobian_fd_error(sc, x, args, h_rel=1e-6)
+    ctx = step_context(sc.model, st, sc.inputs, sc.idx, st.t + 0.5, 0.5)
+    err = jacobian_fd_error(sc, x, ctx, h_rel=1e-6)
     assert err <= 1e-6, err
     assert np.any(np.asarray(x[sc.idx.mult_dofs[:, 0]]) > 0)  # contact active
 
@@ -115,9 +116,8 @@ def test_chunked_element_jacobians_equal_one_vmap():
     tested at 1e-11.  And both equal jacfwd of Model.residual (the plain path) to 1e-11."""
     sc, res = homogeneous_run("q1q1")
     st = res.final_state
-    args = (st.gauss, sc.inputs.coords, st.t + 0.5, 0.5, sc.inputs.params, sc.inputs.die,
-            sc.inputs.c_contact, contact_step(sc.model, st, sc.inputs, sc.idx), sc.idx)
-    outs = [jax.jit(replace(sc.model, jacobian_chunk=c).residual_and_jacobian)(st.x, *args)
+    ctx = step_context(sc.model, st, sc.inputs, sc.idx, st.t + 0.5, 0.5)
+    outs = [jax.jit(replace(sc.model, jacobian_chunk=c).residual_and_jacobian)(st.x, ctx)
             for c in (0, 4)]
     (r0, v0, g0, ok0, f0), (r1, v1, g1, ok1, f1) = outs
     assert int(ok0) == int(ok1) and abs(float(f1) / float(f0) - 1.0) <= 1e-11
@@ -130,7 +130,7 @@ def test_chunked_element_jacobians_equal_one_vmap():
     # the two-pass assembly (residual pass solving every point, Jacobian pass at its
     # solution without solving) against forward-mode AD straight through the solving
     # residual: the same derivative (measured 1e-16 relative)
-    dense = jax.jit(jax.jacfwd(lambda z: sc.model.residual(z, *args)[0]))(st.x)
+    dense = jax.jit(jax.jacfwd(lambda z: sc.model.residual(z, ctx)[0]))(st.x)
     direct = np.asarray(dense)[np.asarray(sc.idx.rows), np.asarray(sc.idx.cols)]
     err = np.max(np.abs(direct - np.asarray(v0))) / np.max(np.abs(direct))
     assert err <= 1e-11, err
@@ -311,7 +311,7 @@ def test_compact_point_tangent_equals_the_plain_derivatives(element, monkeypatch
                         lambda lw, alpha, f, s, p, dt, sol=None: fm._point(lw, alpha, f, s, p, dt,
                                                                           sol))
     plain, code_plain = derivatives()
-    assert code == code_plain == fm.OK
+    assert code == code_plain == OK
     errs = [float(jnp.max(jnp.abs(a - b)) / jnp.max(jnp.abs(b))) for a, b in zip(compact, plain)
             if float(jnp.max(jnp.abs(b))) > 0.0]
     assert len(errs) >= 8 and max(errs) <= 1e-12, errs

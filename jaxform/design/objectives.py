@@ -28,6 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxform.design.parametrize import workpiece_volume
+from jaxform.geometry import polygon_measure
 
 
 class _Identity:
@@ -103,12 +104,7 @@ def cavity_volume(points, travel, axisymmetric: bool):
     pts = pts.at[:, 1].set(jnp.maximum(pts[:, 1], 0.0))
     poly = jnp.concatenate([jnp.zeros((1, 2), pts.dtype), pts,
                             jnp.stack([pts[-1, 0], 0.0])[None, :]], axis=0)
-    x, y = poly[:, 0], poly[:, 1]
-    xn, yn = jnp.roll(x, -1), jnp.roll(y, -1)
-    cross = x * yn - xn * y
-    if axisymmetric:
-        return jnp.abs(2.0 * jnp.pi * jnp.sum(cross * (x + xn)) / 6.0)
-    return jnp.abs(0.5 * jnp.sum(cross))
+    return jnp.abs(polygon_measure(poly, axisymmetric))
 
 
 @dataclass(frozen=True, eq=False)

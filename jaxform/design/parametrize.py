@@ -29,16 +29,12 @@ from dataclasses import dataclass, replace
 import jax.numpy as jnp
 import numpy as np
 
+from jaxform.geometry import polygon_measure
+
 
 def _revolved_areas(pos, elements, axisymmetric: bool):
     """Volume (axisymmetric, 2 pi r dA) or area of each quadrilateral (shoelace/Pappus)."""
-    p = pos[elements]  # (n_el, 4, 2)
-    x, y = p[..., 0], p[..., 1]
-    xn, yn = jnp.roll(x, -1, axis=1), jnp.roll(y, -1, axis=1)
-    cross = x * yn - xn * y
-    if axisymmetric:
-        return 2.0 * jnp.pi * jnp.sum(cross * (x + xn), axis=1) / 6.0
-    return 0.5 * jnp.sum(cross, axis=1)
+    return polygon_measure(pos[elements], axisymmetric)
 
 
 def workpiece_volume(pos, elements, axisymmetric: bool):

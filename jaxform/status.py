@@ -1,0 +1,21 @@
+"""Status codes: how a step, a Newton solve or a material update ended.
+
+Failures inside compiled programs are integer codes, never exceptions; the host boundary
+(:mod:`jaxform.simulate`, :mod:`jaxform.gradients`) turns them into a smaller step or a
+message.  Codes are ordered by severity (larger = worse), so the worst of several is
+their maximum.  This module imports nothing, so any layer may use it.
+"""
+
+OK = 0
+NEWTON_NOT_CONVERGED = 1
+LOCAL_SOLVE_FAILED = 2
+INVERTED = 3
+NOT_FINITE = 4
+
+CAUSES = {
+    OK: "converged",
+    NEWTON_NOT_CONVERGED: "Newton did not converge",
+    LOCAL_SOLVE_FAILED: "the local material solve failed",
+    INVERTED: "an element inverted (det F <= 0)",
+    NOT_FINITE: "the residual is not finite",
+}
