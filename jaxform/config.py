@@ -131,7 +131,7 @@ SCHEMA: dict[str, dict[str, Field]] = {
     },
     "material": {
         "preset": Field("str", "al1100_673K",
-                        doc="material preset name in configs/materials or a .toml path"),
+                        doc="material preset name (jaxform/materials/data) or a .toml path"),
     },
     "die": {
         "speed_mm_s": Field("float", None, 0.0, None, False, False,
