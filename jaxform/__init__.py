@@ -1,10 +1,68 @@
 """jaxform: differentiable finite-element simulation of metal forming in JAX.
 
-Importing jaxform changes no global JAX setting; call :func:`enable_x64` first
-(see :mod:`jaxform.precision`).
+The entry points a script needs, one import away (see ``examples/tutorial.py``)::
+
+    import jaxform
+    jaxform.enable_x64()
+    result = jaxform.run("configs/upsetting_seed.toml", ["mesh.nr=4"], out_dir="out/seed")
+
+* set-up: :func:`enable_x64`, :func:`require_x64` (:mod:`jaxform.precision`);
+* runs: :func:`load_config` -> :func:`build_scene` -> :func:`simulate`, or :func:`run`
+  for all three and the output files;
+* gradients: :func:`trajectory` (a differentiable run), :func:`build_problem` (a design
+  problem: groups, objective, compiled value and gradient), :func:`optimize` with
+  :class:`OptimizerSettings`, :func:`taylor_test`.
+
+Importing jaxform imports nothing else (not JAX) and changes no global setting: each
+name is loaded from its module on first use (PEP 562).  ``jaxform.simulate`` is the
+function; its module's other names are imported with ``from jaxform.simulate import ...``.
 """
 
-from jaxform.precision import enable_x64, require_x64
+import importlib as _importlib
+import sys as _sys
+import types as _types
 
-__all__ = ["enable_x64", "require_x64"]
+# exported name -> the module that defines it
+_EXPORTS = {
+    "enable_x64": "jaxform.precision",
+    "require_x64": "jaxform.precision",
+    "run": "jaxform.driver",
+    "load_config": "jaxform.config",
+    "build_scene": "jaxform.scenes",
+    "simulate": "jaxform.simulate",
+    "trajectory": "jaxform.gradients",
+    "build_problem": "jaxform.design.problem",
+    "optimize": "jaxform.design.optimize",
+    "OptimizerSettings": "jaxform.design.optimize",
+    "taylor_test": "jaxform.design.taylor",
+}
+__all__ = ["OptimizerSettings", "build_problem", "build_scene", "enable_x64", "load_config",
+           "optimize", "require_x64", "run", "simulate", "taylor_test", "trajectory"]
 __version__ = "0.1.0"
+
+
+def __getattr__(name: str):
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'jaxform' has no attribute {name!r}")
+    value = getattr(_importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))
+
+
+class _Package(_types.ModuleType):
+    """jaxform's module type: importing the submodule ``jaxform.simulate`` binds it on the
+    package, as every import does; here that binding is skipped for an exported name, so
+    ``jaxform.simulate`` stays the function whichever was imported first."""
+
+    def __setattr__(self, name, value):
+        if name in _EXPORTS and isinstance(value, _types.ModuleType):
+            return
+        super().__setattr__(name, value)
+
+
+_sys.modules[__name__].__class__ = _Package

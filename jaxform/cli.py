@@ -23,10 +23,15 @@ def _material_point(args) -> int:
     from jaxform.io import write_csv
     from jaxform.materialpoint import uniaxial_compression
     from jaxform.materials import load_material
+    from jaxform.materials.presets import MaterialError
     from jaxform.plot import stress_strain
     from jaxform.xla_options import jit
 
-    law, params = load_material(args.material)
+    try:
+        law, params = load_material(args.material, key="--material")
+    except MaterialError as err:
+        print(f"config error: {err}", file=sys.stderr)
+        return 2
     if args.strain <= 0 or args.strain > 3:
         raise SystemExit(f"--strain = {args.strain}: must lie in (0, 3]")
     if args.steps < 1:
@@ -191,7 +196,7 @@ def main(argv: list[str] | None = None) -> int:
 
     mp = sub.add_parser("material-point", help="uniaxial compression of one material point")
     mp.add_argument("--material", default="al1100_673K",
-                    help="preset name in configs/materials or a .toml path")
+                    help="material preset name (jaxform/materials/data) or a .toml path")
     mp.add_argument("--rates", type=float, nargs="+", default=[0.001, 0.01, 0.1, 1.0],
                     help="true strain rates in 1/s")
     mp.add_argument("--ram-speeds-mm-s", type=float, nargs="+", default=None,

@@ -131,7 +131,7 @@ SCHEMA: dict[str, dict[str, Field]] = {
     },
     "material": {
         "preset": Field("str", "al1100_673K",
-                        doc="material preset name in configs/materials or a .toml path"),
+                        doc="material preset name (jaxform/materials/data) or a .toml path"),
     },
     "die": {
         "speed_mm_s": Field("float", None, 0.0, None, False, False,
@@ -432,8 +432,18 @@ _CONDITIONAL = {("die", "speed_mm_s"), ("die", "reduction")}
 
 
 def load_config(path_or_dict: str | PathLike | dict, overrides: Iterable[str] = ()) -> dict:
-    """Read a TOML scene (path) or nested dict, apply ``section.key=value`` overrides,
-    validate, and return a new nested dict with every schema key (defaults filled in)."""
+    """Read a TOML scene (path) or nested dict, apply overrides and validate.
+
+    Arguments:
+        path_or_dict: the path of a TOML scene, or the same as a nested dict.
+        overrides: ``section.key=value`` strings (the value a TOML value, else a string).
+
+    Returns:
+        a new nested dict with every schema key (defaults filled in).
+
+    Raises:
+        ConfigError: one line naming the dotted key and what is allowed.
+    """
     if isinstance(path_or_dict, dict):
         raw = copy.deepcopy(path_or_dict)
     else:

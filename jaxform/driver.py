@@ -22,8 +22,19 @@ def run(config, overrides=(), out_dir: str | Path | None = None,
         progress: Callable[[dict], None] | None = None) -> Result:
     """Validate, build and run a scene; write outputs to out_dir if given.
 
-    On failure after all cutbacks, the outputs of the last converged state are written
-    and SimulationError (with .result) is raised.
+    Arguments:
+        config: the path of a TOML scene or a nested dict (:func:`jaxform.config.load_config`).
+        overrides: ``section.key=value`` strings applied to it.
+        out_dir: folder for history.csv, config.toml, fields and plots (None: none written).
+        progress: called after each compiled chunk with a dict (step, n_steps, time_s,
+            stroke_mm, force_N, iterations, cutbacks).
+
+    Returns:
+        the :class:`jaxform.simulate.Result` (history and fields).
+
+    Raises:
+        ConfigError: a bad config.  SimulationError (with ``.result``): a step failed
+        after all cutbacks; the outputs of the last converged state are written.
     """
     cfg = load_config(config, list(overrides))
     scene = build_scene(cfg)

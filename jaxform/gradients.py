@@ -148,6 +148,16 @@ def trajectory(scene: Scene, inputs: Inputs | None = None, times=None,
     """Run ``scene`` (with ``inputs`` in place of ``scene.inputs``) over the step end
     times ``times`` (default: the scene's schedule).  Traceable and differentiable.
 
+    Arguments:
+        scene: from :func:`jaxform.scenes.build_scene`.
+        inputs: the run's differentiable inputs (default ``scene.inputs``).
+        times: (n,) step end times in s (default :meth:`Scene.step_targets`).
+        reuse_factorizations, idx: see below.
+
+    Returns:
+        the :class:`Trajectory` (per-step force, stroke, codes; final state).  A failed
+        step leaves its code in ``codes``; :func:`check` raises for it.
+
     ``idx``: ``scene.idx`` as an argument of the caller's jit, for callers that compile a
     program around this (the design problems, the batches): the pattern then enters the
     program as an argument, not as a constant, which XLA would constant-fold (45 s of

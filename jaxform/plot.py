@@ -1,23 +1,43 @@
-"""PNG figures (matplotlib, Agg backend: no display needed)."""
+"""PNG figures, drawn on matplotlib Figures with their own Agg canvas.
+
+No pyplot: importing or calling this module leaves matplotlib's global backend and
+figure registry as they were (no display needed, nothing to close).
+"""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+from matplotlib.ticker import FuncFormatter
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+# a field whose spread is below this fraction of its magnitude is round-off: it is drawn
+# as the uniform field it is (one colour), not as a pattern of its last bits
+UNIFORM_RTOL = 1e-9
+
+
+def _figure(nrows: int = 1, ncols: int = 1, *, figsize, **kw):
+    """A new Figure on an Agg canvas and its axes (as pyplot.subplots, without pyplot)."""
+    fig = Figure(figsize=figsize)
+    FigureCanvasAgg(fig)
+    return fig, fig.subplots(nrows, ncols, **kw)
+
+
+def _save(fig: Figure, path: Path) -> Figure:
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    return fig
 
 
 def stress_strain(curves: dict[str, tuple[np.ndarray, np.ndarray]], path: Path, title: str):
     """curves: label -> (true strain, stress in MPa)."""
-    fig, ax = plt.subplots(figsize=(6, 4.2))
+    fig, ax = _figure(figsize=(6, 4.2))
     for label, (eps, sig) in curves.items():
         ax.plot(eps, sig, label=label)
-    _finish_curve(fig, ax, path, title, "true strain [-]",
-                  "true stress [MPa] (compression positive)")
+    return _finish_curve(fig, ax, path, title, "true strain [-]",
+                         "true stress [MPa] (compression positive)")
 
 
 def _finish_curve(fig, ax, path, title, xlabel, ylabel):
@@ -26,23 +46,22 @@ def _finish_curve(fig, ax, path, title, xlabel, ylabel):
     ax.set_title(title)
     ax.grid(True, alpha=0.3)
     ax.legend()
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    return _save(fig, path)
 
 
 def force_stroke(stroke_mm, force_n, path: Path, title: str, reference=None):
-    fig, ax = plt.subplots(figsize=(6, 4.2))
+    fig, ax = _figure(figsize=(6, 4.2))
     ax.plot(stroke_mm, force_n, "o-", ms=3, label="jaxform")
     if reference is not None:
         ax.plot(reference[0], reference[1], "k--", lw=1, label=reference[2])
-    _finish_curve(fig, ax, path, title, "stroke [mm]", "ram force [N]")
+    return _finish_curve(fig, ax, path, title, "stroke [mm]", "ram force [N]")
 
 
 def load_displacement(u_mm, load_n, path: Path, title: str):
-    fig, ax = plt.subplots(figsize=(6, 4.2))
+    fig, ax = _figure(figsize=(6, 4.2))
     ax.plot(u_mm, load_n, "o-", ms=3, label="jaxform")
-    _finish_curve(fig, ax, path, title, "tip displacement u_y [mm]", "load [N per mm depth]")
+    return _finish_curve(fig, ax, path, title, "tip displacement u_y [mm]",
+                         "load [N per mm depth]")
 
 
 def _quads(coords, elements):
@@ -54,7 +73,7 @@ def _quads(coords, elements):
 def deformed_mesh(coords0, coords1, elements, path: Path, title: str,
                   axes=("r [mm]", "z [mm]")):
     """Deformed mesh (blue) over the initial mesh (grey), as thesis Fig. 6.4."""
-    fig, ax = plt.subplots(figsize=(6, 5))
+    fig, ax = _figure(figsize=(6, 5))
     for c, style in ((coords0, dict(edgecolor="0.6", facecolor="none", lw=0.8)),
                      (coords1, dict(edgecolor="tab:blue", facecolor="none", lw=1.0))):
         pc = _quads(c, elements)
@@ -67,17 +86,30 @@ def deformed_mesh(coords0, coords1, elements, path: Path, title: str,
     ax.set_xlabel(axes[0])
     ax.set_ylabel(axes[1])
     ax.set_title(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    return _save(fig, path)
 
 
 def cell_contours(coords, elements, values, path: Path, title: str, label: str,
-                  axes=("r [mm]", "z [mm]")):
-    """Cell values (e.g. equivalent plastic strain) on the deformed mesh, as thesis Fig. 6.6."""
-    fig, ax = plt.subplots(figsize=(6, 5))
+                  axes=("r [mm]", "z [mm]")) -> Figure:
+    """Cell values (e.g. equivalent plastic strain) on the deformed mesh, as thesis Fig. 6.6.
+
+    A field uniform to round-off (spread <= UNIFORM_RTOL x magnitude) is drawn in one
+    colour, its colour bar showing the value itself.
+
+    Arguments:
+        coords: (n_nodes, 2) node positions (mm); elements: (n_elements, 4) node ids.
+        values: (n_elements,) one value per cell.
+        path: the PNG to write; title, label: figure title and colour-bar label.
+        axes: the axis labels.
+
+    Returns:
+        the drawn Figure (already saved to ``path``).
+    """
+    fig, ax = _figure(figsize=(6, 5))
     pc = _quads(coords, elements)
-    pc.set_array(np.asarray(values))
+    values = np.asarray(values, dtype=float)
+    uniform = _uniform_value(values)
+    pc.set_array(values if uniform is None else np.full_like(values, uniform))
     pc.set_cmap("viridis")
     pc.set_edgecolor("k")
     pc.set_linewidth(0.2)
@@ -88,16 +120,31 @@ def cell_contours(coords, elements, values, path: Path, title: str, label: str,
     ax.set_xlabel(axes[0])
     ax.set_ylabel(axes[1])
     ax.set_title(title)
-    fig.colorbar(pc, ax=ax, label=label)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    if uniform is None:
+        fig.colorbar(pc, ax=ax, label=label)
+    else:
+        half = 0.05 * abs(uniform) or 1.0
+        pc.set_clim(uniform - half, uniform + half)
+        fig.colorbar(pc, ax=ax, label=f"{label}, uniform", ticks=[uniform],
+                     format=FuncFormatter(lambda x, _: f"{x:.9g}"))
+    return _save(fig, path)
+
+
+def _uniform_value(values: np.ndarray) -> float | None:
+    """The field's mean when its spread is round-off (<= UNIFORM_RTOL x its magnitude),
+    else None; None too when a value is not finite (drawn as it is)."""
+    if values.size == 0 or not np.all(np.isfinite(values)):
+        return None
+    spread = float(values.max() - values.min())
+    if spread > UNIFORM_RTOL * float(np.abs(values).max()):
+        return None
+    return float(values.mean())
 
 
 def contact_profiles(profiles: dict, path: Path):
     """profiles: stroke (mm) -> contact_profile dict; pressure and shear vs radius of the
     nodes in contact, slipping nodes filled, sticking nodes open."""
-    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(6.5, 6), sharex=True)
+    fig, (ax1, ax2) = _figure(2, 1, figsize=(6.5, 6), sharex=True)
     for stroke, p in profiles.items():
         on = p["status"] > 0
         order = np.argsort(p["r_mm"][on])
@@ -115,29 +162,27 @@ def contact_profiles(profiles: dict, path: Path):
     for ax in (ax1, ax2):
         ax.grid(True, alpha=0.3)
     ax1.set_title("contact along the die")
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    return _save(fig, path)
 
 
 def calibration_chart(curves: dict, path: Path):
     """Ring-test calibration chart: curves m -> (height reduction %, inner diameter change %)."""
-    fig, ax = plt.subplots(figsize=(6, 4.5))
+    fig, ax = _figure(figsize=(6, 4.5))
     for m, (red, did) in curves.items():
         ax.plot(red, did, "-", label=f"m = {m:g}")
     ax.axhline(0.0, color="k", lw=0.6)
-    _finish_curve(fig, ax, path, "6:3:2 ring: friction calibration", "height reduction [%]",
-                  "change of inner diameter [%]")
+    return _finish_curve(fig, ax, path, "6:3:2 ring: friction calibration",
+                         "height reduction [%]", "change of inner diameter [%]")
 
 
 def design_objective(objective, path: Path, title: str, unit: str):
     """Objective against optimizer iteration (log scale when it spans decades)."""
-    fig, ax = plt.subplots(figsize=(6, 4.2))
+    fig, ax = _figure(figsize=(6, 4.2))
     obj = np.asarray(objective)
     ax.plot(np.arange(len(obj)), obj, "o-", label="objective")
     if np.all(obj > 0) and obj.max() > 20 * obj.min():
         ax.set_yscale("log")
-    _finish_curve(fig, ax, path, title, "iteration", f"objective [{unit}]")
+    return _finish_curve(fig, ax, path, title, "iteration", f"objective [{unit}]")
 
 
 def _outline(coords, elements):
@@ -151,7 +196,7 @@ def _outline(coords, elements):
 
 def design_shapes(shapes: dict, elements, path: Path, title: str):
     """shapes: label -> (n_nodes, 2) positions; outlines drawn over each other."""
-    fig, ax = plt.subplots(figsize=(6, 5))
+    fig, ax = _figure(figsize=(6, 5))
     styles = ["k--", "C0-", "C1-", "C3-", "C2--"]
     for (label, pos), style in zip(shapes.items(), styles):
         pos = np.asarray(pos)
@@ -163,6 +208,4 @@ def design_shapes(shapes: dict, elements, path: Path, title: str):
     ax.set_ylabel("z [mm]")
     ax.set_title(title)
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    return _save(fig, path)

@@ -17,7 +17,15 @@ import jax
 
 
 def enable_x64() -> None:
-    """Switch JAX to float64 for this process (idempotent)."""
+    """Switch JAX to float64 for this process (idempotent); call it before building a
+    scene.
+
+    Arguments:
+        none.
+
+    Returns:
+        None.
+    """
     jax.config.update("jax_enable_x64", True)
 
 
@@ -26,7 +34,14 @@ def x64_enabled() -> bool:
 
 
 def require_x64() -> None:
-    """Raise if float64 is off: jaxform's tolerances are float64 tolerances."""
+    """Raise if float64 is off: jaxform's tolerances are float64 tolerances.
+
+    Arguments:
+        none.
+
+    Returns:
+        None; raises RuntimeError (saying to call :func:`enable_x64`) when float64 is off.
+    """
     if not x64_enabled():
         raise RuntimeError(
             "jaxform needs float64: call jaxform.enable_x64() before building a scene "

@@ -152,7 +152,17 @@ def membrane_load(cfg: dict, mesh: meshing.Mesh) -> FacetLoad:
 
 
 def build_scene(cfg: dict) -> Scene:
-    """Set-up of a scene from a validated config (jaxform.config.load_config)."""
+    """Set-up of a scene from a validated config: mesh, material, die or load, solver.
+
+    Arguments:
+        cfg: a config from :func:`jaxform.config.load_config` (every key present).
+
+    Returns:
+        the :class:`jaxform.simulate.Scene` (nothing compiled yet).
+
+    Raises:
+        ConfigError: a bad material preset or file, or a mesh file that does not fit.
+    """
     require_x64()
     m, tm, so = cfg["mesh"], cfg["time"], cfg["solver"]
     axi = m["geometry"] == "axisymmetric"

@@ -383,7 +383,19 @@ def _absolute(scene: Scene, inp: Inputs, x: np.ndarray) -> np.ndarray:
 
 
 def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Result:
-    """Run the scene to its end; raises SimulationError (with .result) on failure.
+    """Run the scene to its end, in compiled chunks of load steps.
+
+    Arguments:
+        scene: from :func:`jaxform.scenes.build_scene`.
+        progress: called after each chunk with a dict (step, n_steps, time_s, stroke_mm,
+            force_N, iterations, cutbacks).
+
+    Returns:
+        the :class:`Result`: ``history`` (one row per converged step) and ``fields``.
+
+    Raises:
+        SimulationError (with ``.result`` up to the last converged step): a step failed
+        after all cutbacks.
 
     With ``scene.rezone_quality`` > 0, a step after which an element's worst corner quality
     is below it ends the compiled chunk; the mesh is rezoned (:mod:`jaxform.rezone`) and

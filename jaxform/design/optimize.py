@@ -35,6 +35,17 @@ from jaxform.gradients import GradientRunError
 
 @dataclass(frozen=True)
 class OptimizerSettings:
+    """How :func:`optimize` minimizes.
+
+    Arguments:
+        method: ``lbfgs`` (L-BFGS with an Armijo backtracking line search) or ``adam``.
+        iterations: optimizer iterations; learning_rate: Adam's step size.
+        max_backtracks, armijo: line-search halvings and sufficient-decrease factor.
+
+    Returns:
+        the settings (frozen) to pass to :func:`optimize`.
+    """
+
     method: str = "lbfgs"  # 'lbfgs' | 'adam'
     iterations: int = 20
     learning_rate: float = 0.05  # Adam
@@ -65,7 +76,20 @@ def _projected_grad_norm(u, g, lo, hi):
 
 def optimize(problem, settings: OptimizerSettings = OptimizerSettings(), design=None,
              progress: Callable[[int, float, float, dict], None] | None = None) -> DesignHistory:
-    """Minimize ``problem``'s objective from ``design`` (default: its start)."""
+    """Minimize ``problem``'s objective within its bounds (optax, projected steps).
+
+    Arguments:
+        problem: a :class:`jaxform.design.problem.DesignProblem`.
+        settings: the method (``lbfgs`` with a backtracking line search, or ``adam``),
+            iterations and step size.
+        design: the start (default ``problem.start``).
+        progress: called after each accepted iteration with (iteration, objective,
+            projected gradient norm, design).
+
+    Returns:
+        the :class:`DesignHistory`: objective, gradient norm and design per iteration,
+        evaluations, rejected trials and why it stopped.
+    """
     if settings.method not in ("lbfgs", "adam"):
         raise ValueError(f"design.optimizer = {settings.method!r}: must be 'lbfgs' or 'adam'")
     lo, hi = problem.bounds()

@@ -92,8 +92,31 @@ class DesignProblem:
 # from a config
 
 
+# the config sections the design groups and objectives read (membrane scenes have none)
+NEEDED_SECTIONS = ("die", "friction")
+
+
+def check_design_scene(scene: Scene) -> None:
+    """Raise ConfigError (one line) unless ``scene`` has what design problems read: a die
+    and friction (billet, ring and block scenes; a membrane under a load has neither)."""
+    missing = [s for s in NEEDED_SECTIONS if s not in scene.config]
+    if missing:
+        raise ConfigError(
+            f"design problems (jaxform design, taylor-test) need a scene pressed by a die: "
+            f"this [{scene.kind}] scene has no {' or '.join(f'[{s}]' for s in missing)} "
+            f"section; allowed workpieces: [billet], [ring], [block]")
+
+
 def available_groups(scene: Scene) -> tuple[str, ...]:
-    """The design variable groups that make sense for ``scene``."""
+    """The design variable groups that make sense for ``scene``.
+
+    Arguments:
+        scene: a scene from :func:`jaxform.scenes.build_scene` (with a die).
+
+    Returns:
+        the group names, a subset of :data:`GROUPS` in that order.
+    """
+    check_design_scene(scene)
     cfg = scene.config
     names = ["material", "speed"]
     if cfg["friction"]["model"] in ("coulomb", "shear"):
@@ -202,9 +225,26 @@ def build_objective(scene: Scene):
 
 def build_problem(scene: Scene, groups: tuple[str, ...] | None = None,
                   objective=None, times=None, single_program: bool = False) -> DesignProblem:
-    """A design problem for ``scene``: the groups named (default ``design.variables``),
-    the objective (default ``design.objective``), the schedule (default: from a forward
-    run of the scene, see :func:`jaxform.gradients.schedule`)."""
+    """A design problem for ``scene``: design groups, objective and a fixed step schedule.
+
+    Arguments:
+        scene: from :func:`jaxform.scenes.build_scene`, a scene with a die.
+        groups: design group names (default the config's ``design.variables``).
+        objective: a callable ``(trajectory, inputs) -> scalar`` (default from
+            ``design.objective``, see :mod:`jaxform.design.objectives`).
+        times: the step end times (default: from a forward run of the scene, split where
+            it needed a cutback; :func:`jaxform.gradients.schedule`).
+        single_program: value() runs the gradient program too (one compile, not two).
+
+    Returns:
+        the :class:`DesignProblem`: ``start`` (the initial design), ``value(design)``,
+        ``value_and_grad(design)``, ``bounds()``, ``physical(design)``.
+
+    Raises:
+        ConfigError: a scene without a die, an unknown group or an objective that needs
+        a missing key.
+    """
+    check_design_scene(scene)
     names = tuple(scene.config["design"]["variables"]) if groups is None else tuple(groups)
     built = tuple(build_group(scene, n) for n in names)
     start = par.initial_design(built)

@@ -46,7 +46,19 @@ def _rates(h, r):
 
 def taylor_test(problem, design=None, h=(1.0, 0.5, 0.25, 0.125), seed=0,
                 groups: tuple[str, ...] | None = None, progress=None) -> list[TaylorRow]:
-    """Taylor remainders for each group of ``problem`` at ``design`` (default: its start)."""
+    """Taylor remainders for each group of ``problem`` at ``design`` (a gradient check).
+
+    Arguments:
+        problem: a :class:`jaxform.design.problem.DesignProblem`.
+        design: where to test (default ``problem.start``).
+        h: decreasing multiples of a random direction (seeded by ``seed`` and the group).
+        groups: the group names to test (default all of the problem's).
+        progress: called with (group, h, J) after each evaluation.
+
+    Returns:
+        one :class:`TaylorRow` per group: remainders |J(u+h du)-J(u)| (rate 1) and
+        |J(u+h du)-J(u)-h dJ.du| (rate 2 when the gradient is right) and their rates.
+    """
     design = problem.start if design is None else design
     design = {k: np.asarray(v, dtype=float) for k, v in design.items()}
     j0, grad, _ = problem.value_and_grad(design)
