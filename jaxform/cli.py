@@ -9,11 +9,87 @@
 from __future__ import annotations
 
 import argparse
+import math
+import os
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
+
+# material-point limits: a step count whose history fits memory, rates and speeds of forging
+MAX_MATERIAL_POINT_STEPS = 1_000_000
+MAX_RATE_1_S = 1e6
+
+
+class UsageError(ValueError):
+    """A bad flag: the message names it and what is allowed (exit status 2)."""
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse, reporting a bad command line in one line (not the usage block)."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def check_out_dir(out: str) -> None:
+    """``--out`` is, or can be made, a writable folder (checked before any computation)."""
+    p = Path(out)
+    if p.exists() and not p.is_dir():
+        raise UsageError(f"--out {out}: is an existing file, not a folder")
+    parent = next((a for a in (p, *p.parents) if a.exists()), Path("."))
+    if not parent.is_dir():
+        raise UsageError(f"--out {out}: {parent} is a file, not a folder")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise UsageError(f"--out {out}: {parent} is not writable")
+
+
+def _check_positive(flag: str, values, high: float) -> None:
+    """Every value finite and in (0, high]."""
+    bad = [v for v in values if not (math.isfinite(v) and 0.0 < v <= high)]
+    if bad:
+        raise UsageError(f"{flag} = {bad[0]!r}: every value must lie in (0, {high:g}]")
+
+
+def _check_material_point_flags(args) -> None:
+    if not (math.isfinite(args.strain) and 0.0 < args.strain <= 3.0):
+        raise UsageError(f"--strain = {args.strain!r}: must lie in (0, 3]")
+    if not 1 <= args.steps <= MAX_MATERIAL_POINT_STEPS:
+        raise UsageError(f"--steps = {args.steps}: must lie in [1, {MAX_MATERIAL_POINT_STEPS}]")
+    from jaxform.config import MAX_LENGTH_MM
+
+    if args.ram_speeds_mm_s is not None:
+        _check_positive("--ram-speeds-mm-s", args.ram_speeds_mm_s, MAX_LENGTH_MM)
+        _check_positive("--height-mm", [args.height_mm], MAX_LENGTH_MM)
+    else:
+        _check_positive("--rates", args.rates, MAX_RATE_1_S)
+    check_out_dir(args.out)
+
+
+def _check_taylor_steps(h) -> None:
+    """--h: at least two finite step sizes > 0, strictly decreasing (the rates compare
+    neighbours)."""
+    ok = (len(h) >= 2 and all(math.isfinite(v) and v > 0 for v in h)
+          and all(b < a for a, b in zip(h, h[1:])))
+    if not ok:
+        raise UsageError(f"--h {' '.join(f'{v:g}' for v in h)}: give at least 2 finite step "
+                         f"sizes > 0, strictly decreasing (e.g. --h 1 0.5 0.25 0.125)")
+
+
+def _load_checked(args, gradient: bool = False):
+    """The validated config of a scene command, or ConfigError: everything that can be
+    checked before a scene is built (for gradient commands also the design set-up)."""
+    from jaxform.config import check_gradient_run, load_config
+
+    cfg = load_config(args.config, args.set)
+    if gradient:
+        groups = getattr(args, "groups", None)
+        if args.command == "design":
+            check_gradient_run(cfg, cfg["design"]["variables"], "design.variables")
+        else:
+            check_gradient_run(cfg, groups, "--groups")
+    return cfg
 
 
 def _material_point(args) -> int:
@@ -27,17 +103,9 @@ def _material_point(args) -> int:
     from jaxform.xla_options import jit
 
     law, params = load_material(args.material)
-    if args.strain <= 0 or args.strain > 3:
-        raise SystemExit(f"--strain = {args.strain}: must lie in (0, 3]")
-    if args.steps < 1:
-        raise SystemExit(f"--steps = {args.steps}: must be >= 1")
+    _check_material_point_flags(args)
     by_speed = args.ram_speeds_mm_s is not None
     loads = args.ram_speeds_mm_s if by_speed else args.rates
-    if any(r <= 0 for r in loads):
-        flag = "--ram-speeds-mm-s" if by_speed else "--rates"
-        raise SystemExit(f"{flag} = {loads}: every value must be > 0")
-    if args.height_mm <= 0:
-        raise SystemExit(f"--height-mm = {args.height_mm}: must be > 0 (mm)")
     out_dir = Path(args.out)
     out_dir.mkdir(parents=True, exist_ok=True)
 
@@ -84,6 +152,8 @@ def _run(args) -> int:
     from jaxform.driver import run
     from jaxform.simulate import SimulationError
 
+    check_out_dir(args.out)
+    cfg = _load_checked(args)
     t0 = time.perf_counter()
     first = []
 
@@ -97,7 +167,7 @@ def _run(args) -> int:
               f"newton={int(p['iterations']):2d} cutbacks={int(p['cutbacks'])}", flush=True)
 
     try:
-        result = run(args.config, args.set, out_dir=args.out, progress=progress)
+        result = run(cfg, (), out_dir=args.out, progress=progress)
     except ConfigError as err:
         print(f"config error: {err}", file=sys.stderr)
         return 2
@@ -120,9 +190,10 @@ def _taylor(args) -> int:
     from jaxform.design.driver import run_taylor
     from jaxform.design.taylor import format_table
 
+    _check_taylor_steps(args.h)
+    cfg = _load_checked(args, gradient=True)
     t0 = time.perf_counter()
-    rows, code = _guarded("taylor-test", lambda: run_taylor(args.config, args.set,
-                                                            groups=args.groups, h=args.h))
+    rows, code = _guarded("taylor-test", lambda: run_taylor(cfg, (), groups=args.groups, h=args.h))
     if code:
         return code
     print(format_table(rows))
@@ -153,13 +224,15 @@ def _guarded(command: str, fn):
 def _design(args) -> int:
     from jaxform.design.driver import run_design
 
+    check_out_dir(args.out)
+    cfg = _load_checked(args, gradient=True)
     t0 = time.perf_counter()
 
     def progress(it, val, gnorm, design):
         print(f"iteration {it:3d}: objective {val:.8g}  |projected grad| {gnorm:.3e}  "
               f"({time.perf_counter() - t0:.1f} s)", flush=True)
 
-    out, code = _guarded("design", lambda: run_design(args.config, args.set, out_dir=args.out,
+    out, code = _guarded("design", lambda: run_design(cfg, (), out_dir=args.out,
                                                       progress=progress))
     if code:
         return code
@@ -178,8 +251,8 @@ def main(argv: list[str] | None = None) -> int:
     from jaxform.precision import enable_x64
 
     enable_x64()
-    parser = argparse.ArgumentParser(prog="jaxform", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = _Parser(prog="jaxform", description=__doc__,
+                     formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", required=True)
 
     rp = sub.add_parser("run", help="run a forging scene from a TOML config")
@@ -221,7 +294,20 @@ def main(argv: list[str] | None = None) -> int:
     dp.set_defaults(func=_design)
 
     args = parser.parse_args(argv)
-    return args.func(args)
+    return _refusing(args)
+
+
+def _refusing(args) -> int:
+    """Run the command; a bad flag or config found before the run: one line, exit 2."""
+    from jaxform.config import ConfigError
+
+    try:
+        return args.func(args)
+    except UsageError as err:
+        print(f"jaxform {args.command}: error: {err}", file=sys.stderr)
+    except ConfigError as err:
+        print(f"config error: {err}", file=sys.stderr)
+    return 2
 
 
 if __name__ == "__main__":

@@ -80,7 +80,7 @@ def test_wrong_type(section, key, value):
 
 
 def test_negative_height():
-    with pytest.raises(ConfigError, match=re.escape("billet.height_mm = -1.0: must lie in (0, inf)")):
+    with pytest.raises(ConfigError, match=re.escape("billet.height_mm = -1.0: must lie in (0, 1000000]")):
         load_config(_with("billet", "height_mm", -1.0))
 
 
