@@ -238,6 +238,17 @@ def path_cases(tmp: Path) -> list[Case]:
                          ("binary", binary), ("empty", empty), ("broken", broken)):
             cases.append(Case((cmd, str(p), *out), str(p), "refuse", f"{cmd} {label} config"))
         cases.append(Case((cmd, str(bom), *out), str(bom), "accept", f"{cmd} BOM config"))
+        for label, p in (("missing", tmp / "missing.msh"), ("directory", tmp)):
+            cases.append(Case((cmd, seed, *out, "--set", f"mesh.file={p}"), "mesh.file",
+                              "refuse", f"{cmd} mesh.file {label}"))
+        if cmd != "run":
+            for label, content in (("binary", b"\x80\x81"), ("no columns", b"a,b\n1,2\n"),
+                                   ("nan", b"stroke_mm,force_N\n0.5,nan\n")):
+                target = tmp / f"target_{label.replace(' ', '_')}.csv"
+                target.write_bytes(content)
+                cases.append(Case((cmd, seed, *out, "--set", "design.objective=force_misfit",
+                                   "--set", f"design.target_csv={target}"), "design.target_csv",
+                                  "refuse", f"{cmd} design.target_csv {label}"))
         if cmd != "taylor-test":
             for label, o in (("existing file", afile), ("under a file", afile / "sub")):
                 cases.append(Case((cmd, seed, "--out", str(o)), "--out", "refuse",

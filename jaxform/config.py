@@ -11,6 +11,7 @@ This module does not import JAX.
 from __future__ import annotations
 
 import copy
+import csv
 import math
 import tomllib
 from dataclasses import dataclass, replace
@@ -427,6 +428,8 @@ def _cross_checks(raw: dict, out: dict) -> None:
     if out["mesh"]["rezone_quality"] > 0.0 and out["mesh"]["file"]:
         raise ConfigError("mesh.rezone_quality > 0 needs the structured mesh (mesh.file = ''): "
                           "rezoning relocates the nodes of the logical grid")
+    if out["mesh"]["file"] and not Path(out["mesh"]["file"]).is_file():
+        raise ConfigError(f"mesh.file = {out['mesh']['file']!r}: no such file")
     fr = out["friction"]
     if fr["model"] == "coulomb" and "mu" not in raw.get("friction", {}):
         raise ConfigError("friction.model = 'coulomb' needs friction.mu (float in [0, 10])")
@@ -638,8 +641,35 @@ def check_gradient_run(cfg: dict, groups: list[str] | None = None,
         target = d["target_csv"]
         if not target:
             raise ConfigError(f"design.objective = {name!r} needs design.target_csv")
-        if not Path(target).is_file():
-            raise ConfigError(f"design.target_csv = {target!r}: no such file")
+        needed = ("stroke_mm", "force_N") if name == "force_misfit" else ("node", "r_mm", "z_mm")
+        _check_target_csv(target, needed)
+
+
+def _check_target_csv(path: str, needed: tuple[str, ...]) -> None:
+    """The target CSV is a UTF-8 text file with the columns ``needed``, at least one row,
+    and finite numbers in them."""
+    where = f"design.target_csv = {path!r}"
+    if not Path(path).is_file():
+        raise ConfigError(f"{where}: no such file")
+    try:
+        with open(path, newline="", encoding="utf-8-sig") as fh:
+            rows = list(csv.DictReader(fh))
+    except OSError as exc:
+        raise ConfigError(f"{where}: cannot read it: {exc.strerror or exc}") from exc
+    except (UnicodeDecodeError, csv.Error) as exc:
+        raise ConfigError(f"{where}: not a CSV text file ({exc})") from exc
+    if not rows or any(k not in rows[0] for k in needed):
+        raise ConfigError(f"{where}: needs a header with columns {', '.join(needed)} and at "
+                          f"least one row")
+    for i, row in enumerate(rows, start=2):
+        for k in needed:
+            try:
+                ok = math.isfinite(float(row[k]))
+            except (TypeError, ValueError):
+                ok = False
+            if not ok:
+                raise ConfigError(f"{where}: line {i}, column {k} = {row[k]!r}: must be a "
+                                  f"finite number")
 
 
 def _check_groups(cfg: dict, groups: list[str], where: str) -> None:
