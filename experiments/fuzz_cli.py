@@ -4,8 +4,8 @@ Every case is a `jaxform` command line (run, design, taylor-test on every config
 configs/, and material-point) with one bad thing in it: a config key set to a wrong type,
 NaN, +-inf, a huge or empty value or a negative one where the range is positive; an
 unknown key or section; a missing, directory, binary or empty config file; a bad --out; a
-bad flag; a reversed or self-intersecting die profile; a step count or mesh beyond the
-caps.  A few valid inputs are mixed in (a config with a UTF-8 byte-order mark, huge
+bad flag; a reversed or self-intersecting die profile, or one overlapping the workpiece;
+a step count or mesh beyond the caps.  A few valid inputs are mixed in (a config with a UTF-8 byte-order mark, huge
 values where the range allows them) to catch refusals of valid input.
 
 The CLI runs in-process with the entry points that would compile (the forward run, the
@@ -192,6 +192,9 @@ def scene_cases(cmd: str, path: Path, kind: str, base: tuple) -> list[Case]:
         cross = [[0.0, top + 1], [3.0, top + 2], [3.0, top + 0.5], [1.0, top + 3]]
         cases.append(Case((*base, "--set", f"die.profile_mm={_toml(cross)}"), "die.profile_mm",
                           "refuse", f"{cmd} {name} self-intersecting profile"))
+        low = [[0.0, top - 0.5], [1.0, top - 0.5]]
+        cases.append(Case((*base, "--set", f"die.profile_mm={_toml(low)}"), "die.profile_mm",
+                          "refuse", f"{cmd} {name} die overlapping the workpiece"))
         rev = [[5.0, top + 1.0], [0.0, top + 1.0]]
         cases.append(Case((*base, "--set", f"die.profile_mm={_toml(rev)}"), "die.profile_mm",
                           "refuse", f"{cmd} {name} flat profile walked inward"))

@@ -77,12 +77,44 @@ def _check_taylor_steps(h) -> None:
                          f"sizes > 0, strictly decreasing (e.g. --h 1 0.5 0.25 0.125)")
 
 
+def _check_die_clearance(cfg: dict) -> None:
+    """ConfigError if the die profile overlaps the workpiece section at t = 0 (structured
+    workpieces; a mesh file is checked when read)."""
+    import numpy as np
+
+    from jaxform.config import ConfigError
+    from jaxform.dies import DieError, catmull_rom, check_clearance, check_profile
+
+    d = cfg.get("die")
+    if not d or not d["profile_mm"] or cfg["mesh"]["file"] or "membrane" in cfg:
+        return
+    if "block" in cfg:
+        r0, r1, top = 0.0, cfg["block"]["width_mm"], cfg["block"]["depth_mm"]
+    elif "ring" in cfg:
+        r = cfg["ring"]
+        r0, r1, top = 0.5 * r["inner_diameter_mm"], 0.5 * r["outer_diameter_mm"], 0.5 * r["height_mm"]
+    else:
+        r0, r1, top = 0.0, 0.5 * cfg["billet"]["diameter_mm"], 0.5 * cfg["billet"]["height_mm"]
+    s = np.linspace(0.0, 1.0, 65)
+    edges = [np.column_stack([r0 + (r1 - r0) * s, np.full_like(s, top)]),  # top face
+             np.column_stack([np.full_like(s, r1), top * s]),  # outer side
+             np.column_stack([np.full_like(s, r0), top * s])]  # axis or inner side
+    try:
+        pts = check_profile(np.asarray(d["profile_mm"]), "die.profile_mm")
+        if d["profile_kind"] == "spline":
+            pts = check_profile(catmull_rom(pts), "die.profile_mm (sampled spline)")
+        check_clearance(pts, np.vstack(edges), "die.profile_mm", 1e-9 * max(r1, top))
+    except DieError as err:
+        raise ConfigError(str(err)) from None
+
+
 def _load_checked(args, gradient: bool = False):
     """The validated config of a scene command, or ConfigError: everything that can be
     checked before a scene is built (for gradient commands also the design set-up)."""
     from jaxform.config import check_gradient_run, load_config
 
     cfg = load_config(args.config, args.set)
+    _check_die_clearance(cfg)
     if gradient:
         groups = getattr(args, "groups", None)
         if args.command == "design":

@@ -257,6 +257,20 @@ def side_of(p: np.ndarray, x: np.ndarray) -> float:
     return dist if float(np.dot(x - q[k], normal)) > 0.0 else -dist
 
 
+def check_clearance(points: np.ndarray, boundary: np.ndarray, key: str,
+                    tol_mm: float = 1e-9) -> None:
+    """DieError naming ``key`` if a workpiece boundary point (``boundary``: (n, 2), mm)
+    lies inside the die at t = 0 (on the left of the sharp profile by more than tol_mm):
+    the run would start with the die overlapping the workpiece."""
+    depth = np.array([side_of(points, x) for x in boundary])
+    k = int(np.argmin(depth))
+    if depth[k] < -tol_mm:
+        r, z = boundary[k]
+        raise DieError(f"{key}: the die overlaps the workpiece at t = 0: its point ({r:g}, "
+                       f"{z:g}) mm lies {-depth[k]:.4g} mm inside the die; the profile must "
+                       f"start on or above the workpiece")
+
+
 def time_at_travel(times: np.ndarray, travel: np.ndarray, target: float, key: str) -> float:
     """Inverse of the path table (the end time of a run that stops at ``target`` mm)."""
     if target > travel[-1] + 1e-12:

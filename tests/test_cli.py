@@ -117,6 +117,9 @@ def test_design_without_variables_is_refused(tmp_path):
     ("[[0.0, 5.0], [3.0, 5.0], [3.0, 3.0], [1.0, 6.0]]", "crosses"),  # self-intersecting
     ("[[5.0, 4.0], [0.0, 4.0]]", "reverse their order"),  # walked inward: billet on the left
     ("[[6.5, 3], [6.5, 4.5], [6, 5], [2.9, 5], [2.1, 6], [0, 6.6]]", "reverse their order"),
+    # the seed billet's top is z = 3.75 mm, its radius 2.5 mm
+    ("[[0.0, 3.0], [5.0, 3.0]]", "(0, 3.75) mm lies 0.75 mm inside the die"),
+    ("[[0.0, 4.0], [2.0, 4.0], [2.0, 0.0]]", "(2.5, 3.75) mm lies 0.5 mm inside the die"),
 ])
 def test_bad_die_profile_is_refused(profile, needle, tmp_path):
     """A reversed or self-intersecting profile used to run (or stop with 'Newton did not
@@ -149,6 +152,13 @@ def test_bad_flag_is_one_line():
     """argparse's usage block is replaced by one line naming the flag."""
     assert_refused(["taylor-test", SEED, "--h", "abc"], "--h")
     assert_refused(["run"], "config")
+
+
+def test_die_clear_of_the_workpiece_reaches_the_run(tmp_path):
+    """A cup (wall at r = 4 mm around the 2.5 mm billet, roof on its top face) is valid."""
+    with pytest.raises(Reached):
+        run_cli(["run", SEED, "--set", "die.profile_mm=[[0.0, 3.75], [4.0, 3.75], [4.0, 0.0]]",
+                 "--out", str(tmp_path)])
 
 
 @pytest.mark.parametrize("command", ["run", "design", "taylor-test"])
