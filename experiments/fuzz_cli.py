@@ -5,8 +5,9 @@ configs/, and material-point) with one bad thing in it: a config key set to a wr
 NaN, +-inf, a huge or empty value or a negative one where the range is positive; an
 unknown key or section; a missing, directory, binary or empty config file; a bad --out; a
 bad flag; a reversed or self-intersecting die profile, or one overlapping the workpiece;
-a step count or mesh beyond the caps.  A few valid inputs are mixed in (a config with a UTF-8 byte-order mark, huge
-values where the range allows them) to catch refusals of valid input.
+a step count or mesh beyond the caps.  A few valid inputs are mixed in (a config with a
+UTF-8 byte-order mark, huge values where the range allows them) to catch refusals of
+valid input.
 
 The CLI runs in-process with the entry points that would compile (the forward run, the
 design schedule, the material-point program) replaced by a stub that stops the case, so

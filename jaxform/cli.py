@@ -92,7 +92,8 @@ def _check_die_clearance(cfg: dict) -> None:
         r0, r1, top = 0.0, cfg["block"]["width_mm"], cfg["block"]["depth_mm"]
     elif "ring" in cfg:
         r = cfg["ring"]
-        r0, r1, top = 0.5 * r["inner_diameter_mm"], 0.5 * r["outer_diameter_mm"], 0.5 * r["height_mm"]
+        r0, r1 = 0.5 * r["inner_diameter_mm"], 0.5 * r["outer_diameter_mm"]
+        top = 0.5 * r["height_mm"]
     else:
         r0, r1, top = 0.0, 0.5 * cfg["billet"]["diameter_mm"], 0.5 * cfg["billet"]["height_mm"]
     s = np.linspace(0.0, 1.0, 65)

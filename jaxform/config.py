@@ -673,7 +673,8 @@ def _check_target_csv(path: str, needed: tuple[str, ...]) -> None:
 
 
 def _check_groups(cfg: dict, groups: list[str], where: str) -> None:
-    shown = f"{where} = {groups!r}" if where.startswith("design.") else f"{where} {' '.join(groups)}"
+    shown = (f"{where} = {groups!r}" if where.startswith("design.")
+             else f"{where} {' '.join(groups)}")
     if not groups:
         raise ConfigError(f"{shown}: name at least one design group, of "
                           f"{', '.join(GRADIENT_GROUPS)}")

@@ -222,8 +222,10 @@ def first_crossing(p: np.ndarray) -> tuple[int, int] | None:
     def on_segment(o, q, r):  # r collinear with o-q: within its bounding box
         return ((np.minimum(o, q) - 1e-12 <= r) & (r <= np.maximum(o, q) + 1e-12)).all(axis=1)
 
-    touch = (((d1 == 0) & on_segment(a[i], b[i], a[j])) | ((d2 == 0) & on_segment(a[i], b[i], b[j]))
-             | ((d3 == 0) & on_segment(a[j], b[j], a[i])) | ((d4 == 0) & on_segment(a[j], b[j], b[i])))
+    touch = (((d1 == 0) & on_segment(a[i], b[i], a[j]))
+             | ((d2 == 0) & on_segment(a[i], b[i], b[j]))
+             | ((d3 == 0) & on_segment(a[j], b[j], a[i]))
+             | ((d4 == 0) & on_segment(a[j], b[j], b[i])))
     hit = np.nonzero(proper | touch)[0]
     return None if hit.size == 0 else (int(i[hit[0]]), int(j[hit[0]]))
 

@@ -1,7 +1,5 @@
 """The command line writes what it promises (CSV columns, PNG), and rejects bad input."""
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 from cli_harness import Reached, assert_refused, run_cli

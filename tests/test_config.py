@@ -1,6 +1,7 @@
 """Tests of jaxform.config: loading, overrides, validation messages, round trip."""
 
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -83,7 +84,8 @@ def test_wrong_type(section, key, value):
 
 
 def test_negative_height():
-    with pytest.raises(ConfigError, match=re.escape("billet.height_mm = -1.0: must lie in (0, 1000000]")):
+    message = "billet.height_mm = -1.0: must lie in (0, 1000000]"
+    with pytest.raises(ConfigError, match=re.escape(message)):
         load_config(_with("billet", "height_mm", -1.0))
 
 
@@ -242,7 +244,7 @@ def test_material_start_factor_within_bounds():
 def test_byte_order_mark_is_accepted(tmp_path):
     """A UTF-8 byte-order mark made a valid config 'invalid TOML'."""
     path = tmp_path / "bom.toml"
-    path.write_bytes(b"\xef\xbb\xbf" + open("configs/upsetting_seed.toml", "rb").read())
+    path.write_bytes(b"\xef\xbb\xbf" + Path("configs/upsetting_seed.toml").read_bytes())
     assert load_config(path) == load_config("configs/upsetting_seed.toml")
 
 
@@ -313,7 +315,8 @@ def test_target_csv_checked_up_front(content, message, tmp_path):
     path = tmp_path / "target.csv"
     path.write_bytes(content)
     cfg = load_config(MINIMAL, ["design.objective=force_misfit", f"design.target_csv={path}"])
-    with pytest.raises(ConfigError, match=re.escape(f"design.target_csv = {str(path)!r}: {message}")):
+    message = f"design.target_csv = {str(path)!r}: {message}"
+    with pytest.raises(ConfigError, match=re.escape(message)):
         check_gradient_run(cfg)
 
 
