@@ -78,10 +78,8 @@ def _check_taylor_steps(h) -> None:
 
 
 def _check_die_clearance(cfg: dict) -> None:
-    """ConfigError if the die profile overlaps the workpiece section at t = 0 (structured
-    workpieces; a mesh file is checked when read)."""
-    import numpy as np
-
+    """ConfigError if the die profile is malformed or overlaps the workpiece section at
+    t = 0 (generated sections only: a mesh file's section is known once it is read)."""
     from jaxform.config import ConfigError
     from jaxform.dies import DieError, catmull_rom, check_clearance, check_profile
 
@@ -116,12 +114,10 @@ def _load_checked(args, gradient: bool = False):
 
     cfg = load_config(args.config, args.set)
     _check_die_clearance(cfg)
-    if gradient:
-        groups = getattr(args, "groups", None)
-        if args.command == "design":
-            check_gradient_run(cfg, cfg["design"]["variables"], "design.variables")
-        else:
-            check_gradient_run(cfg, groups, "--groups")
+    if gradient and args.command == "design":
+        check_gradient_run(cfg, cfg["design"]["variables"], "design.variables")
+    elif gradient:
+        check_gradient_run(cfg, args.groups, "--groups")
     return cfg
 
 
