@@ -9,11 +9,116 @@
 from __future__ import annotations
 
 import argparse
+import math
+import os
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
+
+# material-point limits: a step count whose history fits memory, rates and speeds of forging
+MAX_MATERIAL_POINT_STEPS = 1_000_000
+MAX_RATE_1_S = 1e6
+
+
+class UsageError(ValueError):
+    """A bad flag: the message names it and what is allowed (exit status 2)."""
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse, reporting a bad command line in one line (not the usage block)."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def check_out_dir(out: str) -> None:
+    """``--out`` is, or can be made, a writable folder (checked before any computation)."""
+    p = Path(out)
+    if p.exists() and not p.is_dir():
+        raise UsageError(f"--out {out}: is an existing file, not a folder")
+    parent = next((a for a in (p, *p.parents) if a.exists()), Path("."))
+    if not parent.is_dir():
+        raise UsageError(f"--out {out}: {parent} is a file, not a folder")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise UsageError(f"--out {out}: {parent} is not writable")
+
+
+def _check_positive(flag: str, values, high: float) -> None:
+    """Every value finite and in (0, high]."""
+    bad = [v for v in values if not (math.isfinite(v) and 0.0 < v <= high)]
+    if bad:
+        raise UsageError(f"{flag} = {bad[0]!r}: every value must lie in (0, {high:g}]")
+
+
+def _check_material_point_flags(args) -> None:
+    if not (math.isfinite(args.strain) and 0.0 < args.strain <= 3.0):
+        raise UsageError(f"--strain = {args.strain!r}: must lie in (0, 3]")
+    if not 1 <= args.steps <= MAX_MATERIAL_POINT_STEPS:
+        raise UsageError(f"--steps = {args.steps}: must lie in [1, {MAX_MATERIAL_POINT_STEPS}]")
+    from jaxform.config import MAX_LENGTH_MM
+
+    if args.ram_speeds_mm_s is not None:
+        _check_positive("--ram-speeds-mm-s", args.ram_speeds_mm_s, MAX_LENGTH_MM)
+        _check_positive("--height-mm", [args.height_mm], MAX_LENGTH_MM)
+    else:
+        _check_positive("--rates", args.rates, MAX_RATE_1_S)
+    check_out_dir(args.out)
+
+
+def _check_taylor_steps(h) -> None:
+    """--h: at least two finite step sizes > 0, strictly decreasing (the rates compare
+    neighbours)."""
+    ok = (len(h) >= 2 and all(math.isfinite(v) and v > 0 for v in h)
+          and all(b < a for a, b in zip(h, h[1:])))
+    if not ok:
+        raise UsageError(f"--h {' '.join(f'{v:g}' for v in h)}: give at least 2 finite step "
+                         f"sizes > 0, strictly decreasing (e.g. --h 1 0.5 0.25 0.125)")
+
+
+def _check_die_clearance(cfg: dict) -> None:
+    """ConfigError if the die profile is malformed or overlaps the workpiece section at
+    t = 0 (generated sections only: a mesh file's section is known once it is read)."""
+    from jaxform.config import ConfigError
+    from jaxform.dies import DieError, catmull_rom, check_clearance, check_profile
+
+    d = cfg.get("die")
+    if not d or not d["profile_mm"] or cfg["mesh"]["file"] or "membrane" in cfg:
+        return
+    if "block" in cfg:
+        r0, r1, top = 0.0, cfg["block"]["width_mm"], cfg["block"]["depth_mm"]
+    elif "ring" in cfg:
+        r = cfg["ring"]
+        r0, r1 = 0.5 * r["inner_diameter_mm"], 0.5 * r["outer_diameter_mm"]
+        top = 0.5 * r["height_mm"]
+    else:
+        r0, r1, top = 0.0, 0.5 * cfg["billet"]["diameter_mm"], 0.5 * cfg["billet"]["height_mm"]
+    s = np.linspace(0.0, 1.0, 65)
+    edges = [np.column_stack([r0 + (r1 - r0) * s, np.full_like(s, top)]),  # top face
+             np.column_stack([np.full_like(s, r1), top * s]),  # outer side
+             np.column_stack([np.full_like(s, r0), top * s])]  # axis or inner side
+    try:
+        pts = check_profile(np.asarray(d["profile_mm"]), "die.profile_mm")
+        if d["profile_kind"] == "spline":
+            pts = check_profile(catmull_rom(pts), "die.profile_mm (sampled spline)")
+        check_clearance(pts, np.vstack(edges), "die.profile_mm", 1e-9 * max(r1, top))
+    except DieError as err:
+        raise ConfigError(str(err)) from None
+
+
+def _load_checked(args, gradient: bool = False):
+    """The validated config of a scene command, or ConfigError: everything that can be
+    checked before a scene is built (for gradient commands also the design set-up)."""
+    from jaxform.config import check_gradient_run, load_config
+
+    cfg = load_config(args.config, args.set)
+    _check_die_clearance(cfg)
+    if gradient and args.command == "design":
+        check_gradient_run(cfg, cfg["design"]["variables"], "design.variables")
+    elif gradient:
+        check_gradient_run(cfg, args.groups, "--groups")
+    return cfg
 
 
 def _material_point(args) -> int:
@@ -23,26 +128,13 @@ def _material_point(args) -> int:
     from jaxform.io import write_csv
     from jaxform.materialpoint import uniaxial_compression
     from jaxform.materials import load_material
-    from jaxform.materials.presets import MaterialError
     from jaxform.plot import stress_strain
     from jaxform.xla_options import jit
 
-    try:
-        law, params = load_material(args.material, key="--material")
-    except MaterialError as err:
-        print(f"config error: {err}", file=sys.stderr)
-        return 2
-    if args.strain <= 0 or args.strain > 3:
-        raise SystemExit(f"--strain = {args.strain}: must lie in (0, 3]")
-    if args.steps < 1:
-        raise SystemExit(f"--steps = {args.steps}: must be >= 1")
+    law, params = load_material(args.material, key="--material")  # ConfigError: exit 2
+    _check_material_point_flags(args)
     by_speed = args.ram_speeds_mm_s is not None
     loads = args.ram_speeds_mm_s if by_speed else args.rates
-    if any(r <= 0 for r in loads):
-        flag = "--ram-speeds-mm-s" if by_speed else "--rates"
-        raise SystemExit(f"{flag} = {loads}: every value must be > 0")
-    if args.height_mm <= 0:
-        raise SystemExit(f"--height-mm = {args.height_mm}: must be > 0 (mm)")
     out_dir = Path(args.out)
     out_dir.mkdir(parents=True, exist_ok=True)
 
@@ -89,6 +181,8 @@ def _run(args) -> int:
     from jaxform.driver import run
     from jaxform.simulate import SimulationError
 
+    check_out_dir(args.out)
+    cfg = _load_checked(args)
     t0 = time.perf_counter()
     first = []
 
@@ -102,7 +196,7 @@ def _run(args) -> int:
               f"newton={int(p['iterations']):2d} cutbacks={int(p['cutbacks'])}", flush=True)
 
     try:
-        result = run(args.config, args.set, out_dir=args.out, progress=progress)
+        result = run(cfg, (), out_dir=args.out, progress=progress)
     except ConfigError as err:
         print(f"config error: {err}", file=sys.stderr)
         return 2
@@ -125,9 +219,10 @@ def _taylor(args) -> int:
     from jaxform.design.driver import run_taylor
     from jaxform.design.taylor import format_table
 
+    _check_taylor_steps(args.h)
+    cfg = _load_checked(args, gradient=True)
     t0 = time.perf_counter()
-    rows, code = _guarded("taylor-test", lambda: run_taylor(args.config, args.set,
-                                                            groups=args.groups, h=args.h))
+    rows, code = _guarded("taylor-test", lambda: run_taylor(cfg, (), groups=args.groups, h=args.h))
     if code:
         return code
     print(format_table(rows))
@@ -158,13 +253,15 @@ def _guarded(command: str, fn):
 def _design(args) -> int:
     from jaxform.design.driver import run_design
 
+    check_out_dir(args.out)
+    cfg = _load_checked(args, gradient=True)
     t0 = time.perf_counter()
 
     def progress(it, val, gnorm, design):
         print(f"iteration {it:3d}: objective {val:.8g}  |projected grad| {gnorm:.3e}  "
               f"({time.perf_counter() - t0:.1f} s)", flush=True)
 
-    out, code = _guarded("design", lambda: run_design(args.config, args.set, out_dir=args.out,
+    out, code = _guarded("design", lambda: run_design(cfg, (), out_dir=args.out,
                                                       progress=progress))
     if code:
         return code
@@ -183,8 +280,8 @@ def main(argv: list[str] | None = None) -> int:
     from jaxform.precision import enable_x64
 
     enable_x64()
-    parser = argparse.ArgumentParser(prog="jaxform", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = _Parser(prog="jaxform", description=__doc__,
+                     formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", required=True)
 
     rp = sub.add_parser("run", help="run a forging scene from a TOML config")
@@ -226,7 +323,20 @@ def main(argv: list[str] | None = None) -> int:
     dp.set_defaults(func=_design)
 
     args = parser.parse_args(argv)
-    return args.func(args)
+    return _refusing(args)
+
+
+def _refusing(args) -> int:
+    """Run the command; a bad flag or config found before the run: one line, exit 2."""
+    from jaxform.config import ConfigError
+
+    try:
+        return args.func(args)
+    except UsageError as err:
+        print(f"jaxform {args.command}: error: {err}", file=sys.stderr)
+    except ConfigError as err:
+        print(f"config error: {err}", file=sys.stderr)
+    return 2
 
 
 if __name__ == "__main__":

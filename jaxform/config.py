@@ -11,16 +11,26 @@ This module does not import JAX.
 from __future__ import annotations
 
 import copy
+import csv
 import math
 import tomllib
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from os import PathLike
 from pathlib import Path
 from typing import Any, Iterable
 
 import tomli_w
 
-__all__ = ["ConfigError", "Field", "SCHEMA", "load_config", "dump_config", "describe_schema"]
+__all__ = ["ConfigError", "Field", "SCHEMA", "load_config", "dump_config", "describe_schema",
+           "check_gradient_run", "MAX_STEPS", "MAX_ELEMENTS", "MAX_LENGTH_MM"]
+
+# Sizes a run can hold: beyond them a scene overflows the step schedule or the machine's
+# memory, so it is refused up front with the keys that set it.
+MAX_STEPS = 100_000  # load steps of one run (time to the end / time.dt_s)
+MAX_ELEMENTS = 250_000  # mesh.nr x mesh.nz (e.g. 500 x 500)
+# Every length (key ending in _mm) and speed (_mm_s) is at most this: a 1 km scene is
+# already far outside forging, and 1e300 mm overflows the contact scale and the plots.
+MAX_LENGTH_MM = 1e6
 
 
 class ConfigError(ValueError):
@@ -239,7 +249,7 @@ SCHEMA: dict[str, dict[str, Field]] = {
                             "a design variable ([] = all)"),
         "die_offset_max_mm": Field("float", 1.0, 0.0, None, False, True,
                                    doc="bound on each die point's vertical offset (mm)"),
-        "bound_factor": Field("float", 2.0, 1.0, None, False, True,
+        "bound_factor": Field("float", 2.0, 1.0, 1000.0, False, True,
                               doc="material parameters and ram speed stay within "
                                   "[p0 / factor, p0 * factor]"),
         "target_csv": Field("str", "", doc="target for force_misfit (CSV with stroke_mm, "
@@ -251,6 +261,20 @@ SCHEMA: dict[str, dict[str, Field]] = {
                                doc="Adam step size in the scaled design variables"),
     },
 }
+
+
+
+def _bound_lengths(schema: dict[str, dict[str, Field]]) -> dict[str, dict[str, Field]]:
+    """The schema with every unbounded length or speed key capped at MAX_LENGTH_MM."""
+    def capped(key: str, f: Field) -> Field:
+        is_length = key.endswith("_mm") or key.endswith("_mm_s")
+        if f.kind == "float" and is_length and f.low is not None and f.high is None:
+            return replace(f, high=MAX_LENGTH_MM, high_inclusive=True)
+        return f
+    return {s: {k: capped(k, f) for k, f in t.items()} for s, t in schema.items()}
+
+
+SCHEMA = _bound_lengths(SCHEMA)
 
 # Exactly one workpiece section: a solid billet, a ring, an indented block (all pressed by
 # a die) or a membrane (clamped, loaded by a traction; no die).
@@ -316,7 +340,9 @@ def _check(name: str, f: Field, value: Any) -> Any:
     if f.kind == "int" and not isinstance(value, int):
         raise ConfigError(f"{name} = {value!r}: must be an int in {f.allowed()}")
     value = int(value) if f.kind == "int" else float(value)
-    ok = not (isinstance(value, float) and math.isnan(value))
+    if not math.isfinite(value):
+        raise ConfigError(f"{name} = {value!r}: must be a finite number in {f.allowed()}")
+    ok = True
     if f.low is not None:
         ok = ok and (value >= f.low if f.low_inclusive else value > f.low)
     if f.high is not None:
@@ -336,6 +362,7 @@ def _check_list(name: str, f: Field, value: Any) -> list:
     if f.kind == "floats":
         if not all(_is_num(v) for v in value):
             raise ConfigError(f"{name} = {value!r}: must be a list of finite numbers")
+        _check_lengths(name, value)
         return [float(v) for v in value]
     if f.kind == "strs":
         if not all(isinstance(v, str) for v in value):
@@ -349,7 +376,16 @@ def _check_list(name: str, f: Field, value: Any) -> list:
                for p in value):
         raise ConfigError(f"{name} = {value!r}: must be a list of [r_mm, z_mm] pairs of finite "
                           f"numbers")
+    _check_lengths(name, [v for p in value for v in p])
     return [[float(a), float(b)] for a, b in value]
+
+
+def _check_lengths(name: str, values: list) -> None:
+    """Entries of a list of lengths (key ending in _mm) lie within +-MAX_LENGTH_MM."""
+    big = [v for v in values if abs(v) > MAX_LENGTH_MM]
+    if name.endswith("_mm") and big:
+        raise ConfigError(f"{name}: entry {big[0]!r} mm: every entry must lie in "
+                          f"[-{_num(MAX_LENGTH_MM)}, {_num(MAX_LENGTH_MM)}] mm")
 
 
 def _cross_checks(raw: dict, out: dict) -> None:
@@ -392,6 +428,8 @@ def _cross_checks(raw: dict, out: dict) -> None:
     if out["mesh"]["rezone_quality"] > 0.0 and out["mesh"]["file"]:
         raise ConfigError("mesh.rezone_quality > 0 needs the structured mesh (mesh.file = ''): "
                           "rezoning relocates the nodes of the logical grid")
+    if out["mesh"]["file"] and not Path(out["mesh"]["file"]).is_file():
+        raise ConfigError(f"mesh.file = {out['mesh']['file']!r}: no such file")
     fr = out["friction"]
     if fr["model"] == "coulomb" and "mu" not in raw.get("friction", {}):
         raise ConfigError("friction.model = 'coulomb' needs friction.mu (float in [0, 10])")
@@ -427,6 +465,53 @@ def _membrane_checks(out: dict) -> None:
                           "resultant (N per mm of depth)")
 
 
+def _size_checks(out: dict) -> None:
+    """The mesh and the step count within MAX_ELEMENTS and MAX_STEPS; the design's start
+    within its bounds."""
+    m = out["mesh"]
+    if m["nr"] * m["nz"] > MAX_ELEMENTS:
+        raise ConfigError(f"mesh.nr x mesh.nz = {m['nr']} x {m['nz']} = {m['nr'] * m['nz']} "
+                          f"elements: at most {MAX_ELEMENTS} fit a run; use a coarser mesh")
+    t_end, what = _end_time(out)
+    dt = out["time"]["dt_s"]
+    if t_end is not None and t_end / dt > MAX_STEPS:
+        raise ConfigError(f"time.dt_s = {dt!r}: the run to {t_end:.6g} s ({what}) would take "
+                          f"{t_end / dt:.3g} steps, at most {MAX_STEPS}: raise time.dt_s or "
+                          f"shorten the run")
+    if t_end is not None and t_end / dt <= 1e-9:  # jaxform.simulate.Scene.n_steps: 0 steps
+        raise ConfigError(f"time.dt_s = {dt!r}: the run to {t_end:.6g} s ({what}) would take no "
+                          f"step; give time.dt_s <= {t_end:.6g}")
+    d = out["design"]
+    lo, hi = 1.0 / d["bound_factor"], d["bound_factor"]
+    if not lo <= d["material_start_factor"] <= hi:
+        raise ConfigError(f"design.material_start_factor = {d['material_start_factor']!r}: must "
+                          f"lie in [1/design.bound_factor, design.bound_factor] = "
+                          f"[{lo:.6g}, {hi:.6g}]")
+
+
+def _end_time(out: dict) -> tuple[float | None, str]:
+    """(end time of the run in s, the keys that set it), or (None, '') where it is not
+    known before the mesh is built (a mesh file sets the height) or the path table never
+    reaches the stroke (refused when the scene is built)."""
+    if "membrane" in out:
+        return out["load"]["ramp_time_s"], "load.ramp_time_s"
+    if out["mesh"]["file"]:
+        return None, ""
+    d = out["die"]
+    kind = next(k for k in ("billet", "ring", "block") if k in out)
+    key = f"{kind}.{'depth_mm' if kind == 'block' else 'height_mm'}"
+    height = out[kind]["depth_mm" if kind == "block" else "height_mm"]
+    if not d["path_time_s"]:
+        return d["reduction"] * height / d["speed_mm_s"], f"die.reduction x {key} / die.speed_mm_s"
+    target = d["reduction"] * height * (1.0 if kind == "block" else 0.5)  # top-die travel
+    rows = list(zip(d["path_time_s"], d["path_travel_mm"]))
+    for (t0, s0), (t1, s1) in zip(rows, rows[1:]):
+        if s1 >= target:
+            t = t0 + (target - s0) * (t1 - t0) / (s1 - s0) if s1 > s0 else t1
+            return t, f"die.path_time_s to die.reduction x {key}"
+    return None, ""
+
+
 # keys that may be left out even though they have no default (checked in _cross_checks)
 _CONDITIONAL = {("die", "speed_mm_s"), ("die", "reduction")}
 
@@ -447,10 +532,7 @@ def load_config(path_or_dict: str | PathLike | dict, overrides: Iterable[str] = 
     if isinstance(path_or_dict, dict):
         raw = copy.deepcopy(path_or_dict)
     else:
-        try:
-            raw = tomllib.loads(Path(path_or_dict).read_text())
-        except tomllib.TOMLDecodeError as exc:
-            raise ConfigError(f"{path_or_dict}: invalid TOML: {exc}") from exc
+        raw = _read_toml(path_or_dict)
     for text in overrides:
         section, key, value = _parse_override(text)
         sec = raw.setdefault(section, {})
@@ -489,7 +571,31 @@ def load_config(path_or_dict: str | PathLike | dict, overrides: Iterable[str] = 
             else:
                 out[section][key] = copy.deepcopy(f.default)
     _cross_checks(raw, out)
+    _size_checks(out)
     return out
+
+
+def _read_toml(path: str | PathLike) -> dict:
+    """The TOML document at ``path`` (UTF-8, a byte-order mark allowed), or ConfigError
+    naming the file and what is wrong with it."""
+    p = Path(path)
+    if p.is_dir():
+        raise ConfigError(f"{path}: is a folder, not a TOML config file")
+    try:
+        text = p.read_bytes().decode("utf-8-sig")
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read the config: {exc.strerror or exc}") from exc
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{path}: not a UTF-8 text file (byte {exc.start}): a config is "
+                          f"TOML text") from exc
+    try:
+        raw = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: invalid TOML: {exc}") from exc
+    if not raw:
+        raise ConfigError(f"{path}: empty config: give a workpiece section "
+                          f"({', '.join(f'[{w}]' for w in WORKPIECES)}) and its keys")
+    return raw
 
 
 def dump_config(cfg: dict, path: str | PathLike) -> None:
@@ -517,3 +623,83 @@ def describe_schema() -> str:
             cells = [f"`{section}.{key}`", f.kind, default, f.allowed(), f.doc]
             rows.append("| " + " | ".join(c.replace("|", r"\|") for c in cells) + " |")
     return "\n".join(rows) + "\n"
+
+
+GRADIENT_GROUPS = SCHEMA["design"]["variables"].choices
+
+
+def check_gradient_run(cfg: dict, groups: list[str] | None = None,
+                       where: str = "design.variables") -> None:
+    """Refuse a validated config that a gradient run (jaxform design, taylor-test) cannot
+    use, before anything is built: rezoning, design groups the scene lacks (``groups``:
+    the groups asked for, ``where`` names the key or flag that asked; None = the scene's
+    own), an objective whose inputs are missing."""
+    q = cfg["mesh"]["rezone_quality"]
+    if q > 0.0:
+        raise ConfigError(f"mesh.rezone_quality = {q!r}: gradient runs need 0 (a rezoned "
+                          f"history has no gradient); --set mesh.rezone_quality=0")
+    if groups is not None:
+        _check_groups(cfg, list(groups), where)
+    d = cfg["design"]
+    name = d["objective"]
+    if name == "die_fill" and not cfg.get("die", {}).get("closed"):
+        raise ConfigError("design.objective = 'die_fill' needs die.closed = true")
+    if name == "side_straightness" and not ({"billet", "ring"} & set(cfg)):
+        raise ConfigError("design.objective = 'side_straightness' needs a [billet] or [ring] "
+                          "scene (a free side)")
+    if name in ("force_misfit", "shape_target"):
+        target = d["target_csv"]
+        if not target:
+            raise ConfigError(f"design.objective = {name!r} needs design.target_csv")
+        needed = ("stroke_mm", "force_N") if name == "force_misfit" else ("node", "r_mm", "z_mm")
+        _check_target_csv(target, needed)
+
+
+def _check_target_csv(path: str, needed: tuple[str, ...]) -> None:
+    """The target CSV is a UTF-8 text file with the columns ``needed``, at least one row,
+    and finite numbers in them."""
+    where = f"design.target_csv = {path!r}"
+    if not Path(path).is_file():
+        raise ConfigError(f"{where}: no such file")
+    try:
+        with open(path, newline="", encoding="utf-8-sig") as fh:
+            rows = list(csv.DictReader(fh))
+    except OSError as exc:
+        raise ConfigError(f"{where}: cannot read it: {exc.strerror or exc}") from exc
+    except (UnicodeDecodeError, csv.Error) as exc:
+        raise ConfigError(f"{where}: not a CSV text file ({exc})") from exc
+    if not rows or any(k not in rows[0] for k in needed):
+        raise ConfigError(f"{where}: needs a header with columns {', '.join(needed)} and at "
+                          f"least one row")
+    for i, row in enumerate(rows, start=2):
+        for k in needed:
+            try:
+                ok = math.isfinite(float(row[k]))
+            except (TypeError, ValueError):
+                ok = False
+            if not ok:
+                raise ConfigError(f"{where}: line {i}, column {k} = {row[k]!r}: must be a "
+                                  f"finite number")
+
+
+def _check_groups(cfg: dict, groups: list[str], where: str) -> None:
+    shown = (f"{where} = {groups!r}" if where.startswith("design.")
+             else f"{where} {' '.join(groups)}")
+    if not groups:
+        raise ConfigError(f"{shown}: name at least one design group, of "
+                          f"{', '.join(GRADIENT_GROUPS)}")
+    for g in groups:
+        if g not in GRADIENT_GROUPS:
+            raise ConfigError(f"{shown}: {g!r} is not a design group; each must be one of "
+                              f"{', '.join(GRADIENT_GROUPS)}")
+        if "membrane" in cfg and g in ("friction", "speed", "die"):
+            raise ConfigError(f"{shown}: {g!r} needs a die; a [membrane] scene has none")
+    if "friction" in groups and cfg["friction"]["model"] not in ("coulomb", "shear"):
+        raise ConfigError(f"{shown}: 'friction' needs friction.model = 'coulomb' or 'shear', "
+                          f"not {cfg['friction']['model']!r}")
+    if "speed" in groups and cfg["die"]["path_time_s"]:
+        raise ConfigError(f"{shown}: 'speed' needs die.speed_mm_s; this scene moves the die "
+                          f"along die.path_time_s")
+    if "preform" in groups and ("billet" not in cfg or cfg["mesh"]["file"]):
+        raise ConfigError(f"{shown}: 'preform' needs a [billet] scene on the structured mesh "
+                          f"(mesh.file = '')")

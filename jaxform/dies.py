@@ -178,6 +178,9 @@ def catmull_rom(points: np.ndarray, per_span: int = 16) -> np.ndarray:
 
 
 def check_profile(points: np.ndarray, key: str) -> np.ndarray:
+    """``points`` as a (k, 2) array, or DieError naming ``key`` and what is wrong: fewer
+    than 2 points, non-finite or coinciding points, segments that cross (a self-intersecting
+    profile), or a walk with the workpiece side (below a top die) on its left."""
     p = np.asarray(points, dtype=float)
     if p.ndim != 2 or p.shape[1] != 2 or p.shape[0] < 2:
         raise DieError(f"{key}: must be a list of at least 2 [r_mm, z_mm] points, got shape "
@@ -188,7 +191,86 @@ def check_profile(points: np.ndarray, key: str) -> np.ndarray:
     if np.any(seg <= 1e-9):
         k = int(np.argmin(seg))
         raise DieError(f"{key}: points {k} and {k + 1} coincide (segments must have length > 0)")
+    crossing = first_crossing(p)
+    if crossing is not None:
+        i, j = crossing
+        raise DieError(f"{key}: segment {i}-{i + 1} crosses segment {j}-{j + 1}: the profile "
+                       f"must not intersect itself")
+    if side_of(p, below_probe(p)) <= 0.0:
+        raise DieError(f"{key}: the workpiece (below the die) lies on the left of the walk "
+                       f"from point 0 to point {len(p) - 1}; list the points from the axis "
+                       f"outward, with the workpiece on the right (reverse their order)")
     return p
+
+
+def first_crossing(p: np.ndarray) -> tuple[int, int] | None:
+    """(i, j), i < j - 1, of the first pair of non-neighbouring segments of the polyline p
+    that touch or cross (the end segments taken as drawn), or None."""
+    a, b = p[:-1], p[1:]
+    i, j = np.triu_indices(len(a), k=2)
+    if i.size == 0:
+        return None
+
+    def orient(o, q, r):
+        return np.sign((q[:, 0] - o[:, 0]) * (r[:, 1] - o[:, 1])
+                       - (q[:, 1] - o[:, 1]) * (r[:, 0] - o[:, 0]))
+
+    d1, d2 = orient(a[i], b[i], a[j]), orient(a[i], b[i], b[j])
+    d3, d4 = orient(a[j], b[j], a[i]), orient(a[j], b[j], b[i])
+    proper = (d1 * d2 < 0) & (d3 * d4 < 0)
+
+    def on_segment(o, q, r):  # r collinear with o-q: within its bounding box
+        return ((np.minimum(o, q) - 1e-12 <= r) & (r <= np.maximum(o, q) + 1e-12)).all(axis=1)
+
+    touch = (((d1 == 0) & on_segment(a[i], b[i], a[j]))
+             | ((d2 == 0) & on_segment(a[i], b[i], b[j]))
+             | ((d3 == 0) & on_segment(a[j], b[j], a[i]))
+             | ((d4 == 0) & on_segment(a[j], b[j], b[i])))
+    hit = np.nonzero(proper | touch)[0]
+    return None if hit.size == 0 else (int(i[hit[0]]), int(j[hit[0]]))
+
+
+def below_probe(p: np.ndarray) -> np.ndarray:
+    """A point well below the profile (where a top die's workpiece is)."""
+    extent = max(float(np.ptp(p[:, 0])), float(np.ptp(p[:, 1])), 1.0)
+    return np.array([0.5 * (p[:, 0].min() + p[:, 0].max()), p[:, 1].min() - extent])
+
+
+def side_of(p: np.ndarray, x: np.ndarray) -> float:
+    """Signed distance of x from the sharp polyline p with its end segments extended to
+    infinity: > 0 on the right of the walk.  At a vertex the sign comes from the sum of
+    the two segment normals (the pseudo-normal), which is right for a simple polyline."""
+    d = p[1:] - p[:-1]
+    length = np.linalg.norm(d, axis=1)
+    t = d / length[:, None]
+    n = np.column_stack([t[:, 1], -t[:, 0]])
+    s = np.sum((x - p[:-1]) * t, axis=1)
+    lo = np.r_[-np.inf, np.zeros(len(d) - 1)]
+    hi = np.r_[length[:-1], np.inf]
+    sc = np.clip(s, lo, hi)
+    q = p[:-1] + sc[:, None] * t
+    k = int(np.argmin(np.sum((x - q) ** 2, axis=1)))
+    normal = n[k]
+    if sc[k] == hi[k] and k + 1 < len(d):  # at vertex k + 1
+        normal = n[k] + n[k + 1]
+    elif sc[k] == lo[k] and k > 0:  # at vertex k
+        normal = n[k - 1] + n[k]
+    dist = float(np.linalg.norm(x - q[k]))
+    return dist if float(np.dot(x - q[k], normal)) > 0.0 else -dist
+
+
+def check_clearance(points: np.ndarray, boundary: np.ndarray, key: str,
+                    tol_mm: float = 1e-9) -> None:
+    """DieError naming ``key`` if a workpiece boundary point (``boundary``: (n, 2), mm)
+    lies inside the die at t = 0 (on the left of the sharp profile by more than tol_mm):
+    the run would start with the die overlapping the workpiece."""
+    depth = np.array([side_of(points, x) for x in boundary])
+    k = int(np.argmin(depth))
+    if depth[k] < -tol_mm:
+        r, z = boundary[k]
+        raise DieError(f"{key}: the die overlaps the workpiece at t = 0: its point ({r:g}, "
+                       f"{z:g}) mm lies {-depth[k]:.4g} mm inside the die; the profile must "
+                       f"start on or above the workpiece")
 
 
 def time_at_travel(times: np.ndarray, travel: np.ndarray, target: float, key: str) -> float:
