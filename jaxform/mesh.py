@@ -14,6 +14,8 @@ act.  For a billet's quarter section (r in [0, R], z in [0, H/2]):
 
 from __future__ import annotations
 
+import contextlib
+import io
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -233,7 +235,15 @@ def read_mesh(path: str | Path, tolerance: float = 1e-9) -> Mesh:
     """
     import meshio
 
-    m = meshio.read(str(path))
+    # meshio's readers fail on garbage with these, and when no reader fits it prints to
+    # stdout and calls sys.exit(1): one MeshError naming the cause instead
+    try:
+        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+            m = meshio.read(str(path))
+    except (meshio.ReadError, ValueError, KeyError, IndexError, UnicodeDecodeError) as err:
+        raise MeshError(f"not a mesh meshio can read ({type(err).__name__}: {err})") from None
+    except SystemExit:
+        raise MeshError("not a mesh meshio can read (no reader for its format)") from None
     pts = np.asarray(m.points, dtype=float)
     if pts.shape[1] == 3:
         if np.max(np.abs(pts[:, 2])) > tolerance:

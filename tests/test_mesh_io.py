@@ -123,6 +123,15 @@ def test_read_mesh_errors_name_the_problem(tmp_path):
     cfg = load_config("configs/upsetting_seed.toml", [f"mesh.file={nosym}"])
     with pytest.raises(ValueError, match="physical group 'symmetry'"):
         build_scene(cfg)
+    # garbage: binary bytes (meshio finds no reader and calls sys.exit), a truncated gmsh
+    # file (a reader raises ValueError): one MeshError each, nothing printed
+    garbage = tmp_path / "garbage.msh"
+    garbage.write_bytes(b"garbage\x00\x01 not a mesh\n")
+    truncated = tmp_path / "truncated.msh"
+    truncated.write_text("$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n3\n1 0 0\n")
+    for path in (garbage, truncated):
+        with pytest.raises(MeshError, match="not a mesh meshio can read"):
+            read_mesh(path)
 
 
 def test_upsetting_on_a_read_mesh_equals_the_structured_mesh(tmp_path):
