@@ -24,10 +24,9 @@ default, 1 s, would leave out the many small programs of a run, which add up), u
 process set ``jax_persistent_cache_min_compile_time_secs`` itself.  A directory that
 cannot be created gives a :class:`CompilationCacheWarning` and a run without the cache.
 
-Not cached: a program with a host callback (JAX refuses to write it): the load-step chunk
-with modified Newton on the sparse backend and the gradient run that keeps klujax
-factorizations free those from inside the program through ``io_callback``
-(:mod:`jaxform.linear`); they compile on every run.
+JAX refuses to write a program with a host callback (``io_callback``, ``jax.debug.print``):
+such a program compiles on every run.  jaxform's own programs have none (the klujax
+factorizations freed inside a program go through an FFI call, :mod:`jaxform.klu_free`).
 
 The cache is trusted code: whoever can write to the directory can make jaxform run
 arbitrary code, so it lives in the user's own cache directory.

@@ -16,9 +16,11 @@ import pytest
 from jaxform.cache import ENV_VAR, default_cache_root, resolve_cache_dir, version_tag
 
 ROOT = Path(__file__).resolve().parents[1]
+# klujax with modified Newton: custom calls, and factorizations freed inside the program
 TINY = ["--set", "mesh.nr=3", "--set", "mesh.nz=3", "--set", "time.dt_s=20.0",
         "--set", "die.reduction=0.3", "--set", "output.fields=false",
-        "--set", "output.plots=false"]
+        "--set", "output.plots=false", "--set", "solver.linear=sparse",
+        "--set", "solver.newton=modified"]
 
 # runs `jaxform.cli.main(argv)` and prints the cache events of the process as JSON
 PROBE = """
@@ -59,8 +61,9 @@ def _files(path: Path) -> set:
 
 
 def test_second_process_loads_every_program_from_the_cache(tmp_path):
-    """Reference: a run of the 3 x 3 seed scene (dense LU, no host callback) writes each
-    of its programs (minimum compile time 0 s here), one file per cache miss, and a second
+    """Reference: a run of the 3 x 3 seed scene (klujax, modified Newton: its chunk frees
+    the factorizations it replaces from inside the program, through an FFI call since a
+    host callback kept the program out of the cache) writes each of its programs (minimum compile time 0 s here), one file per cache miss, and a second
     identical process compiles none: every compile request a hit, 0 misses, no new file.  The config key
     then moves the cache: with JAXFORM_CACHE_DIR=off and [solver] compilation_cache_dir
     pointing at the same directory, the run loads every program from there."""
@@ -188,3 +191,50 @@ print("CHANGED", changed, len(before))
     line = [s for s in proc.stdout.splitlines() if s.startswith("CHANGED")][-1]
     assert line.startswith("CHANGED [] ") and int(line.split()[-1]) > 50
 
+
+def test_free_in_program_frees_exactly_the_valid_factorizations(monkeypatch):
+    """Reference: the handles the compiled program returns.  LinearSolver.release (the
+    FFI call of jaxform.klu_free, in place of a host callback) closes, through
+    klujax_cpp.KLUNumeric, each valid handle once and no invalid one, also batched
+    (handles (2, 1), flags (2,)); its result is an int32 zero of the flags' shape."""
+    import jax
+    import jax.numpy as jnp
+    import klujax_cpp
+    import numpy as np
+
+    from jaxform.linear import Factorization, LinearSolver, klu_symbolic
+
+    closed = []
+    real = klujax_cpp.KLUNumeric
+
+    class Recording:
+        def __init__(self, handles):
+            self.inner = real(handles)
+            self.handles = list(handles)
+
+        def close(self):
+            closed.extend(self.handles)
+            self.inner.close()
+
+    monkeypatch.setattr(klujax_cpp, "KLUNumeric", Recording)
+    rows = jnp.array([0, 1, 2, 0], jnp.int32)
+    cols = jnp.array([0, 1, 2, 2], jnp.int32)
+    lin = LinearSolver("sparse")
+    sym = klu_symbolic(rows, cols, 3)
+
+    @jax.jit
+    def two_factorizations(vals, flags):
+        empty = lin.empty_factorization(3, vals.dtype)
+        a = lin.refactor(rows, cols, vals, 3, sym, empty)
+        b = lin.refactor(rows, cols, 2.0 * vals, 3, sym, empty)
+        both = jax.tree_util.tree_map(lambda u, v: jnp.stack([u, v]), a, b)
+        token = lin.release(Factorization(lu=both.lu, piv=both.piv, valid=flags,
+                                          count=both.count))
+        return both.lu, token
+
+    lu, token = two_factorizations(jnp.array([2.0, 3.0, 4.0, 1.0]), jnp.array([True, False]))
+    lu = np.asarray(lu)
+    assert token.dtype == jnp.int32 and token.shape == (2,) and not np.asarray(token).any()
+    assert closed == [int(lu[0, 0])]
+    lin.release_now(Factorization(lu=lu[1], piv=None, valid=np.asarray(True), count=None))
+    assert closed == [int(lu[0, 0]), int(lu[1, 0])]
