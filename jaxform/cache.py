@@ -19,7 +19,7 @@ The programs go to a sub-directory named after the jax, jaxlib and klujax versio
 (``jax-0.10.2_jaxlib-0.10.2_klujax-0.5.2``): JAX's own key covers the program (its HLO,
 hence jaxform's code), the compiler options and the jax/jaxlib versions, but not the
 code behind a custom call (klujax), which a new klujax may change under the same name.
-Programs that took at least :data:`MIN_COMPILE_TIME_S` to compile are written (JAX's
+Every program is written, however quick its compile (:data:`MIN_COMPILE_TIME_S`; JAX's
 default, 1 s, would leave out the many small programs of a run, which add up), unless the
 process set ``jax_persistent_cache_min_compile_time_secs`` itself.  A directory that
 cannot be created gives a :class:`CompilationCacheWarning` and a run without the cache.
@@ -41,7 +41,7 @@ from pathlib import Path
 
 ENV_VAR = "JAXFORM_CACHE_DIR"
 OFF = ("", "off", "0", "none", "false", "no")
-MIN_COMPILE_TIME_S = 0.05
+MIN_COMPILE_TIME_S = 0.0
 _JAX_DEFAULT_MIN_COMPILE_TIME_S = 1.0
 
 
