@@ -6,7 +6,9 @@ The entry points a script needs, one import away (see ``examples/tutorial.py``):
     jaxform.enable_x64()
     result = jaxform.run("configs/upsetting_seed.toml", ["mesh.nr=4"], out_dir="out/seed")
 
-* set-up: :func:`enable_x64`, :func:`require_x64` (:mod:`jaxform.precision`);
+* set-up: :func:`enable_x64`, :func:`require_x64` (:mod:`jaxform.precision`),
+  :func:`enable_compilation_cache` (a warm start, :mod:`jaxform.cache`; the command line
+  and :func:`run` call it);
 * runs: :func:`load_config` -> :func:`build_scene` -> :func:`simulate`, or :func:`run`
   for all three and the output files;
 * gradients: :func:`trajectory` (a differentiable run), :func:`build_problem` (a design
@@ -24,6 +26,7 @@ import types as _types
 
 # exported name -> the module that defines it
 _EXPORTS = {
+    "enable_compilation_cache": "jaxform.cache",
     "enable_x64": "jaxform.precision",
     "require_x64": "jaxform.precision",
     "run": "jaxform.driver",
@@ -36,8 +39,9 @@ _EXPORTS = {
     "OptimizerSettings": "jaxform.design.optimize",
     "taylor_test": "jaxform.design.taylor",
 }
-__all__ = ["OptimizerSettings", "build_problem", "build_scene", "enable_x64", "load_config",
-           "optimize", "require_x64", "run", "simulate", "taylor_test", "trajectory"]
+__all__ = ["OptimizerSettings", "build_problem", "build_scene", "enable_compilation_cache",
+           "enable_x64", "load_config", "optimize", "require_x64", "run", "simulate",
+           "taylor_test", "trajectory"]
 __version__ = "0.1.0"
 
 

@@ -276,6 +276,20 @@ def _design(args) -> int:
     return 0
 
 
+def _cache_setting(args) -> str:
+    """``[solver] compilation_cache_dir`` of the command's config ('auto' without one, or
+    when the config is invalid: the command itself then reports why)."""
+    from jaxform.config import ConfigError, load_config
+
+    if getattr(args, "config", None) is None:
+        return "auto"
+    try:
+        cfg = load_config(args.config, list(getattr(args, "set", [])))
+    except (ConfigError, OSError):
+        return "auto"
+    return cfg.get("solver", {}).get("compilation_cache_dir", "auto")
+
+
 def main(argv: list[str] | None = None) -> int:
     from jaxform.precision import enable_x64
 
@@ -323,6 +337,9 @@ def main(argv: list[str] | None = None) -> int:
     dp.set_defaults(func=_design)
 
     args = parser.parse_args(argv)
+    from jaxform.cache import enable_compilation_cache
+
+    enable_compilation_cache(_cache_setting(args))  # warm start: see jaxform/cache.py
     return _refusing(args)
 
 

@@ -213,6 +213,11 @@ SCHEMA: dict[str, dict[str, Field]] = {
                                        "klujax; see jaxform/gradients.py)"),
         "chunk_steps": Field("int", 8, 1, 10000,
                              doc="load steps per compiled chunk (progress is reported between chunks)"),
+        "compilation_cache_dir": Field("str", "auto",
+                                       doc="where compiled programs are kept for the next run: "
+                                           "a directory, 'off', or 'auto' (the environment "
+                                           "variable JAXFORM_CACHE_DIR, else "
+                                           "~/.cache/jaxform; see jaxform/cache.py)"),
     },
     "output": {
         "fields": Field("bool", True, doc="write ParaView fields (VTU series)"),

@@ -11,6 +11,7 @@ from typing import Callable
 
 import numpy as np
 
+from jaxform.cache import enable_compilation_cache
 from jaxform.config import dump_config, load_config
 from jaxform.io import write_csv, write_vtu_series
 from jaxform.postprocess import nodal_fields
@@ -37,6 +38,7 @@ def run(config, overrides=(), out_dir: str | Path | None = None,
         after all cutbacks; the outputs of the last converged state are written.
     """
     cfg = load_config(config, list(overrides))
+    enable_compilation_cache(cfg.get("solver", {}).get("compilation_cache_dir"))
     scene = build_scene(cfg)
     try:
         result = simulate(scene, progress)

@@ -104,7 +104,7 @@ def _trajectory(model, linear, settings, symmetric_z, inputs: Inputs, times, sta
                                                     fac=fac0)
         kept = None
         if n_kept:  # steps past the memory budget free it now
-            fac1 = sg(fac1)  # integer handles: no tangent, and an io_callback has no JVP
+            fac1 = sg(fac1)  # integer handles: no tangent, and the FFI free has no JVP
             linear.release(replace(fac1, valid=fac1.valid & ~keep))
             kept = replace(fac1, valid=fac1.valid & keep)
         # the differentiated solve: from x1 where that converged (0 iterations, one
