@@ -191,7 +191,13 @@ def contact_profile(scene, x: np.ndarray, slip_mm: np.ndarray, status: np.ndarra
     pos = positions(scene, x)[np.asarray(idx.contact_nodes)]
     lay = scene.model.layout
     lam = np.asarray(x[lay.n_node_dofs:]).reshape(-1, 2)
-    area = np.asarray(tributary_areas(jnp.asarray(pos), idx.contact_facets,
+    # the contact area of a node: its shape function integrated over the facets in
+    # contact (both ends touching); a facet of the free side below an edge node carries
+    # no traction, and counting it made a uniform pressure read low at the edge
+    facets = np.asarray(idx.contact_facets)
+    touching = np.asarray(status) > 0
+    facets = facets[touching[facets].all(axis=1)] if len(facets) else facets
+    area = np.asarray(tributary_areas(jnp.asarray(pos), jnp.asarray(facets),
                                       scene.model.formulation.axisymmetric))
     safe = np.where(area > 0, area, 1.0)
     return dict(r_mm=pos[:, 0], z_mm=pos[:, 1], pressure_MPa=lam[:, 0] / safe,

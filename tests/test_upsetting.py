@@ -19,7 +19,7 @@ from jaxform.assembly import internal_forces
 from jaxform.cli import main
 from jaxform.config import load_config
 from jaxform.io import read_csv
-from jaxform.postprocess import nodal_fields
+from jaxform.postprocess import contact_profile, nodal_fields
 from jaxform.materialpoint import uniaxial_compression
 from jaxform.scenes import build_scene
 from jaxform.simulate import SimulationError, simulate, step_context
@@ -91,6 +91,25 @@ def test_die_force_equals_reaction_and_no_penetration():
     gaps = np.array([float(sc.inputs.die.gap(jnp.asarray(p), st.t)[0])
                      for p in pos[np.asarray(sc.idx.contact_nodes)]])
     assert gaps.min() >= -1e-8
+
+
+@pytest.mark.parametrize("geometry", ["axisymmetric", "plane_strain"])
+def test_contact_pressure_of_homogeneous_upsetting_is_the_uniform_stress(geometry):
+    """Frictionless flat die, homogeneous deformation (3x3 q1p0): the contact pressure
+    reported at every node in contact (multiplier / contact area) equals the uniform
+    -sigma_zz to 1e-6 relative, at every fourth step and at the end; the edge node too
+    (its area counts only the facets in contact, not the free side below it)."""
+    sc, res = homogeneous_run("q1p0", geometry)
+    rows = list(range(1, len(res.history["time_s"]), 4)) + [len(res.history["time_s"]) - 1]
+    for k in rows:
+        cp = contact_profile(sc, res.fields["x"][k], res.fields["slip_mm"][k],
+                             res.fields["contact_status"][k])
+        szz = res.fields["stress"][k][..., 1, 1]
+        assert np.ptp(szz) <= 1e-9 * np.abs(szz).max()  # the field is uniform
+        touching = cp["status"] > 0
+        assert touching.sum() == 4  # the top row of nodes
+        err = np.max(np.abs(cp["pressure_MPa"][touching] / -szz.mean() - 1.0))
+        assert err <= 1e-6, (k, err, cp["pressure_MPa"][touching], -szz.mean())
 
 
 @pytest.mark.parametrize("element", ["q1q1", "q1p0"])
