@@ -192,6 +192,7 @@ def _run(args) -> int:
         done = p["step"] / p["n_steps"]
         bar = "#" * int(30 * done) + "." * (30 - int(30 * done))
         print(f"[{bar}] step {p['step']:4d}/{p['n_steps']} t={p['time_s']:8.3f} s "
+              f"dt={p['dt_s']:.4g} s "
               f"stroke={p['stroke_mm']:7.4f} mm force={p['force_N']:10.3f} N "
               f"newton={int(p['iterations']):2d} cutbacks={int(p['cutbacks'])}", flush=True)
 

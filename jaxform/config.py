@@ -179,7 +179,11 @@ SCHEMA: dict[str, dict[str, Field]] = {
                    "(friction.model = shear)"),
     },
     "time": {
-        "dt_s": Field("float", None, 0.0, None, False, False, doc="time step (s)"),
+        "dt_s": Field("float", None, 0.0, None, False, False,
+                      doc="largest time step (s): steps adapt below it"),
+        "dt_growth": Field("float", 1.5, 1.0, 4.0,
+                           doc="after an easy step (no cutback, few Newton iterations) the next "
+                           "step grows by this factor, up to time.dt_s (1: never grows back)"),
         "alpha": Field("float", 0.5, 0.0, 1.0,
                        doc="generalized mid-point parameter of the strain increment"),
     },

@@ -60,11 +60,12 @@ def write_outputs(out_dir: str | Path, result: Result) -> None:
     cfg = scene.config
     h = result.history
     if scene.kind == "membrane":  # no die: the applied load and the tip displacement
-        cols = {"time_s": h["time_s"], "load_N": h["force_N"], "tip_ux_mm": h["tip_ux_mm"],
+        cols = {"time_s": h["time_s"], "dt_s": h["dt_s"], "load_N": h["force_N"],
+                "tip_ux_mm": h["tip_ux_mm"],
                 "tip_uy_mm": h["tip_uy_mm"], "newton_iterations": h["newton_iterations"],
                 "cutbacks": h["cutbacks"]}
     else:
-        cols = {k: h[k] for k in ("time_s", "stroke_mm", "force_N", "newton_iterations",
+        cols = {k: h[k] for k in ("time_s", "dt_s", "stroke_mm", "force_N", "newton_iterations",
                                   "cutbacks", "friction_work_Nmm")}
     cols.update({k: h[k] for k in ("inner_diameter_mm", "outer_diameter_mm", "die_fill") if k in h})
     if scene.rezone_quality > 0:  # worst element corner quality; 1 where the mesh was rezoned

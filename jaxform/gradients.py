@@ -215,11 +215,10 @@ def exact_newton(settings: NewtonSettings) -> NewtonSettings:
 
 
 def schedule(scene: Scene, inputs: Inputs | None = None) -> np.ndarray:
-    """A step schedule on which every step converges without cutback: run the scene
-    forward (with cutbacks, :func:`jaxform.simulate.simulate`) and split each load step
-    that needed c cutbacks into 2**c equal sub-steps (the cutback halves the sub-step
-    and never grows it again within a load step, so these are no longer than any sub-step
-    the forward run took)."""
+    """The step schedule the forward run takes: run the scene (adaptive steps, with
+    cutbacks, :func:`jaxform.simulate.simulate`) and return the end times of its
+    converged steps, so that a differentiable run takes the same steps and each of them
+    converged in the forward run."""
     from jaxform.simulate import simulate
 
     if scene.rezone_quality > 0.0:
@@ -228,9 +227,7 @@ def schedule(scene: Scene, inputs: Inputs | None = None) -> np.ndarray:
                          "gradient runs")
     run = scene if inputs is None else replace(scene, inputs=inputs)
     h = simulate(run).history
-    t, cuts = h["time_s"], h["cutbacks"].astype(int)
-    pieces = [np.linspace(t[k], t[k + 1], 2 ** cuts[k + 1] + 1)[1:] for k in range(len(t) - 1)]
-    return np.concatenate(pieces)
+    return np.asarray(h["time_s"][1:])
 
 
 def initial_state_for(scene: Scene, inputs: Inputs) -> SimState:

@@ -225,6 +225,7 @@ def build_scene(cfg: dict) -> Scene:
         dt=tm["dt_s"],
         t_end=t_end,
         max_cutbacks=so["max_cutbacks"],
+        dt_growth=tm["dt_growth"],
         chunk=so["chunk_steps"],
         kind=kind,
         symmetric_z=kind in ("billet", "ring"),

@@ -3,10 +3,12 @@
 The caller owns the loop (jax-md style): :func:`jaxform.scenes.build_scene` does the
 set-up once (mesh, dofs, pattern, material, dies), :func:`simulate` advances it chunk by chunk through a
 compiled ``lax.scan`` over load steps and hands each chunk to an optional progress
-callback.  Inside a step, a failed Newton solve (no convergence, a failed local
-material solve, an inverted element) halves the step, up to ``solver.max_cutbacks``
-times; when the cutbacks run out the simulation stops, keeping the last converged state,
-and :class:`SimulationError` names the step, the time and the cause.
+callback.  The step adapts (:class:`Stepper`): a failed Newton solve (no convergence, a
+failed local material solve, an inverted element) halves it, down to ``time.dt_s /
+2**solver.max_cutbacks``; easy steps let it grow back by ``time.dt_growth`` up to
+``time.dt_s``.  When a step fails at the smallest size the simulation stops, keeping the
+last converged state, and :class:`SimulationError` names the step, the time, the cause
+and the worst element.
 
 Scenes are half-height models (symmetry plane z = 0): the top die travels d(t) towards
 the mid-plane, ``stroke_mm`` = 2 d(t) and ``force_N`` refer to the whole workpiece (the
@@ -22,7 +24,7 @@ applied load's resultant at the step (N, per mm of depth in plane strain) and
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import partial
 from typing import Callable
 
@@ -40,7 +42,7 @@ from jaxform.linear import LinearSolver, matvec
 from jaxform.loads import FacetLoad, external_forces, total_force
 from jaxform.postprocess import extra_history
 from jaxform.precision import require_x64
-from jaxform.rezone import RezoneError, min_quality, rezone
+from jaxform.rezone import RezoneError, corner_qualities, min_quality, rezone
 from jaxform.solver import NewtonSettings, solve_implicit
 from jaxform.status import CAUSES, OK
 from jaxform.xla_options import jit
@@ -90,6 +92,7 @@ class Scene:
     rezone_quality: float = 0.0  # rezone when the worst corner quality drops below (0: never)
     grid: tuple[int, int] | None = None  # (nr, nz) of a structured mesh (rezoning needs it)
     adjoint_memory_mb: float = 0.0  # forward factorizations a gradient run may keep (MB)
+    dt_growth: float = 1.5  # an easy step lets the next one grow by this factor (to dt)
 
     @property
     def n_steps(self) -> int:
@@ -230,45 +233,88 @@ def converged_state(model: Model, state: SimState, x, gauss, t_new, inp: Inputs,
                     contact_status=status.astype(state.contact_status.dtype))
 
 
-def macro_step(model, linear, settings, max_cutbacks, state: SimState, t_target, inp, idx,
-               fac=None):
-    """Advance to t_target, halving the sub-step on failure. Returns (state, info dict,
-    fac): ``fac`` the factorization kept by modified Newton (None for 'newton')."""
+@dataclass(frozen=True)
+class Stepper:
+    """The static part of the compiled time stepping (hashable): what a chunk of steps
+    solves and how the step size adapts.  A failed attempt halves the step, down to
+    ``dt_max / 2**max_cutbacks``; after an easy step (no cutback, at most a fifth of the
+    iterations a solve may take) the next one grows by ``dt_growth`` up to ``dt_max``;
+    after a hard one (full Newton: more than half of them) it halves ahead of trouble."""
+
+    model: Model
+    linear: LinearSolver
+    newton: NewtonSettings
+    max_cutbacks: int
+    dt_growth: float = 1.5
+    symmetric_z: bool = True
+
+    def next_step(self, h_used, iterations, cutbacks, dt_max):
+        """The size of the next step after one of size h_used."""
+        n = self.newton.max_total_iterations
+        easy = (cutbacks == 0) & (iterations <= max(n // 5, 1))
+        # modified Newton's iteration count mixes kept-factorization iterations (cheap,
+        # many) with refreshed ones: it is no measure of trouble
+        hard = (iterations > n // 2) & (self.newton.method == "newton")
+        grown = jnp.minimum(dt_max, h_used * self.dt_growth)
+        return jnp.where(hard, 0.5 * h_used, jnp.where(easy, grown, h_used))
+
+
+@jax.tree_util.register_dataclass
+@dataclass(frozen=True)
+class StepControl:
+    """The traced part of the time stepping: the step size to try next, the largest
+    step (``time.dt_s``), the end time, and the rezoning trigger (0: never)."""
+
+    h: jax.Array  # s
+    dt_max: jax.Array  # s
+    t_end: jax.Array  # s
+    rezone_quality: jax.Array
+
+
+def attempt_step(stepper: Stepper, state: SimState, control: StepControl, inp: Inputs,
+                 idx: Indices, fac=None):
+    """One converged step from ``state``: tried with ``control.h`` (the last step snapped to
+    end exactly at t_end), halved on failure until it converges or reaches the smallest
+    step.  Returns (state, info dict, fac): info has the step size taken (h_used),
+    iterations and cutbacks of all attempts, the status code, and the Newton history of
+    the last attempt; ``fac`` the factorization modified Newton keeps (None for 'newton')."""
+    settings = stepper.newton
     n_hist = settings.max_total_iterations + 1
+    h_min = control.dt_max * 0.5 ** stepper.max_cutbacks
+    snap = 1e-9 * control.dt_max
 
     def cond(c):
         return ~c["done"]
 
     def body(c):
         st, h = c["state"], c["h"]
+        t_new = jnp.where(st.t + h >= control.t_end - snap, control.t_end, st.t + h)
+        hh = t_new - st.t
         # predictor: the last step's rate, extrapolated (exact for steady motion); not
         # after a failure in this step (the rate may be what failed), and never an invalid one
-        use_rate = (c["level"] == 0).astype(st.x.dtype)
+        use_rate = (c["cutbacks"] == 0).astype(st.x.dtype)
         x, g, its, code, hist, cstep, fac_new = solve_step(
-            model, linear, settings, st, st.t + h, h, inp, idx,
-            x_guess=st.x + use_rate * h * st.x_rate, fac=c["fac"])
+            stepper.model, stepper.linear, settings, st, t_new, hh, inp, idx,
+            x_guess=st.x + use_rate * hh * st.x_rate, fac=c["fac"])
         ok = code == OK
-        t_new = jnp.where(ok, st.t + h, st.t)
-        conv = converged_state(model, st, x, g, st.t + h, inp, cstep, idx)
-        new = _tree_where(ok, conv, st)
-        level = jnp.where(ok, c["level"], c["level"] + 1)
-        failed = level > max_cutbacks
-        reached = ok & (t_new >= t_target - 1e-12 * jnp.maximum(1.0, t_target))
-        h_next = jnp.where(ok, jnp.minimum(h, t_target - t_new), 0.5 * h)
+        conv = converged_state(stepper.model, st, x, g, t_new, inp, cstep, idx)
+        failed = ~ok & (h <= h_min * (1.0 + 1e-9))  # nothing smaller to try
         return dict(
-            state=new, h=h_next, level=level, done=reached | failed,
-            iterations=c["iterations"] + its, cutbacks=c["cutbacks"] + (~ok).astype(jnp.int32),
-            code=jnp.where(failed, code, jnp.where(ok, OK, c["code"])),
-            last_cause=jnp.where(ok, c["last_cause"], code),
-            hist=jnp.where(ok, hist, c["hist"]), fac=fac_new,
+            state=_tree_where(ok, conv, st), h=jnp.where(ok, h, 0.5 * h), h_used=hh,
+            done=ok | failed, iterations=c["iterations"] + its,
+            last_iterations=its, cutbacks=c["cutbacks"] + (~ok).astype(jnp.int32),
+            code=jnp.where(ok, OK, code), hist=hist, fac=fac_new,
         )
 
-    init = dict(state=state, h=t_target - state.t, level=jnp.asarray(0), done=jnp.asarray(False),
-                iterations=jnp.asarray(0), cutbacks=jnp.asarray(0, jnp.int32),
-                code=jnp.asarray(OK), last_cause=jnp.asarray(OK),
-                hist=jnp.full(n_hist, jnp.inf), fac=fac)
+    zero = jnp.zeros_like(control.h)
+    init = dict(state=state, h=jnp.maximum(control.h, h_min), h_used=zero,
+                done=jnp.asarray(False), iterations=jnp.asarray(0),
+                last_iterations=jnp.asarray(0), cutbacks=jnp.asarray(0, jnp.int32),
+                code=jnp.asarray(OK), hist=jnp.full(n_hist, jnp.inf), fac=fac)
     out = jax.lax.while_loop(cond, body, init)
-    info = {k: out[k] for k in ("iterations", "cutbacks", "code", "hist")}
+    info = {k: out[k] for k in ("iterations", "cutbacks", "code", "hist", "h_used")}
+    info["h_next"] = stepper.next_step(out["h_used"], out["last_iterations"],
+                                       out["cutbacks"], control.dt_max)
     return out["state"], info, out["fac"]
 
 
@@ -313,46 +359,50 @@ def step_outputs(model: Model, state: SimState, inp: Inputs, idx: Indices, symme
     )
 
 
-@partial(jit, static_argnums=(0, 1, 2, 4))
-def run_chunk(model, linear, settings, max_cutbacks, symmetric_z, state: SimState,
-              targets, active, inp: Inputs, idx: Indices, rezone_quality=0.0, fac=None):
-    """lax.scan over a chunk of load steps; inactive steps (past the end, after a
-    failure, or after a step that left an element corner quality below ``rezone_quality``:
-    the caller rezones and goes on) leave the state unchanged.  ``fac``: the factorization
-    modified Newton keeps (None for 'newton'), carried through and returned with
-    (state, outputs): the caller owns it and frees the last one."""
+@partial(jit, static_argnums=(0, 5))
+def run_chunk(stepper: Stepper, state: SimState, control: StepControl, inp: Inputs,
+              idx: Indices, n: int, fac=None):
+    """lax.scan over n steps, each one converged step of adaptive size
+    (:func:`attempt_step`); steps after the end, after a failure, or after a step that
+    left an element corner quality below ``control.rezone_quality`` (the caller rezones
+    and goes on) leave the state unchanged and are marked inactive.  ``fac``: the
+    factorization modified Newton keeps (None for 'newton'), carried through and returned
+    with (state, control for the next chunk, outputs): the caller owns it and frees the
+    last one."""
+    model = stepper.model
 
-    def step(carry, tk):
-        st, failed, paused, fac = carry
-        t_target, act = tk
-        run = act & ~failed & ~paused
+    def step(carry, _):
+        st, ctl, failed, paused, fac = carry
+        run = (st.t < ctl.t_end) & ~failed & ~paused
 
         def do(st, fac):
-            return macro_step(model, linear, settings, max_cutbacks, st, t_target, inp, idx,
-                              fac)
+            return attempt_step(stepper, st, ctl, inp, idx, fac)
 
         def skip(st, fac):
-            n_hist = settings.max_total_iterations + 1
+            n_hist = stepper.newton.max_total_iterations + 1
+            z = jnp.zeros_like(ctl.h)
             return st, dict(iterations=jnp.asarray(0), cutbacks=jnp.asarray(0, jnp.int32),
-                            code=jnp.asarray(OK), hist=jnp.full(n_hist, jnp.inf)), fac
+                            code=jnp.asarray(OK), hist=jnp.full(n_hist, jnp.inf),
+                            h_used=z, h_next=ctl.h), fac
 
         new, info, fac_new = jax.lax.cond(run, do, skip, st, fac)
         failed = failed | (info["code"] != OK)
         pos = model.nodal_positions(new.x, inp.coords, idx)
         quality = min_quality(pos, idx.elements)
-        paused = paused | (run & ~failed & (rezone_quality > 0.0) & (quality < rezone_quality))
-        out = step_outputs(model, new, inp, idx, symmetric_z)
+        trigger = ctl.rezone_quality
+        paused = paused | (run & ~failed & (trigger > 0.0) & (quality < trigger))
+        out = step_outputs(model, new, inp, idx, stepper.symmetric_z)
         out.update(info)
         out["factorizations"] = (info["iterations"] if fac is None
                                  else fac_new.count - fac.count)
         out["active"] = run
         out["mesh_quality"] = quality
         out["paused"] = paused
-        return (new, failed, paused, fac_new), out
+        return (new, replace(ctl, h=info["h_next"]), failed, paused, fac_new), out
 
-    init = (state, jnp.asarray(False), jnp.asarray(False), fac)
-    (state, _, _, fac), outs = jax.lax.scan(step, init, (targets, active))
-    return state, outs, fac
+    init = (state, control, jnp.asarray(False), jnp.asarray(False), fac)
+    (state, control, _, _, fac), outs = jax.lax.scan(step, init, None, length=n)
+    return state, control, outs, fac
 
 
 @dataclass
@@ -382,99 +432,100 @@ def _absolute(scene: Scene, inp: Inputs, x: np.ndarray) -> np.ndarray:
     return x
 
 
+def _failure_message(scene: Scene, inp: Inputs, state: SimState, step: int, row) -> str:
+    """Why step ``step`` failed, where: the cause, the time reached, the smallest step
+    tried, and the worst element of the last converged mesh (its centre and corner
+    quality), which names the place when the cause is geometric (an element folding)."""
+    pos = scene.model.nodal_positions(np.asarray(state.x), np.asarray(inp.coords), scene.idx)
+    elements = np.asarray(scene.mesh.elements)
+    q = corner_qualities(np.asarray(pos), elements).min(axis=1)
+    e = int(np.argmin(q))
+    centre = np.asarray(pos)[elements[e]].mean(axis=0)
+    h_min = scene.dt * 0.5 ** scene.max_cutbacks
+    t = float(state.t)
+    return (f"step {step} (last converged time {t:g} s, target time "
+            f"{min(t + h_min, scene.t_end):g} s) failed at the smallest step dt = {h_min:g} s "
+            f"(time.dt_s / 2**solver.max_cutbacks) after {int(row['cutbacks'])} attempts: "
+            f"{CAUSES.get(int(row['code']), 'unknown')}; worst element {e} at "
+            f"({centre[0]:.4g}, {centre[1]:.4g}) mm, corner quality {q[e]:.3g}")
+
+
 def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Result:
-    """Run the scene to its end, in compiled chunks of load steps.
+    """Run the scene to its end; raises SimulationError (with .result) on failure.
 
-    Arguments:
-        scene: from :func:`jaxform.scenes.build_scene`.
-        progress: called after each chunk with a dict (step, n_steps, time_s, stroke_mm,
-            force_N, iterations, cutbacks).
-
-    Returns:
-        the :class:`Result`: ``history`` (one row per converged step) and ``fields``.
-
-    Raises:
-        SimulationError (with ``.result`` up to the last converged step): a step failed
-        after all cutbacks.
-
-    With ``scene.rezone_quality`` > 0, a step after which an element's worst corner quality
+    Steps adapt (:class:`Stepper`): ``scene.dt`` is the largest step, a failed attempt
+    halves it, easy steps let it grow back; every converged step is a history row
+    (column ``dt_s``), and the run ends exactly at ``scene.t_end``.  With
+    ``scene.rezone_quality`` > 0, a step after which an element's worst corner quality
     is below it ends the compiled chunk; the mesh is rezoned (:mod:`jaxform.rezone`) and
     the run goes on from there (history column ``rezoned`` = 1 on that step).  If no node
     move can raise the quality, the mesh stays as it is and the next attempt waits until
     the quality has fallen by another 10 %."""
     require_x64()
-    targets = scene.step_targets()
-    n = len(targets)
-    c = scene.chunk
     state = scene.initial_state()
     inp = scene.inputs
-    st_args = (scene.model, scene.linear, scene.newton, jnp.asarray(scene.max_cutbacks),
-               scene.symmetric_z)
+    stepper = Stepper(scene.model, scene.linear, scene.newton, scene.max_cutbacks,
+                      scene.dt_growth, scene.symmetric_z)
+    control = StepControl(h=jnp.asarray(scene.dt), dt_max=jnp.asarray(scene.dt),
+                          t_end=jnp.asarray(scene.t_end),
+                          rezone_quality=jnp.asarray(scene.rezone_quality))
     init = jax.device_get(step_outputs(scene.model, state, inp, scene.idx, scene.symmetric_z))
-    rows = [dict(init, iterations=0, factorizations=0, cutbacks=0, code=OK, rezoned=0,
+    rows = [dict(init, iterations=0, factorizations=0, cutbacks=0, code=OK, rezoned=0, dt_s=0.0,
                  mesh_quality=float(min_quality(np.asarray(scene.inputs.coords),
                                                 np.asarray(scene.mesh.elements))))]
     hists = []
     rezones = []
     failure = None
-    trigger = scene.rezone_quality
-    k0 = 0
+    t_stop = scene.t_end - 1e-9 * scene.dt
     owned = [scene.linear.empty_factorization(scene.model.layout.n_dofs, state.x.dtype)
              if scene.newton.method == "modified" else None]
     try:
-        while k0 < n and failure is None:
-            tk = np.full(c, targets[-1])
-            act = np.zeros(c, dtype=bool)
-            m = min(c, n - k0)
-            tk[:m], act[:m] = targets[k0:k0 + m], True
+        while float(state.t) < t_stop and failure is None:
             fac, owned[0] = owned[0], None  # the chunk frees it when it refactors
-            state_new, outs, owned[0] = run_chunk(*st_args, state, jnp.asarray(tk),
-                                                  jnp.asarray(act), inp, scene.idx,
-                                                  jnp.asarray(trigger), fac)
+            state_new, control, outs, owned[0] = run_chunk(stepper, state, control, inp,
+                                                           scene.idx, scene.chunk, fac)
             outs = jax.device_get(outs)
-            done = m
-            for j in range(m):
+            for j in range(scene.chunk):
                 row = {k: v[j] for k, v in outs.items()}
+                if not row["active"]:
+                    break
                 if int(row["code"]) != OK:
-                    t_fail = float(targets[k0 + j])
-                    failure = (f"step {k0 + j + 1} (target time {t_fail:g} s, last converged "
-                               f"time {float(row['time_s']):g} s) failed after "
-                               f"{scene.max_cutbacks} cutbacks: "
-                               f"{CAUSES.get(int(row['code']), 'unknown')}")
+                    failure = _failure_message(scene, inp, state_new, len(rows), row)
                     break
                 row["x"] = _absolute(scene, inp, row["x"])
                 row["rezoned"] = int(bool(row["paused"]))
+                row["dt_s"] = float(row["h_used"])
                 rows.append(row)
                 hists.append(row["hist"])
                 if progress is not None:
-                    progress(dict(step=k0 + j + 1, n_steps=n, **{k: row[k] for k in (
-                        "time_s", "stroke_mm", "force_N", "iterations", "cutbacks")}))
-                if row["paused"]:
-                    done = j + 1
-                    break
+                    left = max(scene.t_end - float(row["time_s"]), 0.0)
+                    progress(dict(step=len(rows) - 1,
+                                  n_steps=len(rows) - 1 + int(math.ceil(left / scene.dt - 1e-9)),
+                                  **{k: row[k] for k in ("time_s", "stroke_mm", "force_N",
+                                                         "iterations", "cutbacks", "dt_s")}))
             state = state_new
-            k0 += done
-            if rows[-1]["rezoned"] and (failure is not None or k0 >= n):
+            if rows[-1]["rezoned"] and float(state.t) >= t_stop:
                 rows[-1]["rezoned"] = 0  # the run ends here: nothing to rezone for
-            if rows[-1]["rezoned"]:
+            if rows[-1]["rezoned"] and failure is None:
                 try:
                     state, inp, report = rezone(scene, state, inp)
                 except RezoneError as err:
-                    failure = f"step {k0}: {err}"
+                    failure = f"step {len(rows) - 1}: {err}"
                 else:
                     rezones.append(report)
                     # a rezoning that could not raise the quality keeps the mesh; try again
                     # when the quality has fallen by another 10 %
                     trigger = (scene.rezone_quality if report.improved
                                else 0.9 * report.quality_before)
+                    control = replace(control, rezone_quality=jnp.asarray(trigger))
                     rows[-1]["rezoned"] = int(report.improved)
     finally:
         # the last factorization modified Newton kept is freed here; one a raising chunk
         # held is lost, never freed twice
         if owned[0] is not None:
             jax.block_until_ready(scene.linear.release(owned[0]))
-    hist_keys = ("time_s", "stroke_mm", "force_N", "iterations", "factorizations", "cutbacks",
-                 "friction_work_Nmm", "mesh_quality", "rezoned")
+    hist_keys = ("time_s", "dt_s", "stroke_mm", "force_N", "iterations", "factorizations",
+                 "cutbacks", "friction_work_Nmm", "mesh_quality", "rezoned")
     history = {k: np.array([float(r[k]) for r in rows]) for k in hist_keys}
     history["newton_iterations"] = history.pop("iterations")
     fields = {k: np.stack([np.asarray(r[k]) for r in rows])
