@@ -1,7 +1,8 @@
 """Load stepping: steps with cutback, chunks of lax.scan, the run's history.
 
 The caller owns the loop (jax-md style): :func:`jaxform.scenes.build_scene` does the
-set-up once (mesh, dofs, pattern, material, dies), :func:`simulate` advances it chunk by chunk through a
+set-up once (mesh, dofs, pattern, material, dies), :func:`simulate` advances it chunk by
+chunk through a
 compiled ``lax.scan`` over load steps and hands each chunk to an optional progress
 callback.  The step adapts (:class:`Stepper`): a failed Newton solve (no convergence, a
 failed local material solve, an inverted element) halves it, down to ``time.dt_s /
@@ -24,9 +25,9 @@ applied load's resultant at the step (N, per mm of depth in plane strain) and
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from functools import partial
-from typing import Callable
 
 import jax
 import jax.numpy as jnp
@@ -107,9 +108,15 @@ class Scene:
         g = initial_gauss_state(self.model.law, self.inputs.params, lay.n_elements)
         z = jnp.zeros(lay.n_dofs)
         zc = jnp.zeros(lay.n_contact)
-        return SimState(x=z, gauss=g, t=jnp.asarray(0.0), x_rate=z,
-                        friction_work=jnp.asarray(0.0), slip_mm=zc,
-                        contact_status=jnp.zeros(lay.n_contact, jnp.int32))
+        return SimState(
+            x=z,
+            gauss=g,
+            t=jnp.asarray(0.0),
+            x_rate=z,
+            friction_work=jnp.asarray(0.0),
+            slip_mm=zc,
+            contact_status=jnp.zeros(lay.n_contact, jnp.int32),
+        )
 
 
 class SimulationError(RuntimeError):
@@ -133,16 +140,16 @@ def contact_step(model: Model, state: SimState, inp: Inputs, idx: Indices) -> Co
     pos = model.nodal_positions(state.x, inp.coords, idx)[idx.contact_nodes]
     if model.contact.friction == "shear":
         sig = state.gauss.mat.stress
-        eq_gp, _ = jnp.vectorize(lambda t: safe_norm_eq(deviator(t)),
-                                 signature="(3,3)->(),()")(sig)
+        eq_gp, _ = jnp.vectorize(lambda t: safe_norm_eq(deviator(t)), signature="(3,3)->(),()")(sig)
         eq_el = eq_gp.mean(axis=1)
         eq_nodes = nodal_average(eq_el, idx.elements, model.layout.n_nodes)[idx.contact_nodes]
         areas = tributary_areas(pos, idx.contact_facets, model.formulation.axisymmetric)
         bound = shear_bounds(inp.die.m, eq_nodes, areas)
     else:
         bound = jnp.zeros(model.layout.n_contact, dtype=pos.dtype)
-    return ContactStep(x_old=pos, t_old=state.t, shear_bound=bound,
-                       frictionless=idx.contact_fixed_r)
+    return ContactStep(
+        x_old=pos, t_old=state.t, shear_bound=bound, frictionless=idx.contact_fixed_r
+    )
 
 
 def _step_residual(model: Model, x, ctx: StepContext):
@@ -157,14 +164,23 @@ def _step_adjoint(model: Model, x, ctx: StepContext, gauss_bar):
     return model.jacobian_and_state_vjp(x, ctx, gauss_bar)
 
 
-def step_context(model: Model, state: SimState, inp: Inputs, idx: Indices, t_new,
-                 dt) -> StepContext:
+def step_context(
+    model: Model, state: SimState, inp: Inputs, idx: Indices, t_new, dt
+) -> StepContext:
     """The step data of a step from ``state`` to t_new = state.t + dt: the one place that
     builds a :class:`jaxform.assembly.StepContext`."""
-    return StepContext(gauss=state.gauss, coords=inp.coords, t=t_new, dt=dt, params=inp.params,
-                       die=inp.die, c_contact=inp.c_contact,
-                       cstep=contact_step(model, state, inp, idx), idx=idx,
-                       f_ext=applied_forces(model, inp, t_new, idx))
+    return StepContext(
+        gauss=state.gauss,
+        coords=inp.coords,
+        t=t_new,
+        dt=dt,
+        params=inp.params,
+        die=inp.die,
+        c_contact=inp.c_contact,
+        cstep=contact_step(model, state, inp, idx),
+        idx=idx,
+        f_ext=applied_forces(model, inp, t_new, idx),
+    )
 
 
 @dataclass(frozen=True)
@@ -196,9 +212,19 @@ class StepLinear:
         return matvec(rows, cols, vals, y, self.n)
 
 
-def solve_step(model: Model, linear: LinearSolver, settings: NewtonSettings,
-               state: SimState, t_new, dt, inp: Inputs, idx: Indices, x_guess=None, fac=None,
-               adjoint_fac=None):
+def solve_step(
+    model: Model,
+    linear: LinearSolver,
+    settings: NewtonSettings,
+    state: SimState,
+    t_new,
+    dt,
+    inp: Inputs,
+    idx: Indices,
+    x_guess=None,
+    fac=None,
+    adjoint_fac=None,
+):
     """One Newton solve from state (at t) to t_new = t + dt, starting from x_guess (or
     state.x; state.x also when the guess is not a valid state); ``fac``: the kept
     factorization for ``settings.method = 'modified'``, or for 'newton' one that each
@@ -211,26 +237,47 @@ def solve_step(model: Model, linear: LinearSolver, settings: NewtonSettings,
     x_fallback = jax.lax.stop_gradient(state.x)
     x0 = x_fallback if x_guess is None else jax.lax.stop_gradient(x_guess)
     x, g, its, code, hist, fac = solve_implicit(
-        partial(_step_residual, model), partial(_step_residual_and_jacobian, model),
-        partial(_step_adjoint, model), StepLinear(model.layout.n_dofs, linear), settings, x0,
-        x_fallback, ctx, fac, adjoint_fac)
+        partial(_step_residual, model),
+        partial(_step_residual_and_jacobian, model),
+        partial(_step_adjoint, model),
+        StepLinear(model.layout.n_dofs, linear),
+        settings,
+        x0,
+        x_fallback,
+        ctx,
+        fac,
+        adjoint_fac,
+    )
     return x, g, its, code, hist, ctx.cstep, fac
 
 
-def converged_state(model: Model, state: SimState, x, gauss, t_new, inp: Inputs,
-                    cstep: ContactStep, idx: Indices) -> SimState:
+def converged_state(
+    model: Model, state: SimState, x, gauss, t_new, inp: Inputs, cstep: ContactStep, idx: Indices
+) -> SimState:
     """The state after a converged step from ``state`` to (x, gauss) at t_new: the rate for
     the next predictor, the friction work and slip of the step, the contact status."""
-    ctx = StepContext(gauss=state.gauss, coords=inp.coords, t=t_new, dt=t_new - state.t,
-                      params=inp.params, die=inp.die, c_contact=inp.c_contact, cstep=cstep,
-                      idx=idx)
+    ctx = StepContext(
+        gauss=state.gauss,
+        coords=inp.coords,
+        t=t_new,
+        dt=t_new - state.t,
+        params=inp.params,
+        die=inp.die,
+        c_contact=inp.c_contact,
+        cstep=cstep,
+        idx=idx,
+    )
     status, _, _, slip = model.contact_report(x, ctx)
     lam_t = x[idx.mult_dofs[:, 1]]
-    return SimState(x=x, gauss=gauss, t=t_new,
-                    x_rate=jax.lax.stop_gradient((x - state.x) / (t_new - state.t)),
-                    friction_work=state.friction_work - jnp.sum(lam_t * slip),
-                    slip_mm=state.slip_mm + jnp.abs(slip),
-                    contact_status=status.astype(state.contact_status.dtype))
+    return SimState(
+        x=x,
+        gauss=gauss,
+        t=t_new,
+        x_rate=jax.lax.stop_gradient((x - state.x) / (t_new - state.t)),
+        friction_work=state.friction_work - jnp.sum(lam_t * slip),
+        slip_mm=state.slip_mm + jnp.abs(slip),
+        contact_status=status.astype(state.contact_status.dtype),
+    )
 
 
 @dataclass(frozen=True)
@@ -271,8 +318,9 @@ class StepControl:
     rezone_quality: jax.Array
 
 
-def attempt_step(stepper: Stepper, state: SimState, control: StepControl, inp: Inputs,
-                 idx: Indices, fac=None):
+def attempt_step(
+    stepper: Stepper, state: SimState, control: StepControl, inp: Inputs, idx: Indices, fac=None
+):
     """One converged step from ``state``: tried with ``control.h`` (the last step snapped to
     end exactly at t_end), halved on failure until it converges or reaches the smallest
     step.  Returns (state, info dict, fac): info has the step size taken (h_used),
@@ -280,7 +328,7 @@ def attempt_step(stepper: Stepper, state: SimState, control: StepControl, inp: I
     the last attempt; ``fac`` the factorization modified Newton keeps (None for 'newton')."""
     settings = stepper.newton
     n_hist = settings.max_total_iterations + 1
-    h_min = control.dt_max * 0.5 ** stepper.max_cutbacks
+    h_min = control.dt_max * 0.5**stepper.max_cutbacks
     snap = 1e-9 * control.dt_max
 
     def cond(c):
@@ -294,27 +342,51 @@ def attempt_step(stepper: Stepper, state: SimState, control: StepControl, inp: I
         # after a failure in this step (the rate may be what failed), and never an invalid one
         use_rate = (c["cutbacks"] == 0).astype(st.x.dtype)
         x, g, its, code, hist, cstep, fac_new = solve_step(
-            stepper.model, stepper.linear, settings, st, t_new, hh, inp, idx,
-            x_guess=st.x + use_rate * hh * st.x_rate, fac=c["fac"])
+            stepper.model,
+            stepper.linear,
+            settings,
+            st,
+            t_new,
+            hh,
+            inp,
+            idx,
+            x_guess=st.x + use_rate * hh * st.x_rate,
+            fac=c["fac"],
+        )
         ok = code == OK
         conv = converged_state(stepper.model, st, x, g, t_new, inp, cstep, idx)
         failed = ~ok & (h <= h_min * (1.0 + 1e-9))  # nothing smaller to try
         return dict(
-            state=_tree_where(ok, conv, st), h=jnp.where(ok, h, 0.5 * h), h_used=hh,
-            done=ok | failed, iterations=c["iterations"] + its,
-            last_iterations=its, cutbacks=c["cutbacks"] + (~ok).astype(jnp.int32),
-            code=jnp.where(ok, OK, code), hist=hist, fac=fac_new,
+            state=_tree_where(ok, conv, st),
+            h=jnp.where(ok, h, 0.5 * h),
+            h_used=hh,
+            done=ok | failed,
+            iterations=c["iterations"] + its,
+            last_iterations=its,
+            cutbacks=c["cutbacks"] + (~ok).astype(jnp.int32),
+            code=jnp.where(ok, OK, code),
+            hist=hist,
+            fac=fac_new,
         )
 
     zero = jnp.zeros_like(control.h)
-    init = dict(state=state, h=jnp.maximum(control.h, h_min), h_used=zero,
-                done=jnp.asarray(False), iterations=jnp.asarray(0),
-                last_iterations=jnp.asarray(0), cutbacks=jnp.asarray(0, jnp.int32),
-                code=jnp.asarray(OK), hist=jnp.full(n_hist, jnp.inf), fac=fac)
+    init = dict(
+        state=state,
+        h=jnp.maximum(control.h, h_min),
+        h_used=zero,
+        done=jnp.asarray(False),
+        iterations=jnp.asarray(0),
+        last_iterations=jnp.asarray(0),
+        cutbacks=jnp.asarray(0, jnp.int32),
+        code=jnp.asarray(OK),
+        hist=jnp.full(n_hist, jnp.inf),
+        fac=fac,
+    )
     out = jax.lax.while_loop(cond, body, init)
     info = {k: out[k] for k in ("iterations", "cutbacks", "code", "hist", "h_used")}
-    info["h_next"] = stepper.next_step(out["h_used"], out["last_iterations"],
-                                       out["cutbacks"], control.dt_max)
+    info["h_next"] = stepper.next_step(
+        out["h_used"], out["last_iterations"], out["cutbacks"], control.dt_max
+    )
     return out["state"], info, out["fac"]
 
 
@@ -323,8 +395,15 @@ def applied_forces(model: Model, inp: Inputs, t, idx: Indices):
     if inp.load is None:
         return None
     lay = model.layout
-    return external_forces(inp.load, t, inp.coords, idx.load_facets,
-                           model.formulation.axisymmetric, lay.n_fields, lay.n_dofs)
+    return external_forces(
+        inp.load,
+        t,
+        inp.coords,
+        idx.load_facets,
+        model.formulation.axisymmetric,
+        lay.n_fields,
+        lay.n_dofs,
+    )
 
 
 def die_force(model: Model, x, inp: Inputs, t, idx: Indices):
@@ -346,8 +425,11 @@ def step_outputs(model: Model, state: SimState, inp: Inputs, idx: Indices, symme
     """Scalars and fields recorded after each step."""
     return dict(
         time_s=state.t,
-        stroke_mm=(jnp.zeros_like(state.t) if inp.die is None
-                   else (2.0 if symmetric_z else 1.0) * inp.die.travel(state.t)),
+        stroke_mm=(
+            jnp.zeros_like(state.t)
+            if inp.die is None
+            else (2.0 if symmetric_z else 1.0) * inp.die.travel(state.t)
+        ),
         force_N=die_force(model, state.x, inp, state.t, idx),
         friction_work_Nmm=state.friction_work,
         x=state.x,
@@ -360,8 +442,15 @@ def step_outputs(model: Model, state: SimState, inp: Inputs, idx: Indices, symme
 
 
 @partial(jit, static_argnums=(0, 5))
-def run_chunk(stepper: Stepper, state: SimState, control: StepControl, inp: Inputs,
-              idx: Indices, n: int, fac=None):
+def run_chunk(
+    stepper: Stepper,
+    state: SimState,
+    control: StepControl,
+    inp: Inputs,
+    idx: Indices,
+    n: int,
+    fac=None,
+):
     """lax.scan over n steps, each one converged step of adaptive size
     (:func:`attempt_step`); steps after the end, after a failure, or after a step that
     left an element corner quality below ``control.rezone_quality`` (the caller rezones
@@ -381,9 +470,18 @@ def run_chunk(stepper: Stepper, state: SimState, control: StepControl, inp: Inpu
         def skip(st, fac):
             n_hist = stepper.newton.max_total_iterations + 1
             z = jnp.zeros_like(ctl.h)
-            return st, dict(iterations=jnp.asarray(0), cutbacks=jnp.asarray(0, jnp.int32),
-                            code=jnp.asarray(OK), hist=jnp.full(n_hist, jnp.inf),
-                            h_used=z, h_next=ctl.h), fac
+            return (
+                st,
+                dict(
+                    iterations=jnp.asarray(0),
+                    cutbacks=jnp.asarray(0, jnp.int32),
+                    code=jnp.asarray(OK),
+                    hist=jnp.full(n_hist, jnp.inf),
+                    h_used=z,
+                    h_next=ctl.h,
+                ),
+                fac,
+            )
 
         new, info, fac_new = jax.lax.cond(run, do, skip, st, fac)
         failed = failed | (info["code"] != OK)
@@ -393,8 +491,7 @@ def run_chunk(stepper: Stepper, state: SimState, control: StepControl, inp: Inpu
         paused = paused | (run & ~failed & (trigger > 0.0) & (quality < trigger))
         out = step_outputs(model, new, inp, idx, stepper.symmetric_z)
         out.update(info)
-        out["factorizations"] = (info["iterations"] if fac is None
-                                 else fac_new.count - fac.count)
+        out["factorizations"] = info["iterations"] if fac is None else fac_new.count - fac.count
         out["active"] = run
         out["mesh_quality"] = quality
         out["paused"] = paused
@@ -441,13 +538,15 @@ def _failure_message(scene: Scene, inp: Inputs, state: SimState, step: int, row)
     q = corner_qualities(np.asarray(pos), elements).min(axis=1)
     e = int(np.argmin(q))
     centre = np.asarray(pos)[elements[e]].mean(axis=0)
-    h_min = scene.dt * 0.5 ** scene.max_cutbacks
+    h_min = scene.dt * 0.5**scene.max_cutbacks
     t = float(state.t)
-    return (f"step {step} (last converged time {t:g} s, target time "
-            f"{min(t + h_min, scene.t_end):g} s) failed at the smallest step dt = {h_min:g} s "
-            f"(time.dt_s / 2**solver.max_cutbacks) after {int(row['cutbacks'])} attempts: "
-            f"{CAUSES.get(int(row['code']), 'unknown')}; worst element {e} at "
-            f"({centre[0]:.4g}, {centre[1]:.4g}) mm, corner quality {q[e]:.3g}")
+    return (
+        f"step {step} (last converged time {t:g} s, target time "
+        f"{min(t + h_min, scene.t_end):g} s) failed at the smallest step dt = {h_min:g} s "
+        f"(time.dt_s / 2**solver.max_cutbacks) after {int(row['cutbacks'])} attempts: "
+        f"{CAUSES.get(int(row['code']), 'unknown')}; worst element {e} at "
+        f"({centre[0]:.4g}, {centre[1]:.4g}) mm, corner quality {q[e]:.3g}"
+    )
 
 
 def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Result:
@@ -464,26 +563,50 @@ def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Re
     require_x64()
     state = scene.initial_state()
     inp = scene.inputs
-    stepper = Stepper(scene.model, scene.linear, scene.newton, scene.max_cutbacks,
-                      scene.dt_growth, scene.symmetric_z)
-    control = StepControl(h=jnp.asarray(scene.dt), dt_max=jnp.asarray(scene.dt),
-                          t_end=jnp.asarray(scene.t_end),
-                          rezone_quality=jnp.asarray(scene.rezone_quality))
+    stepper = Stepper(
+        scene.model,
+        scene.linear,
+        scene.newton,
+        scene.max_cutbacks,
+        scene.dt_growth,
+        scene.symmetric_z,
+    )
+    control = StepControl(
+        h=jnp.asarray(scene.dt),
+        dt_max=jnp.asarray(scene.dt),
+        t_end=jnp.asarray(scene.t_end),
+        rezone_quality=jnp.asarray(scene.rezone_quality),
+    )
     init = jax.device_get(step_outputs(scene.model, state, inp, scene.idx, scene.symmetric_z))
-    rows = [dict(init, iterations=0, factorizations=0, cutbacks=0, code=OK, rezoned=0, dt_s=0.0,
-                 mesh_quality=float(min_quality(np.asarray(scene.inputs.coords),
-                                                np.asarray(scene.mesh.elements))))]
+    rows = [
+        dict(
+            init,
+            iterations=0,
+            factorizations=0,
+            cutbacks=0,
+            code=OK,
+            rezoned=0,
+            dt_s=0.0,
+            mesh_quality=float(
+                min_quality(np.asarray(scene.inputs.coords), np.asarray(scene.mesh.elements))
+            ),
+        )
+    ]
     hists = []
     rezones = []
     failure = None
     t_stop = scene.t_end - 1e-9 * scene.dt
-    owned = [scene.linear.empty_factorization(scene.model.layout.n_dofs, state.x.dtype)
-             if scene.newton.method == "modified" else None]
+    owned = [
+        scene.linear.empty_factorization(scene.model.layout.n_dofs, state.x.dtype)
+        if scene.newton.method == "modified"
+        else None
+    ]
     try:
         while float(state.t) < t_stop and failure is None:
             fac, owned[0] = owned[0], None  # the chunk frees it when it refactors
-            state_new, control, outs, owned[0] = run_chunk(stepper, state, control, inp,
-                                                           scene.idx, scene.chunk, fac)
+            state_new, control, outs, owned[0] = run_chunk(
+                stepper, state, control, inp, scene.idx, scene.chunk, fac
+            )
             outs = jax.device_get(outs)
             for j in range(scene.chunk):
                 row = {k: v[j] for k, v in outs.items()}
@@ -499,10 +622,23 @@ def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Re
                 hists.append(row["hist"])
                 if progress is not None:
                     left = max(scene.t_end - float(row["time_s"]), 0.0)
-                    progress(dict(step=len(rows) - 1,
-                                  n_steps=len(rows) - 1 + int(math.ceil(left / scene.dt - 1e-9)),
-                                  **{k: row[k] for k in ("time_s", "stroke_mm", "force_N",
-                                                         "iterations", "cutbacks", "dt_s")}))
+                    progress(
+                        dict(
+                            step=len(rows) - 1,
+                            n_steps=len(rows) - 1 + int(math.ceil(left / scene.dt - 1e-9)),
+                            **{
+                                k: row[k]
+                                for k in (
+                                    "time_s",
+                                    "stroke_mm",
+                                    "force_N",
+                                    "iterations",
+                                    "cutbacks",
+                                    "dt_s",
+                                )
+                            },
+                        )
+                    )
             state = state_new
             if rows[-1]["rezoned"] and float(state.t) >= t_stop:
                 rows[-1]["rezoned"] = 0  # the run ends here: nothing to rezone for
@@ -515,8 +651,9 @@ def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Re
                     rezones.append(report)
                     # a rezoning that could not raise the quality keeps the mesh; try again
                     # when the quality has fallen by another 10 %
-                    trigger = (scene.rezone_quality if report.improved
-                               else 0.9 * report.quality_before)
+                    trigger = (
+                        scene.rezone_quality if report.improved else 0.9 * report.quality_before
+                    )
                     control = replace(control, rezone_quality=jnp.asarray(trigger))
                     rows[-1]["rezoned"] = int(report.improved)
     finally:
@@ -524,16 +661,35 @@ def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Re
         # held is lost, never freed twice
         if owned[0] is not None:
             jax.block_until_ready(scene.linear.release(owned[0]))
-    hist_keys = ("time_s", "dt_s", "stroke_mm", "force_N", "iterations", "factorizations",
-                 "cutbacks", "friction_work_Nmm", "mesh_quality", "rezoned")
+    hist_keys = (
+        "time_s",
+        "dt_s",
+        "stroke_mm",
+        "force_N",
+        "iterations",
+        "factorizations",
+        "cutbacks",
+        "friction_work_Nmm",
+        "mesh_quality",
+        "rezoned",
+    )
     history = {k: np.array([float(r[k]) for r in rows]) for k in hist_keys}
     history["newton_iterations"] = history.pop("iterations")
-    fields = {k: np.stack([np.asarray(r[k]) for r in rows])
-              for k in ("x", "stress", "s", "eqps", "slip_mm", "contact_status")}
+    fields = {
+        k: np.stack([np.asarray(r[k]) for r in rows])
+        for k in ("x", "stress", "s", "eqps", "slip_mm", "contact_status")
+    }
     history.update(extra_history(scene, fields["x"], history["time_s"]))
-    result = Result(history=history, fields=fields, scene=scene, final_state=state,
-                    newton_histories=np.array(hists), failure=failure, inputs=inp,
-                    rezones=rezones)
+    result = Result(
+        history=history,
+        fields=fields,
+        scene=scene,
+        final_state=state,
+        newton_histories=np.array(hists),
+        failure=failure,
+        inputs=inp,
+        rezones=rezones,
+    )
     if failure:
         raise SimulationError(failure, result)
     return result
