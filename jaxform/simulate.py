@@ -549,6 +549,49 @@ def _failure_message(scene: Scene, inp: Inputs, state: SimState, step: int, row)
     )
 
 
+HISTORY_KEYS = (
+    "time_s",
+    "dt_s",
+    "stroke_mm",
+    "force_N",
+    "iterations",
+    "factorizations",
+    "cutbacks",
+    "friction_work_Nmm",
+    "mesh_quality",
+    "rezoned",
+)
+FIELD_KEYS = ("x", "stress", "s", "eqps", "slip_mm", "contact_status")
+PROGRESS_KEYS = ("time_s", "stroke_mm", "force_N", "iterations", "cutbacks", "dt_s")
+
+
+def _initial_row(scene: Scene, state: SimState) -> dict:
+    """History row 0: the initial state."""
+    out = jax.device_get(
+        step_outputs(scene.model, state, scene.inputs, scene.idx, scene.symmetric_z)
+    )
+    q = min_quality(np.asarray(scene.inputs.coords), np.asarray(scene.mesh.elements))
+    return dict(out, iterations=0, factorizations=0, cutbacks=0, code=OK, rezoned=0,
+                dt_s=0.0, mesh_quality=float(q))  # fmt: skip
+
+
+def _progress(scene: Scene, step: int, row: dict) -> dict:
+    """What the progress callback gets after a step: its number, an estimate of the
+    number of steps (the rest at the largest step) and the row's scalars."""
+    left = max(scene.t_end - float(row["time_s"]), 0.0)
+    n_steps = step + int(math.ceil(left / scene.dt - 1e-9))
+    return dict(step=step, n_steps=n_steps, **{k: row[k] for k in PROGRESS_KEYS})
+
+
+def _rezone_after(scene: Scene, state: SimState, inp: Inputs, control: StepControl):
+    """Rezone after a step that paused the chunk: (state, inputs, control, report).  A
+    rezoning that could not raise the quality keeps the mesh and waits until the quality
+    has fallen by another 10 %.  Raises RezoneError."""
+    state, inp, report = rezone(scene, state, inp)
+    trigger = scene.rezone_quality if report.improved else 0.9 * report.quality_before
+    return state, inp, replace(control, rezone_quality=jnp.asarray(trigger)), report
+
+
 def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Result:
     """Run the scene to its end; raises SimulationError (with .result) on failure.
 
@@ -557,50 +600,19 @@ def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Re
     (column ``dt_s``), and the run ends exactly at ``scene.t_end``.  With
     ``scene.rezone_quality`` > 0, a step after which an element's worst corner quality
     is below it ends the compiled chunk; the mesh is rezoned (:mod:`jaxform.rezone`) and
-    the run goes on from there (history column ``rezoned`` = 1 on that step).  If no node
-    move can raise the quality, the mesh stays as it is and the next attempt waits until
-    the quality has fallen by another 10 %."""
+    the run goes on from there (history column ``rezoned`` = 1 on that step)."""
     require_x64()
-    state = scene.initial_state()
-    inp = scene.inputs
-    stepper = Stepper(
-        scene.model,
-        scene.linear,
-        scene.newton,
-        scene.max_cutbacks,
-        scene.dt_growth,
-        scene.symmetric_z,
-    )
-    control = StepControl(
-        h=jnp.asarray(scene.dt),
-        dt_max=jnp.asarray(scene.dt),
-        t_end=jnp.asarray(scene.t_end),
-        rezone_quality=jnp.asarray(scene.rezone_quality),
-    )
-    init = jax.device_get(step_outputs(scene.model, state, inp, scene.idx, scene.symmetric_z))
-    rows = [
-        dict(
-            init,
-            iterations=0,
-            factorizations=0,
-            cutbacks=0,
-            code=OK,
-            rezoned=0,
-            dt_s=0.0,
-            mesh_quality=float(
-                min_quality(np.asarray(scene.inputs.coords), np.asarray(scene.mesh.elements))
-            ),
-        )
-    ]
-    hists = []
-    rezones = []
-    failure = None
+    state, inp = scene.initial_state(), scene.inputs
+    stepper = Stepper(scene.model, scene.linear, scene.newton, scene.max_cutbacks,
+                      scene.dt_growth, scene.symmetric_z)  # fmt: skip
+    control = StepControl(h=jnp.asarray(scene.dt), dt_max=jnp.asarray(scene.dt),
+                          t_end=jnp.asarray(scene.t_end),
+                          rezone_quality=jnp.asarray(scene.rezone_quality))  # fmt: skip
+    rows, rezones, failure = [_initial_row(scene, state)], [], None
     t_stop = scene.t_end - 1e-9 * scene.dt
-    owned = [
-        scene.linear.empty_factorization(scene.model.layout.n_dofs, state.x.dtype)
-        if scene.newton.method == "modified"
-        else None
-    ]
+    modified = scene.newton.method == "modified"
+    n = scene.model.layout.n_dofs
+    owned = [scene.linear.empty_factorization(n, state.x.dtype) if modified else None]
     try:
         while float(state.t) < t_stop and failure is None:
             fac, owned[0] = owned[0], None  # the chunk frees it when it refactors
@@ -615,81 +627,35 @@ def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Re
                 if int(row["code"]) != OK:
                     failure = _failure_message(scene, inp, state_new, len(rows), row)
                     break
-                row["x"] = _absolute(scene, inp, row["x"])
-                row["rezoned"] = int(bool(row["paused"]))
-                row["dt_s"] = float(row["h_used"])
+                row.update(x=_absolute(scene, inp, row["x"]), dt_s=float(row["h_used"]),
+                           rezoned=int(bool(row["paused"])))  # fmt: skip
                 rows.append(row)
-                hists.append(row["hist"])
                 if progress is not None:
-                    left = max(scene.t_end - float(row["time_s"]), 0.0)
-                    progress(
-                        dict(
-                            step=len(rows) - 1,
-                            n_steps=len(rows) - 1 + int(math.ceil(left / scene.dt - 1e-9)),
-                            **{
-                                k: row[k]
-                                for k in (
-                                    "time_s",
-                                    "stroke_mm",
-                                    "force_N",
-                                    "iterations",
-                                    "cutbacks",
-                                    "dt_s",
-                                )
-                            },
-                        )
-                    )
+                    progress(_progress(scene, len(rows) - 1, row))
             state = state_new
             if rows[-1]["rezoned"] and float(state.t) >= t_stop:
                 rows[-1]["rezoned"] = 0  # the run ends here: nothing to rezone for
             if rows[-1]["rezoned"] and failure is None:
                 try:
-                    state, inp, report = rezone(scene, state, inp)
+                    state, inp, control, report = _rezone_after(scene, state, inp, control)
                 except RezoneError as err:
                     failure = f"step {len(rows) - 1}: {err}"
                 else:
                     rezones.append(report)
-                    # a rezoning that could not raise the quality keeps the mesh; try again
-                    # when the quality has fallen by another 10 %
-                    trigger = (
-                        scene.rezone_quality if report.improved else 0.9 * report.quality_before
-                    )
-                    control = replace(control, rezone_quality=jnp.asarray(trigger))
                     rows[-1]["rezoned"] = int(report.improved)
     finally:
         # the last factorization modified Newton kept is freed here; one a raising chunk
         # held is lost, never freed twice
         if owned[0] is not None:
             jax.block_until_ready(scene.linear.release(owned[0]))
-    hist_keys = (
-        "time_s",
-        "dt_s",
-        "stroke_mm",
-        "force_N",
-        "iterations",
-        "factorizations",
-        "cutbacks",
-        "friction_work_Nmm",
-        "mesh_quality",
-        "rezoned",
-    )
-    history = {k: np.array([float(r[k]) for r in rows]) for k in hist_keys}
+    history = {k: np.array([float(r[k]) for r in rows]) for k in HISTORY_KEYS}
     history["newton_iterations"] = history.pop("iterations")
-    fields = {
-        k: np.stack([np.asarray(r[k]) for r in rows])
-        for k in ("x", "stress", "s", "eqps", "slip_mm", "contact_status")
-    }
+    fields = {k: np.stack([np.asarray(r[k]) for r in rows]) for k in FIELD_KEYS}
     history.update(extra_history(scene, fields["x"], history["time_s"]))
-    result = Result(
-        history=history,
-        fields=fields,
-        scene=scene,
-        final_state=state,
-        newton_histories=np.array(hists),
-        failure=failure,
-        inputs=inp,
-        rezones=rezones,
-    )
+    hists = np.array([r["hist"] for r in rows[1:]])
+    result = Result(history=history, fields=fields, scene=scene, final_state=state,
+                    newton_histories=hists, failure=failure, inputs=inp,
+                    rezones=rezones)  # fmt: skip
     if failure:
         raise SimulationError(failure, result)
     return result
