@@ -53,6 +53,7 @@ from jaxform.simulate import (
     Inputs,
     Scene,
     SimState,
+    Stepper,
     converged_state,
     die_force,
     solve_step,
@@ -86,8 +87,9 @@ class GradientRunError(RuntimeError):
     """A step of a differentiable run did not converge."""
 
 
-@partial(jit, static_argnums=(0, 1, 2, 3, 8))
-def _trajectory(model, linear, settings, symmetric_z, inputs: Inputs, times, state0, idx, n_kept=0):
+@partial(jit, static_argnums=(0, 5))
+def _trajectory(stepper: Stepper, inputs: Inputs, times, state0, idx, n_kept=0):
+    model, linear, symmetric_z = stepper.model, stepper.linear, stepper.symmetric_z
     n_steps = times.shape[0]
 
     def step(st: SimState, xs):
@@ -99,9 +101,8 @@ def _trajectory(model, linear, settings, symmetric_z, inputs: Inputs, times, sta
         # solves with the factors and returns its last factorization
         sg = jax.lax.stop_gradient
         fac0 = linear.empty_factorization(st.x.shape[0], st.x.dtype) if n_kept else None
-        x1, _, its1, code1, _, _, fac1 = solve_step(
-            model, linear, settings, sg(st), t_new, sg(dt), sg(inputs), idx, x_guess=guess, fac=fac0
-        )
+        first = solve_step(stepper, sg(st), sg(t_new), sg(inputs), idx, x_guess=guess, fac=fac0)
+        x1, its1, code1, fac1 = first.x, first.iterations, first.code, first.fac
         kept = None
         if n_kept:  # steps past the memory budget free it now
             fac1 = sg(fac1)  # integer handles: no tangent, and the FFI free has no JVP
@@ -112,20 +113,17 @@ def _trajectory(model, linear, settings, symmetric_z, inputs: Inputs, times, sta
         # lax.cond: under vmap a cond runs both branches, i.e. a whole second Newton solve
         # for every lane; here a lane that converged costs one residual evaluation.  Its
         # reverse pass refines with the kept factorization (of the iterate before x1).
-        x, g, its2, code, _, cstep, _ = solve_step(
-            model,
-            linear,
-            settings,
+        sol = solve_step(
+            stepper,
             st,
             t_new,
-            dt,
             inputs,
             idx,
             x_guess=jnp.where(code1 == OK, x1, st.x),
             adjoint_fac=kept,
         )
-        its = its1 + its2
-        new = converged_state(model, st, x, g, t_new, inputs, cstep, idx)
+        x, code, its = sol.x, sol.code, its1 + sol.iterations
+        new = converged_state(model, st, x, sol.gauss, t_new, inputs, sol.cstep, idx)
         out = (
             t_new,
             die_force(model, x, inputs, t_new, idx),
@@ -198,11 +196,10 @@ def trajectory(
             "still in use; run batches without it (as jaxform.batch does)"
         )
     state0 = initial_state_for(scene, inputs)
+    stepper = Stepper(scene.model, scene.linear, exact_newton(scene.newton), 0,
+                      symmetric_z=scene.symmetric_z)  # fmt: skip
     return _trajectory(
-        scene.model,
-        scene.linear,
-        exact_newton(scene.newton),
-        scene.symmetric_z,
+        stepper,
         inputs,
         times,
         state0,

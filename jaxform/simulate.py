@@ -212,43 +212,56 @@ class StepLinear:
         return matvec(rows, cols, vals, y, self.n)
 
 
+@dataclass(frozen=True)
+class StepSolution:
+    """What a step's Newton solve returns: the unknowns and Gauss state at the end of the
+    step, the iterations, the status code, the Newton history (||R_k|| / F), the contact
+    constants of the step, and the factorization kept (or None)."""
+
+    x: jax.Array
+    gauss: GaussState
+    iterations: jax.Array
+    code: jax.Array
+    hist: jax.Array
+    cstep: ContactStep | None
+    fac: object = None
+
+
 def solve_step(
-    model: Model,
-    linear: LinearSolver,
-    settings: NewtonSettings,
+    stepper: Stepper,
     state: SimState,
     t_new,
-    dt,
     inp: Inputs,
     idx: Indices,
     x_guess=None,
     fac=None,
     adjoint_fac=None,
-):
-    """One Newton solve from state (at t) to t_new = t + dt, starting from x_guess (or
-    state.x; state.x also when the guess is not a valid state); ``fac``: the kept
-    factorization for ``settings.method = 'modified'``, or for 'newton' one that each
-    iteration replaces, the last returned; ``adjoint_fac``: a factorization near the root
-    for the reverse pass to reuse (see :func:`jaxform.solver.solve_implicit`).
+) -> StepSolution:
+    """One Newton solve from state (at t) to t_new, starting from x_guess (or state.x;
+    state.x also when the guess is not a valid state); ``fac``: the kept factorization for
+    ``stepper.newton.method = 'modified'``, or for 'newton' one that each iteration
+    replaces, the last returned; ``adjoint_fac``: a factorization near the root for the
+    reverse pass to reuse (see :func:`jaxform.solver.solve_implicit`).
 
-    Differentiable (reverse mode) in ``state`` and ``inp`` by the implicit function theorem
-    (:func:`jaxform.solver.solve_implicit`).  Returns (x, gauss, its, code, hist, cstep, fac)."""
-    ctx = step_context(model, state, inp, idx, t_new, dt)
+    Differentiable (reverse mode) in ``state``, ``t_new`` and ``inp`` by the implicit
+    function theorem (:func:`jaxform.solver.solve_implicit`)."""
+    model = stepper.model
+    ctx = step_context(model, state, inp, idx, t_new, t_new - state.t)
     x_fallback = jax.lax.stop_gradient(state.x)
     x0 = x_fallback if x_guess is None else jax.lax.stop_gradient(x_guess)
     x, g, its, code, hist, fac = solve_implicit(
         partial(_step_residual, model),
         partial(_step_residual_and_jacobian, model),
         partial(_step_adjoint, model),
-        StepLinear(model.layout.n_dofs, linear),
-        settings,
+        StepLinear(model.layout.n_dofs, stepper.linear),
+        stepper.newton,
         x0,
         x_fallback,
         ctx,
         fac,
         adjoint_fac,
     )
-    return x, g, its, code, hist, ctx.cstep, fac
+    return StepSolution(x, g, its, code, hist, ctx.cstep, fac)
 
 
 def converged_state(
@@ -341,32 +354,23 @@ def attempt_step(
         # predictor: the last step's rate, extrapolated (exact for steady motion); not
         # after a failure in this step (the rate may be what failed), and never an invalid one
         use_rate = (c["cutbacks"] == 0).astype(st.x.dtype)
-        x, g, its, code, hist, cstep, fac_new = solve_step(
-            stepper.model,
-            stepper.linear,
-            settings,
-            st,
-            t_new,
-            hh,
-            inp,
-            idx,
-            x_guess=st.x + use_rate * hh * st.x_rate,
-            fac=c["fac"],
+        sol = solve_step(
+            stepper, st, t_new, inp, idx, x_guess=st.x + use_rate * hh * st.x_rate, fac=c["fac"]
         )
-        ok = code == OK
-        conv = converged_state(stepper.model, st, x, g, t_new, inp, cstep, idx)
+        ok = sol.code == OK
+        conv = converged_state(stepper.model, st, sol.x, sol.gauss, t_new, inp, sol.cstep, idx)
         failed = ~ok & (h <= h_min * (1.0 + 1e-9))  # nothing smaller to try
         return dict(
             state=_tree_where(ok, conv, st),
             h=jnp.where(ok, h, 0.5 * h),
             h_used=hh,
             done=ok | failed,
-            iterations=c["iterations"] + its,
-            last_iterations=its,
+            iterations=c["iterations"] + sol.iterations,
+            last_iterations=sol.iterations,
             cutbacks=c["cutbacks"] + (~ok).astype(jnp.int32),
-            code=jnp.where(ok, OK, code),
-            hist=hist,
-            fac=fac_new,
+            code=jnp.where(ok, OK, sol.code),
+            hist=sol.hist,
+            fac=sol.fac,
         )
 
     zero = jnp.zeros_like(control.h)
