@@ -47,12 +47,20 @@ def main():
     ap.add_argument("--shard", action="store_true", help="shard the batch over jax.devices()")
     args = ap.parse_args()
     jaxform.enable_x64()
-    cfg = load_config("configs/upsetting_friction.toml", [
-        f"mesh.nr={args.mesh}", f"mesh.nz={args.mesh}", f"die.reduction={args.reduction}",
-        "output.fields=false", "output.plots=false"])
+    cfg = load_config(
+        "configs/upsetting_friction.toml",
+        [
+            f"mesh.nr={args.mesh}",
+            f"mesh.nz={args.mesh}",
+            f"die.reduction={args.reduction}",
+            "output.fields=false",
+            "output.plots=false",
+        ],
+    )
     scene = build_scene(cfg)
-    pb = build_problem(scene, groups=("friction",), objective=ForgingWork(),
-                       times=scene.step_targets())
+    pb = build_problem(
+        scene, groups=("friction",), objective=ForgingWork(), times=scene.step_targets()
+    )
     mus = np.linspace(0.05, 0.5, args.batch)
     designs = stack_designs([{"friction": jnp.array([m])} for m in mus])
     batch = BatchProblem(pb, batch_mesh() if args.shard else None)
@@ -74,15 +82,21 @@ def main():
     err = np.max(np.abs(np.asarray(v_loop) - v_batch) / np.abs(v_batch))
     its = np.asarray(traj.iterations)
     what = "value+gradient" if args.grad else "value"
-    print(f"scene: friction upsetting {args.mesh}x{args.mesh} q1p0, {scene.model.layout.n_dofs} "
-          f"unknowns ({scene.linear.backend}), {len(pb.times)} steps, {what}, batch "
-          f"{args.batch}, devices {len(jax.devices()) if args.shard else 1}")
+    print(
+        f"scene: friction upsetting {args.mesh}x{args.mesh} q1p0, {scene.model.layout.n_dofs} "
+        f"unknowns ({scene.linear.backend}), {len(pb.times)} steps, {what}, batch "
+        f"{args.batch}, devices {len(jax.devices()) if args.shard else 1}"
+    )
     print(f"compile: single {c_single:.1f} s, batch {c_batch:.1f} s (first call incl. run)")
     print(f"loop : {t_loop:8.3f} s  {args.batch / t_loop:8.2f} designs/s")
-    print(f"batch: {t_batch:8.3f} s  {args.batch / t_batch:8.2f} designs/s  "
-          f"speed-up {t_loop / t_batch:.2f}x  (max rel. difference {err:.1e})")
-    print(f"Newton iterations per design: {its.sum(axis=1).min()}..{its.sum(axis=1).max()}; "
-          f"the batch pays the slowest lane per step: {its.max(axis=0).sum()}")
+    print(
+        f"batch: {t_batch:8.3f} s  {args.batch / t_batch:8.2f} designs/s  "
+        f"speed-up {t_loop / t_batch:.2f}x  (max rel. difference {err:.1e})"
+    )
+    print(
+        f"Newton iterations per design: {its.sum(axis=1).min()}..{its.sum(axis=1).max()}; "
+        f"the batch pays the slowest lane per step: {its.max(axis=0).sum()}"
+    )
 
 
 if __name__ == "__main__":

@@ -36,8 +36,8 @@ import resource
 import time
 from dataclasses import replace
 
-import jax
 import numpy as np
+from timing import interleaved
 
 import jaxform
 from jaxform.config import load_config
@@ -45,7 +45,6 @@ from jaxform.design import available_groups, build_problem
 from jaxform.gradients import kept_steps
 from jaxform.scenes import build_scene
 from jaxform.simulate import simulate
-from timing import interleaved
 
 CONFIGS = {"seed": "configs/upsetting_seed.toml", "friction": "configs/upsetting_friction.toml"}
 
@@ -63,47 +62,79 @@ def program_bytes(jitted, *args) -> float:
 
 def adjoint_reuse(n: int, steps: int, repeat: int) -> None:
     """Gradient with and without kept factorizations on an n x n seed mesh."""
-    over = ["output.fields=false", "output.plots=false", f"mesh.nr={n}", f"mesh.nz={n}",
-            "solver.linear=sparse"]
+    over = [
+        "output.fields=false",
+        "output.plots=false",
+        f"mesh.nr={n}",
+        f"mesh.nz={n}",
+        "solver.linear=sparse",
+    ]
     problems = {}
     for label, budget in (("factor again", "0"), ("reuse", "1e6")):
-        scene = build_scene(load_config(CONFIGS["seed"],
-                                        over + [f"solver.adjoint_memory_mb={budget}"]))
+        scene = build_scene(
+            load_config(CONFIGS["seed"], over + [f"solver.adjoint_memory_mb={budget}"])
+        )
         pb = build_problem(scene, groups=("material",))
         pb = replace(pb, times=pb.times[:steps])
         t0 = time.perf_counter()
         val, grad, _ = pb.value_and_grad(pb.start)
-        print(f"{label}: compile + first run {time.perf_counter() - t0:.1f} s, kept steps "
-              f"{kept_steps(scene, steps)} of {steps}, one factorization "
-              f"{scene.linear.factor_bytes(scene.model.layout.n_dofs, len(scene.idx.rows), scene.idx.lu_symbolic) / 2**20:.1f} MB (estimate)",
-              flush=True)
+        fac_mb = (
+            scene.linear.factor_bytes(
+                scene.model.layout.n_dofs, len(scene.idx.rows), scene.idx.lu_symbolic
+            )
+            / 2**20
+        )
+        print(
+            f"{label}: compile + first run {time.perf_counter() - t0:.1f} s, kept steps "
+            f"{kept_steps(scene, steps)} of {steps}, one factorization "
+            f"{fac_mb:.1f} MB (estimate)",
+            flush=True,
+        )
         problems[label] = (pb, grad)
     (pa, ga), (pb, gb) = problems["factor again"], problems["reuse"]
-    diff = max(float(np.max(np.abs(ga[k] - gb[k]) / np.maximum(np.abs(ga[k]), 1e-300)))
-               for k in ga)
+    diff = max(float(np.max(np.abs(ga[k] - gb[k]) / np.maximum(np.abs(ga[k]), 1e-300))) for k in ga)
     u = pa.start
-    t = interleaved([lambda: pa.value(u)[0], lambda: pa.value_and_grad(u)[1],
-                     lambda: pb.value(u)[0], lambda: pb.value_and_grad(u)[1]], repeat)
+    t = interleaved(
+        [
+            lambda: pa.value(u)[0],
+            lambda: pa.value_and_grad(u)[1],
+            lambda: pb.value(u)[0],
+            lambda: pb.value_and_grad(u)[1],
+        ],
+        repeat,
+    )
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     print(f"\n{n} x {n} seed mesh, {steps} steps, best of {repeat} interleaved:")
     print("| adjoint solve | forward (s) | gradient (s) | reverse pass (s) |")
     print("|---|---|---|---|")
     print(f"| factor again | {t[0]:.2f} | {t[1]:.2f} | {t[1] - t[0]:.2f} |")
     print(f"| reuse the forward factorization | {t[2]:.2f} | {t[3]:.2f} | {t[3] - t[2]:.2f} |")
-    print(f"largest relative difference of the gradients: {diff:.1e}; "
-          f"peak resident set size {rss:.0f} MiB")
+    print(
+        f"largest relative difference of the gradients: {diff:.1e}; "
+        f"peak resident set size {rss:.0f} MiB"
+    )
 
 
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--scenes", nargs="+", default=list(CONFIGS), choices=list(CONFIGS))
     ap.add_argument("--repeat", type=int, default=5)
-    ap.add_argument("--adjoint", type=int, default=0, metavar="N",
-                    help="compare the reverse pass with and without kept factorizations "
-                         "on an N x N seed mesh instead")
+    ap.add_argument(
+        "--adjoint",
+        type=int,
+        default=0,
+        metavar="N",
+        help="compare the reverse pass with and without kept factorizations "
+        "on an N x N seed mesh instead",
+    )
     ap.add_argument("--steps", type=int, default=6)
-    ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
-                    help="config overrides for the scenes (e.g. solver.adjoint_memory_mb=0)")
+    ap.add_argument(
+        "--set",
+        nargs="*",
+        default=[],
+        metavar="KEY=VALUE",
+        help="config overrides for the scenes (e.g. solver.adjoint_memory_mb=0)",
+    )
     args = ap.parse_args()
     jaxform.enable_x64()
     if args.adjoint:
@@ -111,8 +142,9 @@ def main():
         return
     rows = []
     for name in args.scenes:
-        scene = build_scene(load_config(CONFIGS[name], ["output.fields=false",
-                                                       "output.plots=false", *args.set]))
+        scene = build_scene(
+            load_config(CONFIGS[name], ["output.fields=false", "output.plots=false", *args.set])
+        )
         problem = build_problem(scene, groups=available_groups(scene))
         u = problem.start
         t0 = time.perf_counter()
@@ -121,22 +153,40 @@ def main():
         t0 = time.perf_counter()
         problem.value_and_grad(u)
         c_grad = time.perf_counter() - t0
-        t_fwd, t_grad = interleaved([lambda: problem.value(u)[0],
-                                     lambda: problem.value_and_grad(u)[1]], args.repeat)
+        t_fwd, t_grad = interleaved(
+            [lambda: problem.value(u)[0], lambda: problem.value_and_grad(u)[1]], args.repeat
+        )
         t_sim = best(lambda: simulate(scene).history["force_N"], args.repeat)
         mem_fwd = program_bytes(problem._value, u, scene.idx)
         mem_grad = program_bytes(problem._value_and_grad, u, scene.idx)
         n_var = sum(int(v.size) for v in u.values())
-        rows.append((name, len(problem.times), n_var, t_sim, t_fwd, t_grad, t_grad / t_fwd,
-                     c_fwd, c_grad, mem_fwd, mem_grad))
+        rows.append(
+            (
+                name,
+                len(problem.times),
+                n_var,
+                t_sim,
+                t_fwd,
+                t_grad,
+                t_grad / t_fwd,
+                c_fwd,
+                c_grad,
+                mem_fwd,
+                mem_grad,
+            )
+        )
         print(f"{name}: done", flush=True)
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    print("\n| scene | steps | design variables | simulate (s) | forward (s) | gradient (s) | "
-          "gradient / forward | compile fwd / grad (s) | memory fwd / grad (MiB) |")
+    print(
+        "\n| scene | steps | design variables | simulate (s) | forward (s) | gradient (s) | "
+        "gradient / forward | compile fwd / grad (s) | memory fwd / grad (MiB) |"
+    )
     print("|---|---|---|---|---|---|---|---|---|")
     for r in rows:
-        print(f"| {r[0]} | {r[1]} | {r[2]} | {r[3]:.2f} | {r[4]:.2f} | {r[5]:.2f} | {r[6]:.2f} | "
-              f"{r[7]:.0f} / {r[8]:.0f} | {r[9]:.1f} / {r[10]:.1f} |")
+        print(
+            f"| {r[0]} | {r[1]} | {r[2]} | {r[3]:.2f} | {r[4]:.2f} | {r[5]:.2f} | {r[6]:.2f} | "
+            f"{r[7]:.0f} / {r[8]:.0f} | {r[9]:.1f} / {r[10]:.1f} |"
+        )
     print(f"\npeak resident set size of the process: {rss:.0f} MiB")
 
 

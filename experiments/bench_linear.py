@@ -40,8 +40,9 @@ def jacobian(n: int):
     from jaxform.simulate import step_context
 
     jaxform.enable_x64()
-    cfg = load_config(SEED, [f"mesh.nr={n}", f"mesh.nz={n}", "output.fields=false",
-                             "output.plots=false"])
+    cfg = load_config(
+        SEED, [f"mesh.nr={n}", f"mesh.nz={n}", "output.fields=false", "output.plots=false"]
+    )
     sc = build_scene(cfg)
     lay, idx, inp, model = sc.model.layout, sc.idx, sc.inputs, sc.model
     st = sc.initial_state()
@@ -53,8 +54,13 @@ def jacobian(n: int):
     t = jnp.asarray(sc.dt)
     ctx = step_context(model, st, inp, idx, t, t)
     r, vals, *_ = jax.jit(model.residual_and_jacobian)(jnp.asarray(x), ctx)
-    return (np.asarray(idx.rows), np.asarray(idx.cols), np.asarray(vals), -np.asarray(r),
-            lay.n_dofs)
+    return (
+        np.asarray(idx.rows),
+        np.asarray(idx.cols),
+        np.asarray(vals),
+        -np.asarray(r),
+        lay.n_dofs,
+    )
 
 
 def methods(rows, cols, vals, b, n):
@@ -89,38 +95,46 @@ def methods(rows, cols, vals, b, n):
     ks = jax.jit(klujax.solve)
 
     def klu(r, c, v, bb, perm=None):
-        args = (jnp.asarray(r, jnp.int32), jnp.asarray(c, jnp.int32), jnp.asarray(v),
-                jnp.asarray(bb))
+        args = (
+            jnp.asarray(r, jnp.int32),
+            jnp.asarray(c, jnp.int32),
+            jnp.asarray(v),
+            jnp.asarray(bb),
+        )
 
         def f():
             x = np.asarray(jax.block_until_ready(ks(*args)))
             return x if perm is None else back(perm, x)
+
         return f
 
     out["klujax"] = klu(rows, cols, vals, b)
     js = JaxSparseSolver()
     jf = jax.jit(lambda r, c, v, bb: js.solve(r, c, v, bb, n))
-    jargs = (jnp.asarray(rows, jnp.int32), jnp.asarray(cols, jnp.int32), jnp.asarray(vals),
-             jnp.asarray(b))
-    out["jax-sparse (CPU: scipy spsolve)"] = lambda: np.asarray(
-        jax.block_until_ready(jf(*jargs)))
+    jargs = (
+        jnp.asarray(rows, jnp.int32),
+        jnp.asarray(cols, jnp.int32),
+        jnp.asarray(vals),
+        jnp.asarray(b),
+    )
+    out["jax-sparse (CPU: scipy spsolve)"] = lambda: np.asarray(jax.block_until_ready(jf(*jargs)))
     out["splu COLAMD"] = lambda: spl.splu(a, permc_spec="COLAMD").solve(b)
     out["splu MMD_AT_PLUS_A, pivot 0.01"] = lambda: spl.splu(
-        a, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.01).solve(b)
+        a, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.01
+    ).solve(b)
     perms = {"RCM": np.asarray(csg.reverse_cuthill_mckee(s, symmetric_mode=True))}
     try:
         import pymetis
 
-        perms["METIS"] = np.asarray(pymetis.nested_dissection(xadj=s.indptr,
-                                                              adjncy=s.indices)[0])
+        perms["METIS"] = np.asarray(pymetis.nested_dissection(xadj=s.indptr, adjncy=s.indices)[0])
     except ImportError:
         print("pymetis not installed: METIS orderings skipped")
     for name, perm in perms.items():
         r, c, v, bb = permuted(perm)
         ap = sp.csc_matrix((v, (r, c)), shape=(n, n))
-        out[f"splu NATURAL after {name}"] = (
-            lambda ap=ap, bb=bb, perm=perm: back(perm, spl.splu(
-                ap, permc_spec="NATURAL", diag_pivot_thresh=0.01).solve(bb)))
+        out[f"splu NATURAL after {name}"] = lambda ap=ap, bb=bb, perm=perm: back(
+            perm, spl.splu(ap, permc_spec="NATURAL", diag_pivot_thresh=0.01).solve(bb)
+        )
         if name == "METIS":
             out["klujax after METIS"] = klu(r, c, v, bb, perm)
     try:
@@ -132,6 +146,7 @@ def methods(rows, cols, vals, b, n):
         def pardiso():
             ps.free_memory(everything=True)  # analysis + factorization every call
             return ps.solve(acsr, b)
+
         out["pypardiso (MKL PARDISO)"] = pardiso
     except ImportError:
         print("pypardiso not installed: PARDISO skipped")

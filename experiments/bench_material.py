@@ -58,8 +58,10 @@ def main():
             out = jax.block_until_ready(fn(f, state))
             times.append(time.perf_counter() - t0)
         best = min(times)
-        print(f"{name:8s}: {n / best:12.4g} points/s  ({best * 1e3:8.1f} ms per batch of {n}, "
-              f"first call incl. compile {t_compile:.1f} s)")
+        print(
+            f"{name:8s}: {n / best:12.4g} points/s  ({best * 1e3:8.1f} ms per batch of {n}, "
+            f"first call incl. compile {t_compile:.1f} s)"
+        )
         if name == "update":
             assert bool(jnp.all(out[2])), "local solve failed"
     print(f"devices: {jax.devices()}")

@@ -98,9 +98,11 @@ RTOL = 1e-8  # Newton: residual relative to the force scale
 REPEATS = 2  # runs after compilation; the fastest counts (the machine is shared)
 PRESET = "j2_perfect_100MPa"
 MATERIAL = {"G_MPa": 26000.0, "K_MPa": 68000.0, "sigma_y0_MPa": 100.0, "H_MPa": 0.0}
-INSTALL = ("JAX-FEM is not importable by {py}: the peer side is skipped.  Install it in a "
-           "separate venv (see this script's docstring: jax-fem, pyfiglet, fenics-basix, "
-           "gmsh, petsc, petsc4py) and pass --peer-python /path/to/venv/bin/python")
+INSTALL = (
+    "JAX-FEM is not importable by {py}: the peer side is skipped.  Install it in a "
+    "separate venv (see this script's docstring: jax-fem, pyfiglet, fenics-basix, "
+    "gmsh, petsc, petsc4py) and pass --peer-python /path/to/venv/bin/python"
+)
 
 
 def geometry(n: int) -> dict:
@@ -119,13 +121,20 @@ def _rss_mib() -> float:
 def jaxform_config(n: int, element: str) -> dict:
     g = geometry(n)
     return {
-        "block": {"width_mm": WIDTH, "depth_mm": DEPTH, "fine_width_mm": WIDTH,
-                  "fine_depth_mm": DEPTH},
+        "block": {
+            "width_mm": WIDTH,
+            "depth_mm": DEPTH,
+            "fine_width_mm": WIDTH,
+            "fine_depth_mm": DEPTH,
+        },
         "mesh": {"nr": n, "nz": n, "element": element, "geometry": "plane_strain"},
         "material": {"preset": PRESET},
-        "die": {"profile_mm": [[0.0, DEPTH], [g["a"], DEPTH], [g["a"], DEPTH + 1.0]],
-                "speed_mm_s": 1.0, "reduction": TRAVEL / DEPTH,
-                "corner_radius_mm": 0.1 * g["h"]},
+        "die": {
+            "profile_mm": [[0.0, DEPTH], [g["a"], DEPTH], [g["a"], DEPTH + 1.0]],
+            "speed_mm_s": 1.0,
+            "reduction": TRAVEL / DEPTH,
+            "corner_radius_mm": 0.1 * g["h"],
+        },
         "time": {"dt_s": TRAVEL / STEPS},
         "solver": {"rtol": RTOL, "linear": "sparse", "chunk_steps": STEPS},
         "output": {"fields": False, "plots": False},
@@ -155,14 +164,21 @@ def run_jaxform(n: int, element: str, split: bool = True) -> dict:
         second = min(second, time.perf_counter() - t0)
     its = res.history["newton_iterations"][1:]
     lay = scene.model.layout
-    out = {"code": "jaxform", "element": element, "n": n, "unknowns": int(lay.n_dofs),
-           "setup_s": setup, "compile_s": first - second, "solve_s": second,
-           "newton_iterations": int(its.sum()), "iterations_per_step": its.tolist(),
-           "cutbacks": int(res.history["cutbacks"].sum()),
-           "per_iteration_s": second / its.sum(),
-           "force_N": res.history["force_N"][1:].tolist(),
-           "last_residuals": [float(v) for v in res.newton_histories[-1]
-                              if np.isfinite(v)]}
+    out = {
+        "code": "jaxform",
+        "element": element,
+        "n": n,
+        "unknowns": int(lay.n_dofs),
+        "setup_s": setup,
+        "compile_s": first - second,
+        "solve_s": second,
+        "newton_iterations": int(its.sum()),
+        "iterations_per_step": its.tolist(),
+        "cutbacks": int(res.history["cutbacks"].sum()),
+        "per_iteration_s": second / its.sum(),
+        "force_N": res.history["force_N"][1:].tolist(),
+        "last_residuals": [float(v) for v in res.newton_histories[-1] if np.isfinite(v)],
+    }
     if split:  # the compiled pieces of one iteration, at the final state
         model, idx, inp, st = scene.model, scene.idx, scene.inputs, res.final_state
         t = st.t
@@ -174,8 +190,11 @@ def run_jaxform(n: int, element: str, split: bool = True) -> dict:
         solve = jax.jit(lambda r, c, v, b: scene.linear.solve(r, c, v, b, lay.n_dofs))
         r, vals, *_ = rj(x, ctx)
         fn = model._element_fn(inp.params, dt)
-        elem = jax.jit(lambda x, g: jax.vmap(jax.jacfwd(fn, has_aux=True))(
-            model._gather(x, idx), inp.coords[idx.elements], g))
+        elem = jax.jit(
+            lambda x, g: jax.vmap(jax.jacfwd(fn, has_aux=True))(
+                model._gather(x, idx), inp.coords[idx.elements], g
+            )
+        )
         out["assembly_s"] = best_of(lambda: rj(x, ctx), 3)
         out["element_s"] = best_of(lambda: elem(x, st.gauss), 3)
         out["residual_s"] = best_of(lambda: rf(x, ctx), 3)
@@ -230,8 +249,11 @@ def run_peer(n: int) -> dict:
 
         def reset(self):
             nc, nq = self.fes[0].num_cells, self.fes[0].num_quads
-            self.internal_vars = [jnp.zeros((nc, nq, 3, 3)), jnp.zeros((nc, nq, 3, 3)),
-                                  jnp.zeros((nc, nq))]
+            self.internal_vars = [
+                jnp.zeros((nc, nq, 3, 3)),
+                jnp.zeros((nc, nq, 3, 3)),
+                jnp.zeros((nc, nq)),
+            ]
 
         def get_tensor_map(self):
             return lambda u_grad, *old: return_map(u_grad, *old)[0][:2, :2]
@@ -243,23 +265,28 @@ def run_peer(n: int) -> dict:
     top = coords[:, 1].max()
 
     def bc(d):
-        return [[lambda p: jnp.isclose(p[0], 0.0, atol=tol_x),
-                 lambda p: jnp.isclose(p[1], 0.0, atol=tol_x),
-                 lambda p: jnp.isclose(p[1], top, atol=tol_x) & (p[0] < geo["a"])],
-                [0, 1, 1], [lambda p: 0.0, lambda p: 0.0, lambda p: -d]]
+        return [
+            [
+                lambda p: jnp.isclose(p[0], 0.0, atol=tol_x),
+                lambda p: jnp.isclose(p[1], 0.0, atol=tol_x),
+                lambda p: jnp.isclose(p[1], top, atol=tol_x) & (p[0] < geo["a"]),
+            ],
+            [0, 1, 1],
+            [lambda p: 0.0, lambda p: 0.0, lambda p: -d],
+        ]
 
     t0 = time.perf_counter()
     mesh = Mesh(coords, np.asarray(mesh_jx.elements), ele_type="QUAD4")
-    prob = PlaneStrainJ2(mesh, vec=2, dim=2, ele_type="QUAD4", gauss_order=2,
-                         dirichlet_bc_info=bc(0.0))
+    prob = PlaneStrainJ2(
+        mesh, vec=2, dim=2, ele_type="QUAD4", gauss_order=2, dirichlet_bc_info=bc(0.0)
+    )
     setup = time.perf_counter() - t0
     if np.any(np.asarray(prob.JxW) <= 0):
         raise RuntimeError("peer mesh: non-positive JxW (node order)")
     punch = np.flatnonzero((np.abs(coords[:, 1] - top) < tol_x) & (coords[:, 0] < geo["a"]))
 
     # wall time inside JAX-FEM's own functions (wrapped, not changed)
-    clock = {"assembly_s": 0.0, "element_s": 0.0, "linear_s": 0.0, "iterations": 0,
-             "assemblies": 0}
+    clock = {"assembly_s": 0.0, "element_s": 0.0, "linear_s": 0.0, "iterations": 0, "assemblies": 0}
 
     def timed(fn, keys, count=None):
         def wrapper(*a, **k):
@@ -271,19 +298,30 @@ def run_peer(n: int) -> dict:
             if count:
                 clock[count] += 1
             return r
+
         return wrapper
 
     prob.newton_update = timed(prob.newton_update, ("assembly_s", "element_s"), "assemblies")
-    options = {"umfpack_solver": {}, "tol": RTOL * MATERIAL["sigma_y0_MPa"] * geo["a"],
-               "rel_tol": 1e-30}
+    options = {
+        "umfpack_solver": {},
+        "tol": RTOL * MATERIAL["sigma_y0_MPa"] * geo["a"],
+        "rel_tol": 1e-30,
+    }
     try:
         import jax_fem.solver as fem_solver  # imports petsc4py
     except ImportError as err:
         newton = "own Newton (jax_fem.solver's loop) + scipy spsolve"
-        print(f"jax_fem.solver not importable ({err}): JAX-FEM's assembly with a copy of its "
-              f"Newton loop", file=sys.stderr)
-        solve = partial(_jaxfem_newton, prob, timed(_row_eliminated, ("assembly_s",)),
-                        timed(_spsolve, ("linear_s",), "iterations"))
+        print(
+            f"jax_fem.solver not importable ({err}): JAX-FEM's assembly with a copy of its "
+            f"Newton loop",
+            file=sys.stderr,
+        )
+        solve = partial(
+            _jaxfem_newton,
+            prob,
+            timed(_row_eliminated, ("assembly_s",)),
+            timed(_spsolve, ("linear_s",), "iterations"),
+        )
     else:
         newton = "jax_fem.solver.solver, umfpack_solver (scipy spsolve)"
         fem_solver.get_A = timed(fem_solver.get_A, ("assembly_s",))
@@ -318,15 +356,27 @@ def run_peer(n: int) -> dict:
             second, best = time.perf_counter() - t0, dict(clock)
     clock = best
     total = int(sum(its))
-    return {"code": "jax-fem", "element": "q4", "n": n, "newton": newton,
-            "unknowns": int(prob.num_total_dofs_all_vars), "setup_s": setup,
-            "compile_s": first - second, "solve_s": second, "newton_iterations": total,
-            "iterations_per_step": its, "cutbacks": 0, "per_iteration_s": second / total,
-            "force_N": forces, "assembly_s": clock["assembly_s"] / clock["assemblies"],
-            "element_s": clock["element_s"] / clock["assemblies"],
-            "assemblies": clock["assemblies"],
-            "linear_s": clock["linear_s"] / total, "residual_s": float("nan"),
-            "peak_rss_mib": _rss_mib()}
+    return {
+        "code": "jax-fem",
+        "element": "q4",
+        "n": n,
+        "newton": newton,
+        "unknowns": int(prob.num_total_dofs_all_vars),
+        "setup_s": setup,
+        "compile_s": first - second,
+        "solve_s": second,
+        "newton_iterations": total,
+        "iterations_per_step": its,
+        "cutbacks": 0,
+        "per_iteration_s": second / total,
+        "force_N": forces,
+        "assembly_s": clock["assembly_s"] / clock["assemblies"],
+        "element_s": clock["element_s"] / clock["assemblies"],
+        "assemblies": clock["assemblies"],
+        "linear_s": clock["linear_s"] / total,
+        "residual_s": float("nan"),
+        "peak_rss_mib": _rss_mib(),
+    }
 
 
 def _row_eliminated(prob, rows):
@@ -354,8 +404,7 @@ def _jaxfem_newton(prob, matrix, linear, options):
     import jax.flatten_util
 
     fe = prob.fes[0]
-    rows = np.concatenate([ni * fe.vec + vi for ni, vi in zip(fe.node_inds_list,
-                                                               fe.vec_inds_list)])
+    rows = np.concatenate([ni * fe.vec + vi for ni, vi in zip(fe.node_inds_list, fe.vec_inds_list)])
     vals = np.concatenate([np.asarray(v) for v in fe.vals_list])
     dofs = np.asarray(jax.flatten_util.ravel_pytree(options["initial_guess"])[0]).copy()
 
@@ -382,8 +431,9 @@ def _jaxfem_newton(prob, matrix, linear, options):
 
 
 def peer_available(python: str) -> bool:
-    p = subprocess.run([python, "-c", "import jax_fem.problem"],
-                       capture_output=True, text=True, cwd=ROOT)
+    p = subprocess.run(
+        [python, "-c", "import jax_fem.problem"], capture_output=True, text=True, cwd=ROOT
+    )
     return p.returncode == 0
 
 
@@ -391,8 +441,14 @@ def child(python: str, which: str, n: int, timeout: float, extra=()) -> dict | N
     """Run one code on one mesh in a fresh process; its result, or None (reason printed)."""
     cmd = [python, str(Path(__file__).resolve()), "--one", which, str(n), *extra]
     try:
-        p = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=timeout,
-                           env=dict(os.environ, PYTHONPATH=str(ROOT)))
+        p = subprocess.run(
+            cmd,
+            capture_output=True,
+            text=True,
+            cwd=ROOT,
+            timeout=timeout,
+            env=dict(os.environ, PYTHONPATH=str(ROOT)),
+        )
     except subprocess.TimeoutExpired:
         print(f"  {which} {n}x{n}: no result within {timeout:.0f} s")
         return None
@@ -407,13 +463,17 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--meshes", type=int, nargs="+", default=[20, 50, 100])
     ap.add_argument("--quick", action="store_true", help="one small mesh (10 x 10)")
-    ap.add_argument("--elements", nargs="+", default=["q4", "q1p0"],
-                    help="jaxform elements to run")
-    ap.add_argument("--peer-python", default=os.environ.get("JAXFEM_PYTHON", sys.executable),
-                    help="Python interpreter that can import jax_fem (default: $JAXFEM_PYTHON "
-                         "or this one)")
-    ap.add_argument("--no-split", action="store_true",
-                    help="jaxform: skip timing the compiled pieces (saves 3 compilations)")
+    ap.add_argument("--elements", nargs="+", default=["q4", "q1p0"], help="jaxform elements to run")
+    ap.add_argument(
+        "--peer-python",
+        default=os.environ.get("JAXFEM_PYTHON", sys.executable),
+        help="Python interpreter that can import jax_fem (default: $JAXFEM_PYTHON or this one)",
+    )
+    ap.add_argument(
+        "--no-split",
+        action="store_true",
+        help="jaxform: skip timing the compiled pieces (saves 3 compilations)",
+    )
     ap.add_argument("--timeout", type=float, default=1800.0, help="seconds per run")
     ap.add_argument("--out", default=str(ROOT / "docs" / "figures"))
     ap.add_argument("--one", nargs=2, help=argparse.SUPPRESS)
@@ -439,10 +499,13 @@ def main():
             if r is None:
                 continue
             rows.append(r)
-            print(f"  {which:>7}: F = {r['force_N'][-1]:.3f} N/mm, "
-                  f"{r['newton_iterations']} iterations {r['iterations_per_step']}, "
-                  f"setup {r['setup_s']:.2f} s, compile {r['compile_s']:.1f} s, "
-                  f"solve {r['solve_s']:.3f} s", flush=True)
+            print(
+                f"  {which:>7}: F = {r['force_N'][-1]:.3f} N/mm, "
+                f"{r['newton_iterations']} iterations {r['iterations_per_step']}, "
+                f"setup {r['setup_s']:.2f} s, compile {r['compile_s']:.1f} s, "
+                f"solve {r['solve_s']:.3f} s",
+                flush=True,
+            )
     if not rows:
         return 1
     report(rows, have_peer)
@@ -455,9 +518,11 @@ def main():
 
 def report(rows: list[dict], have_peer: bool) -> None:
     peer = {r["n"]: r for r in rows if r["code"] == "jax-fem"}
-    print(f"\n{'mesh':>7} {'code':>12} {'unknowns':>8} {'setup':>7} {'compile':>8} "
-          f"{'solve':>8} {'its':>4} {'per it':>9} {'assembly':>9} {'element':>8} {'linear':>8} "
-          f"{'force':>9} {'vs peer':>8} {'time / peer':>11}")
+    print(
+        f"\n{'mesh':>7} {'code':>12} {'unknowns':>8} {'setup':>7} {'compile':>8} "
+        f"{'solve':>8} {'its':>4} {'per it':>9} {'assembly':>9} {'element':>8} {'linear':>8} "
+        f"{'force':>9} {'vs peer':>8} {'time / peer':>11}"
+    )
     for r in rows:
         p = peer.get(r["n"])
         dev = ratio = float("nan")
@@ -469,25 +534,40 @@ def report(rows: list[dict], have_peer: bool) -> None:
         a = r.get("assembly_s", float("nan"))
         lin = r.get("linear_s", float("nan"))
         el = r.get("element_s", float("nan"))
-        print(f"{r['n']:>3}x{r['n']:<3} {name:>12} {r['unknowns']:>8} {r['setup_s']:>6.2f}s "
-              f"{r['compile_s']:>7.1f}s {r['solve_s']:>7.3f}s {r['newton_iterations']:>4} "
-              f"{r['per_iteration_s'] * 1e3:>7.1f}ms {a * 1e3:>7.1f}ms {el * 1e3:>6.1f}ms "
-              f"{lin * 1e3:>6.1f}ms "
-              f"{r['force_N'][-1]:>9.3f} {dev:>+8.3%} {ratio:>10.2f}x")
+        print(
+            f"{r['n']:>3}x{r['n']:<3} {name:>12} {r['unknowns']:>8} {r['setup_s']:>6.2f}s "
+            f"{r['compile_s']:>7.1f}s {r['solve_s']:>7.3f}s {r['newton_iterations']:>4} "
+            f"{r['per_iteration_s'] * 1e3:>7.1f}ms {a * 1e3:>7.1f}ms {el * 1e3:>6.1f}ms "
+            f"{lin * 1e3:>6.1f}ms "
+            f"{r['force_N'][-1]:>9.3f} {dev:>+8.3%} {ratio:>10.2f}x"
+        )
     if not have_peer:
         print("(no peer: the 'vs peer' columns are empty)")
 
 
 def write(rows: list[dict], path: Path) -> None:
-    keys = ("n", "unknowns", "setup_s", "compile_s", "solve_s", "newton_iterations",
-            "cutbacks", "per_iteration_s", "assembly_s", "element_s", "residual_s", "linear_s",
-            "peak_rss_mib", "force_vs_peer", "solve_vs_peer")
+    keys = (
+        "n",
+        "unknowns",
+        "setup_s",
+        "compile_s",
+        "solve_s",
+        "newton_iterations",
+        "cutbacks",
+        "per_iteration_s",
+        "assembly_s",
+        "element_s",
+        "residual_s",
+        "linear_s",
+        "peak_rss_mib",
+        "force_vs_peer",
+        "solve_vs_peer",
+    )
     with open(path, "w") as f:
         f.write("code,element," + ",".join(keys) + ",force_N\n")
         for r in rows:
             vals = [f"{float(r.get(k, float('nan'))):.6g}" for k in keys]
-            f.write(f"{r['code']},{r['element']}," + ",".join(vals)
-                    + f",{r['force_N'][-1]:.6f}\n")
+            f.write(f"{r['code']},{r['element']}," + ",".join(vals) + f",{r['force_N'][-1]:.6f}\n")
 
 
 if __name__ == "__main__":

@@ -55,8 +55,16 @@ def one(n: int, linear: str) -> dict:
     from jaxform.xla_options import jit
 
     jaxform.enable_x64()
-    cfg = load_config(SEED, [f"mesh.nr={n}", f"mesh.nz={n}", f"solver.linear={linear}",
-                             "output.fields=false", "output.plots=false"])
+    cfg = load_config(
+        SEED,
+        [
+            f"mesh.nr={n}",
+            f"mesh.nz={n}",
+            f"solver.linear={linear}",
+            "output.fields=false",
+            "output.plots=false",
+        ],
+    )
     sc = build_scene(cfg)
     lay, idx, inp, model = sc.model.layout, sc.idx, sc.inputs, sc.model
     st = sc.initial_state()
@@ -76,8 +84,7 @@ def one(n: int, linear: str) -> dict:
     none = sc.linear.empty_factorization(lay.n_dofs, x.dtype)
     factor = jax.jit(lambda v: sc.linear.refactor(idx.rows, idx.cols, v, lay.n_dofs, sym, none))
     kept_solve = jax.jit(lambda f, b: sc.linear.solve_factored(f, b, sym))
-    out = {"n": n, "unknowns": lay.n_dofs, "nonzeros": lay.n_nonzeros,
-           "backend": sc.linear.backend}
+    out = {"n": n, "unknowns": lay.n_dofs, "nonzeros": lay.n_nonzeros, "backend": sc.linear.backend}
     t0 = time.perf_counter()
     r, vals, *_ = jax.block_until_ready(rj(x, ctx))
     out["compile_assemble_s"] = time.perf_counter() - t0
@@ -90,9 +97,17 @@ def one(n: int, linear: str) -> dict:
     fac = jax.block_until_ready(factor(vals))
     # all pieces timed in turn, best of 5 rounds: their ratios survive a drifting machine
     names = ("assemble_s", "residual_s", "solve_s", "factor_s", "kept_solve_s")
-    times = interleaved([lambda: rj(x, ctx), lambda: res(x, ctx),
-                         lambda: solve(idx.rows, idx.cols, vals, -r), lambda: factor(vals),
-                         lambda: kept_solve(fac, -r)], 5, release={3: sc.linear.release})
+    times = interleaved(
+        [
+            lambda: rj(x, ctx),
+            lambda: res(x, ctx),
+            lambda: solve(idx.rows, idx.cols, vals, -r),
+            lambda: factor(vals),
+            lambda: kept_solve(fac, -r),
+        ],
+        5,
+        release={3: sc.linear.release},
+    )
     out.update(zip(names, times))
     jax.block_until_ready(sc.linear.release(fac))
     out["iteration_s"] = out["assemble_s"] + out["solve_s"] + out["residual_s"]
@@ -108,18 +123,28 @@ def full(n: int, newton: str) -> None:
     from jaxform.config import load_config
 
     jaxform.enable_x64()
-    cfg = load_config(SEED, [f"mesh.nr={n}", f"mesh.nz={n}", "output.fields=false",
-                             "output.plots=false", f"solver.newton={newton}"])
+    cfg = load_config(
+        SEED,
+        [
+            f"mesh.nr={n}",
+            f"mesh.nz={n}",
+            "output.fields=false",
+            "output.plots=false",
+            f"solver.newton={newton}",
+        ],
+    )
     scene, res, first, second = cold_and_warm(cfg)
     its = res.history["newton_iterations"][1:]
     n_fac = res.history["factorizations"][1:].sum()
-    print(f"seed {n}x{n}: {scene.model.layout.n_dofs} unknowns, {len(its)} steps, "
-          f"{scene.newton.method} Newton, {n_fac:.0f} factorizations, "
-          f"{its.sum():.0f} iterations ({its.mean():.2f}/step): first run "
-          f"{first:.1f} s, run after compile {second:.1f} s "
-          f"({second / its.sum() * 1e3:.0f} ms per iteration incl. step overhead), "
-          f"force {res.history['force_N'][-1]:.2f} N, peak RSS "
-          f"{resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MiB")
+    print(
+        f"seed {n}x{n}: {scene.model.layout.n_dofs} unknowns, {len(its)} steps, "
+        f"{scene.newton.method} Newton, {n_fac:.0f} factorizations, "
+        f"{its.sum():.0f} iterations ({its.mean():.2f}/step): first run "
+        f"{first:.1f} s, run after compile {second:.1f} s "
+        f"({second / its.sum() * 1e3:.0f} ms per iteration incl. step overhead), "
+        f"force {res.history['force_N'][-1]:.2f} N, peak RSS "
+        f"{resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MiB"
+    )
 
 
 def fit(unknowns, seconds):
@@ -135,8 +160,12 @@ def main():
     ap.add_argument("--out", default="docs/figures")
     ap.add_argument("--one", type=int, help=argparse.SUPPRESS)
     ap.add_argument("--full", type=int, help="time the whole seed scene on this n x n mesh")
-    ap.add_argument("--newton", default="auto", choices=("auto", "newton", "modified"),
-                    help="solver.newton of the --full run")
+    ap.add_argument(
+        "--newton",
+        default="auto",
+        choices=("auto", "newton", "modified"),
+        help="solver.newton of the --full run",
+    )
     args = ap.parse_args()
     if args.one:
         print("RESULT " + json.dumps(one(args.one, args.linear)), flush=True)
@@ -145,47 +174,75 @@ def main():
         return full(args.full, args.newton)
     meshes = [10, 20, 40] if args.quick else args.meshes
     rows = []
-    print(f"{'mesh':>9} {'unknowns':>8} {'nonzeros':>9} {'assemble':>9} {'residual':>9} "
-          f"{'solve':>8} {'iteration':>9} {'factor':>8} {'kept':>7} {'peak RSS':>9} "
-          f"{'compile a/r/s':>15}")
+    print(
+        f"{'mesh':>9} {'unknowns':>8} {'nonzeros':>9} {'assemble':>9} {'residual':>9} "
+        f"{'solve':>8} {'iteration':>9} {'factor':>8} {'kept':>7} {'peak RSS':>9} "
+        f"{'compile a/r/s':>15}"
+    )
     for n in meshes:
-        p = subprocess.run([sys.executable, __file__, "--one", str(n), "--linear", args.linear],
-                           capture_output=True, text=True)
+        p = subprocess.run(
+            [sys.executable, __file__, "--one", str(n), "--linear", args.linear],
+            capture_output=True,
+            text=True,
+        )
         line = [ln for ln in p.stdout.splitlines() if ln.startswith("RESULT ")]
         if p.returncode or not line:
             print(f"{n}x{n}: failed\n{p.stderr[-2000:]}")
             break
         r = json.loads(line[0][7:])
         rows.append(r)
-        print(f"{n:>4}x{n:<4} {r['unknowns']:>8} {r['nonzeros']:>9} {r['assemble_s'] * 1e3:>7.1f}ms "
-              f"{r['residual_s'] * 1e3:>7.1f}ms {r['solve_s'] * 1e3:>6.1f}ms "
-              f"{r['iteration_s'] * 1e3:>7.1f}ms {r['factor_s'] * 1e3:>6.1f}ms "
-              f"{r['kept_solve_s'] * 1e3:>5.1f}ms {r['peak_rss_mib']:>6.0f}MiB "
-              f"{r['compile_assemble_s']:>5.1f}/{r['compile_residual_s']:.1f}/"
-              f"{r['compile_solve_s']:.1f}s", flush=True)
+        print(
+            f"{n:>4}x{n:<4} {r['unknowns']:>8} {r['nonzeros']:>9} "
+            f"{r['assemble_s'] * 1e3:>7.1f}ms "
+            f"{r['residual_s'] * 1e3:>7.1f}ms {r['solve_s'] * 1e3:>6.1f}ms "
+            f"{r['iteration_s'] * 1e3:>7.1f}ms {r['factor_s'] * 1e3:>6.1f}ms "
+            f"{r['kept_solve_s'] * 1e3:>5.1f}ms {r['peak_rss_mib']:>6.0f}MiB "
+            f"{r['compile_assemble_s']:>5.1f}/{r['compile_residual_s']:.1f}/"
+            f"{r['compile_solve_s']:.1f}s",
+            flush=True,
+        )
     if len(rows) < 2:
         return
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    keys = ("n", "unknowns", "nonzeros", "assemble_s", "residual_s", "solve_s", "iteration_s",
-            "factor_s", "kept_solve_s", "kept_iteration_s", "peak_rss_mib", "compile_assemble_s", "compile_residual_s", "compile_solve_s")
+    keys = (
+        "n",
+        "unknowns",
+        "nonzeros",
+        "assemble_s",
+        "residual_s",
+        "solve_s",
+        "iteration_s",
+        "factor_s",
+        "kept_solve_s",
+        "kept_iteration_s",
+        "peak_rss_mib",
+        "compile_assemble_s",
+        "compile_residual_s",
+        "compile_solve_s",
+    )
     from jaxform.io import write_csv
 
     write_csv(out / "bench_scale.csv", {k: np.array([float(r[k]) for r in rows]) for k in keys})
     nu = np.array([r["unknowns"] for r in rows], dtype=float)
-    sel = np.array([r["n"] >= 20 for r in rows]) if sum(r["n"] >= 20 for r in rows) >= 2 \
+    sel = (
+        np.array([r["n"] >= 20 for r in rows])
+        if sum(r["n"] >= 20 for r in rows) >= 2
         else np.ones(len(rows), bool)
+    )
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(6.4, 4.6))
-    for key, label, mk in (("assemble_s", "assembly (R and Jacobian)", "o"),
-                           ("residual_s", "residual", "^"),
-                           ("solve_s", "sparse LU (klujax): factor + solve", "s"),
-                           ("iteration_s", "Newton iteration", "D"),
-                           ("kept_iteration_s", "iteration with a kept LU", "v")):
+    for key, label, mk in (
+        ("assemble_s", "assembly (R and Jacobian)", "o"),
+        ("residual_s", "residual", "^"),
+        ("solve_s", "sparse LU (klujax): factor + solve", "s"),
+        ("iteration_s", "Newton iteration", "D"),
+        ("kept_iteration_s", "iteration with a kept LU", "v"),
+    ):
         y = np.array([r[key] for r in rows])
         k, c = fit(nu[sel], y[sel])
         print(f"{label:>26}: time ~ unknowns^{k:.2f}")

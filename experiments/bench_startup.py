@@ -45,8 +45,22 @@ ROOT = Path(__file__).resolve().parents[1]
 PROGRAMS = ("seed", "friction", "gradient", "design", "seed-modified")
 NO_OUTPUT = ["output.fields=false", "output.plots=false"]
 PHASES = ("trace", "lower", "compile", "load")
-COLUMNS = ("program", "cache", "process_s", "import_s", "trace_s", "lower_s", "compile_s",
-           "load_s", "run_s", "main", "main_compile_s", "main_load_s", "hits", "compiled")
+COLUMNS = (
+    "program",
+    "cache",
+    "process_s",
+    "import_s",
+    "trace_s",
+    "lower_s",
+    "compile_s",
+    "load_s",
+    "run_s",
+    "main",
+    "main_compile_s",
+    "main_load_s",
+    "hits",
+    "compiled",
+)
 
 
 def _union(spans) -> float:
@@ -66,9 +80,11 @@ def child(program: str, quick: bool) -> dict:
     import jaxform
     from jaxform.cache import enable_compilation_cache
 
-    events = {"/jax/core/compile/jaxpr_trace_duration": "trace",
-              "/jax/core/compile/jaxpr_to_mlir_module_duration": "lower",
-              "/jax/core/compile/backend_compile_duration": "compile"}
+    events = {
+        "/jax/core/compile/jaxpr_trace_duration": "trace",
+        "/jax/core/compile/jaxpr_to_mlir_module_duration": "lower",
+        "/jax/core/compile/backend_compile_duration": "compile",
+    }
     spans = {p: [] for p in PHASES}
     per_program = {}  # module name -> [compile incl. load, load]
     counts = {"hits": 0, "requests": 0, "load": 0.0, "pending": 0.0}
@@ -110,8 +126,9 @@ def child(program: str, quick: bool) -> dict:
     t1 = time.perf_counter()
     if program in ("seed", "seed-modified", "friction"):
         config = "upsetting_friction" if program == "friction" else "upsetting_seed"
-        extra = (["solver.newton=modified", "solver.linear=sparse"]
-                 if program == "seed-modified" else [])
+        extra = (
+            ["solver.newton=modified", "solver.linear=sparse"] if program == "seed-modified" else []
+        )
         run(ROOT / "configs" / f"{config}.toml", NO_OUTPUT + extra)
     elif program == "gradient":
         scene = build_scene(load_config(ROOT / "configs/upsetting_seed.toml", NO_OUTPUT))
@@ -119,8 +136,11 @@ def child(program: str, quick: bool) -> dict:
         jax.block_until_ready(problem.value_and_grad(problem.start)[1])
     else:
         with tempfile.TemporaryDirectory() as out:
-            run_design(ROOT / "configs/preform_design.toml",
-                       ["design.iterations=2"] if quick else [], out_dir=out)
+            run_design(
+                ROOT / "configs/preform_design.toml",
+                ["design.iterations=2"] if quick else [],
+                out_dir=out,
+            )
     call = time.perf_counter() - t1
     phase = {p: _union(spans[p]) for p in PHASES}
     phase["load"] = counts["load"]
@@ -130,14 +150,24 @@ def child(program: str, quick: bool) -> dict:
     run_s = call - sum(phase.values())
     # the main program: the one that took longest to compile or load
     name, (c, ld) = max(per_program.items(), key=lambda kv: kv[1][0])
-    return dict(import_s=t_import, **{f"{p}_s": phase[p] for p in PHASES}, run_s=run_s,
-                main=name, main_compile_s=c - ld, main_load_s=ld,
-                hits=counts["hits"], compiled=counts["requests"] - counts["hits"])
+    return dict(
+        import_s=t_import,
+        **{f"{p}_s": phase[p] for p in PHASES},
+        run_s=run_s,
+        main=name,
+        main_compile_s=c - ld,
+        main_load_s=ld,
+        hits=counts["hits"],
+        compiled=counts["requests"] - counts["hits"],
+    )
 
 
 def measure(program: str, cache_dir: Path, quick: bool) -> dict:
-    env = {k: v for k, v in os.environ.items()
-           if k not in ("JAX_COMPILATION_CACHE_DIR", "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS")}
+    env = {
+        k: v
+        for k, v in os.environ.items()
+        if k not in ("JAX_COMPILATION_CACHE_DIR", "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS")
+    }
     env["JAXFORM_CACHE_DIR"] = str(cache_dir)
     env["PYTHONPATH"] = os.pathsep.join([str(ROOT), env.get("PYTHONPATH", "")])
     cmd = [sys.executable, __file__, "--child", program] + (["--quick"] if quick else [])
@@ -147,29 +177,40 @@ def measure(program: str, cache_dir: Path, quick: bool) -> dict:
     if proc.returncode != 0:
         raise SystemExit(f"{program}: the child process failed:\n{proc.stderr[-3000:]}")
     line = [s for s in proc.stdout.splitlines() if s.startswith("RESULT ")][-1]
-    return dict(json.loads(line[len("RESULT "):]), process_s=wall)
+    return dict(json.loads(line[len("RESULT ") :]), process_s=wall)
 
 
 def table(rows) -> str:
-    head = ("| program | cache | process (s) | import (s) | trace (s) | lower (s) | "
-            "compile (s) | load (s) | run (s) | main program compile / load (s) | "
-            "loaded / compiled |")
+    head = (
+        "| program | cache | process (s) | import (s) | trace (s) | lower (s) | "
+        "compile (s) | load (s) | run (s) | main program compile / load (s) | "
+        "loaded / compiled |"
+    )
     lines = [head, "|" + "---|" * 11]
     for r in rows:
         lines.append(
             f"| {r['program']} | {r['cache']} | {r['process_s']:.1f} | {r['import_s']:.1f} | "
             f"{r['trace_s']:.1f} | {r['lower_s']:.1f} | {r['compile_s']:.1f} | "
             f"{r['load_s']:.2f} | {r['run_s']:.1f} | {r['main_compile_s']:.1f} / "
-            f"{r['main_load_s']:.2f} ({r['main']}) | {r['hits']} / {r['compiled']} |")
+            f"{r['main_load_s']:.2f} ({r['main']}) | {r['hits']} / {r['compiled']} |"
+        )
     return "\n".join(lines)
 
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--programs", nargs="+", choices=PROGRAMS, default=None,
-                    help=f"default: all ({', '.join(PROGRAMS)}); seed with --quick")
-    ap.add_argument("--quick", action="store_true",
-                    help="seed only (unless --programs), design with two iterations")
+    ap.add_argument(
+        "--programs",
+        nargs="+",
+        choices=PROGRAMS,
+        default=None,
+        help=f"default: all ({', '.join(PROGRAMS)}); seed with --quick",
+    )
+    ap.add_argument(
+        "--quick",
+        action="store_true",
+        help="seed only (unless --programs), design with two iterations",
+    )
     ap.add_argument("--csv", default=str(ROOT / "out" / "bench_startup.csv"))
     ap.add_argument("--child", choices=PROGRAMS, help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -181,8 +222,7 @@ def main():
     for program in programs:
         with tempfile.TemporaryDirectory(prefix="jaxform-bench-cache-") as cache:
             for mode in ("cold", "warm"):
-                r = dict(measure(program, Path(cache), args.quick), program=program,
-                         cache=mode)
+                r = dict(measure(program, Path(cache), args.quick), program=program, cache=mode)
                 rows.append(r)
                 print(f"{program} {mode}: {r['process_s']:.1f} s", flush=True)
     out = Path(args.csv)
@@ -191,8 +231,7 @@ def main():
         w = csv.DictWriter(f, fieldnames=COLUMNS)
         w.writeheader()
         for r in rows:
-            w.writerow({k: (round(r[k], 4) if isinstance(r[k], float) else r[k])
-                        for k in COLUMNS})
+            w.writerow({k: (round(r[k], 4) if isinstance(r[k], float) else r[k]) for k in COLUMNS})
     print("\n" + table(rows))
     print(f"\nwrote {out}")
 

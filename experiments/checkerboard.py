@@ -28,8 +28,7 @@ import numpy as np
 
 import jaxform
 from jaxform.config import load_config
-from jaxform.postprocess import nodal_fields
-from jaxform.postprocess import pressure_oscillation
+from jaxform.postprocess import nodal_fields, pressure_oscillation
 from jaxform.scenes import build_scene
 from jaxform.simulate import simulate
 
@@ -39,16 +38,30 @@ SEED_THETA = 0.1  # the code's default (mesh.stabilization); the seed thesis use
 
 
 def run_theta(n: int, theta: float):
-    cfg = load_config(CONFIG, ["mesh.element=q1q1", f"mesh.nr={n}", f"mesh.nz={n}",
-                               f"mesh.stabilization={theta!r}", "output.fields=false",
-                               "output.plots=false"])
+    cfg = load_config(
+        CONFIG,
+        [
+            "mesh.element=q1q1",
+            f"mesh.nr={n}",
+            f"mesh.nz={n}",
+            f"mesh.stabilization={theta!r}",
+            "output.fields=false",
+            "output.plots=false",
+        ],
+    )
     t0 = time.perf_counter()
     sc = build_scene(cfg)
     res = simulate(sc)
     x = res.fields["x"][-1]
-    return sc, x, dict(oscillation=pressure_oscillation(sc, x),
-                       tip_uy_mm=float(res.history["tip_uy_mm"][-1]),
-                       wall_s=time.perf_counter() - t0)
+    return (
+        sc,
+        x,
+        dict(
+            oscillation=pressure_oscillation(sc, x),
+            tip_uy_mm=float(res.history["tip_uy_mm"][-1]),
+            wall_s=time.perf_counter() - t0,
+        ),
+    )
 
 
 def plot(rows: dict, fields: dict, path: Path) -> None:
@@ -66,10 +79,13 @@ def plot(rows: dict, fields: dict, path: Path) -> None:
         sel = np.asarray(rows["elements_per_side"]) == n
         x = np.where(th[sel] > 0, th[sel], zero_at)
         order = np.argsort(x)
-        ax1.loglog(x[order], np.asarray(rows["oscillation"])[sel][order], "o-",
-                   label=f"{n} x {n}")
-        ax2.semilogx(x[order], np.asarray(rows["tip_uy_mm"])[sel][order] / REFERENCE_MM, "o-",
-                     label=f"{n} x {n}")
+        ax1.loglog(x[order], np.asarray(rows["oscillation"])[sel][order], "o-", label=f"{n} x {n}")
+        ax2.semilogx(
+            x[order],
+            np.asarray(rows["tip_uy_mm"])[sel][order] / REFERENCE_MM,
+            "o-",
+            label=f"{n} x {n}",
+        )
     for ax in (ax1, ax2):
         ax.axvline(SEED_THETA, color="tab:red", lw=1, ls=":", label="default 0.1")
         ax.axvline(1e-4, color="0.5", lw=1, ls=":", label="thesis 1e-4")
@@ -84,8 +100,16 @@ def plot(rows: dict, fields: dict, path: Path) -> None:
         ax = fig.add_subplot(2, 2, 3 + k)
         tri = np.vstack([elements[:, [0, 1, 2]], elements[:, [0, 2, 3]]])
         lim = np.percentile(np.abs(p), 99)
-        pc = ax.tripcolor(coords[:, 0], coords[:, 1], tri, p, shading="gouraud",
-                          cmap="coolwarm", vmin=-lim, vmax=lim)
+        pc = ax.tripcolor(
+            coords[:, 0],
+            coords[:, 1],
+            tri,
+            p,
+            shading="gouraud",
+            cmap="coolwarm",
+            vmin=-lim,
+            vmax=lim,
+        )
         ax.set_xlim(coords[:, 0].min(), coords[:, 0].max())
         ax.set_ylim(coords[:, 1].min(), coords[:, 1].max())
         ax.set_aspect("equal")
@@ -101,8 +125,12 @@ def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="32 x 32, theta = 0 and 0.1 (CI)")
     ap.add_argument("--meshes", type=int, nargs="+", default=[16, 32])
-    ap.add_argument("--thetas", type=float, nargs="+",
-                    default=[0.0, 1e-6, 1e-5, 1e-4, 1e-3, 1e-2, 0.1, 1.0, 10.0, 100.0])
+    ap.add_argument(
+        "--thetas",
+        type=float,
+        nargs="+",
+        default=[0.0, 1e-6, 1e-5, 1e-4, 1e-3, 1e-2, 0.1, 1.0, 10.0, 100.0],
+    )
     ap.add_argument("--out", default="docs/figures")
     args = ap.parse_args(argv)
     jaxform.enable_x64()
@@ -117,13 +145,20 @@ def main(argv=None) -> dict:
     for n in meshes:
         for theta in thetas:
             sc, x, r = run_theta(n, theta)
-            for k, v in (("elements_per_side", n), ("theta", theta), ("oscillation",
-                         r["oscillation"]), ("tip_uy_mm", r["tip_uy_mm"]),
-                         ("wall_s", r["wall_s"])):
+            for k, v in (
+                ("elements_per_side", n),
+                ("theta", theta),
+                ("oscillation", r["oscillation"]),
+                ("tip_uy_mm", r["tip_uy_mm"]),
+                ("wall_s", r["wall_s"]),
+            ):
                 rows[k].append(v)
-            print(f"{n:3d}x{n:<3d} theta = {theta:8.1e}: oscillation {r['oscillation']:.4f}, "
-                  f"tip {r['tip_uy_mm'] / REFERENCE_MM:.4f} of the reference "
-                  f"({r['wall_s']:.1f} s)", flush=True)
+            print(
+                f"{n:3d}x{n:<3d} theta = {theta:8.1e}: oscillation {r['oscillation']:.4f}, "
+                f"tip {r['tip_uy_mm'] / REFERENCE_MM:.4f} of the reference "
+                f"({r['wall_s']:.1f} s)",
+                flush=True,
+            )
             if n == meshes[-1] and theta in (0.0, SEED_THETA):
                 u, p, _ = nodal_fields(sc, x)
                 fields[theta] = (np.asarray(sc.mesh.coords) + u, np.asarray(sc.mesh.elements), p)

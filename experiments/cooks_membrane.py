@@ -47,14 +47,25 @@ ELEMENTS = ("q4", "q1p0", "q1q1")
 
 def tip_deflection(element: str, n: int, force_n: float, dt_s: float) -> dict:
     """One run: tip u_y (mm) at the full load, Newton iterations, wall time."""
-    cfg = load_config(CONFIG, [f"mesh.element={element}", f"mesh.nr={n}", f"mesh.nz={n}",
-                               f"load.force_y_N={force_n}", f"time.dt_s={dt_s}",
-                               "output.fields=false", "output.plots=false"])
+    cfg = load_config(
+        CONFIG,
+        [
+            f"mesh.element={element}",
+            f"mesh.nr={n}",
+            f"mesh.nz={n}",
+            f"load.force_y_N={force_n}",
+            f"time.dt_s={dt_s}",
+            "output.fields=false",
+            "output.plots=false",
+        ],
+    )
     t0 = time.perf_counter()
     res = simulate(build_scene(cfg))
-    return dict(tip_uy_mm=float(res.history["tip_uy_mm"][-1]),
-                newton_iterations=int(res.history["newton_iterations"].sum()),
-                wall_s=time.perf_counter() - t0)
+    return dict(
+        tip_uy_mm=float(res.history["tip_uy_mm"][-1]),
+        newton_iterations=int(res.history["newton_iterations"].sum()),
+        wall_s=time.perf_counter() - t0,
+    )
 
 
 def richardson(meshes, values) -> tuple[float, float]:
@@ -85,9 +96,13 @@ def plot(rows: dict, references: dict, path: Path) -> None:
     for ax, (label, (force, _)) in zip(axes, LOADS.items()):
         ref = references[force]
         for el in ELEMENTS:
-            sel = [(n, u) for e, n, f, u in zip(rows["element"], rows["elements_per_side"],
-                                                 rows["load_N"], rows["tip_uy_mm"])
-                   if e == el and f == force and n > 0]
+            sel = [
+                (n, u)
+                for e, n, f, u in zip(
+                    rows["element"], rows["elements_per_side"], rows["load_N"], rows["tip_uy_mm"]
+                )
+                if e == el and f == force and n > 0
+            ]
             if sel:
                 n, u = np.array(sel).T
                 ax.semilogx(n, u / ref, "o-", base=2, label=el)
@@ -115,22 +130,38 @@ def main(argv=None) -> dict:
     meshes = [32] if args.quick else sorted(args.meshes)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    rows = {k: [] for k in ("element", "elements_per_side", "load_N", "tip_uy_mm",
-                            "newton_iterations", "wall_s")}
+    rows = {
+        k: []
+        for k in (
+            "element",
+            "elements_per_side",
+            "load_N",
+            "tip_uy_mm",
+            "newton_iterations",
+            "wall_s",
+        )
+    }
     tips: dict = {}
     for el in args.elements:
         for n in meshes:
-            for label, (force, dt) in LOADS.items():
+            for force, dt in LOADS.values():
                 r = tip_deflection(el, n, force, dt)
                 tips[(el, n, force)] = r["tip_uy_mm"]
-                for k, v in (("element", el), ("elements_per_side", n), ("load_N", force),
-                             ("tip_uy_mm", r["tip_uy_mm"]),
-                             ("newton_iterations", r["newton_iterations"]),
-                             ("wall_s", r["wall_s"])):
+                for k, v in (
+                    ("element", el),
+                    ("elements_per_side", n),
+                    ("load_N", force),
+                    ("tip_uy_mm", r["tip_uy_mm"]),
+                    ("newton_iterations", r["newton_iterations"]),
+                    ("wall_s", r["wall_s"]),
+                ):
                     rows[k].append(v)
-                print(f"{el:5s} {n:4d}x{n:<4d} F = {force:5g} N: tip u_y = {r['tip_uy_mm']:.6g} mm "
-                      f"({r['tip_uy_mm'] / REFERENCE_MM[force]:.4f} of the reference), "
-                      f"{r['newton_iterations']} Newton its, {r['wall_s']:.1f} s", flush=True)
+                print(
+                    f"{el:5s} {n:4d}x{n:<4d} F = {force:5g} N: tip u_y = {r['tip_uy_mm']:.6g} mm "
+                    f"({r['tip_uy_mm'] / REFERENCE_MM[force]:.4f} of the reference), "
+                    f"{r['newton_iterations']} Newton its, {r['wall_s']:.1f} s",
+                    flush=True,
+                )
     references = dict(REFERENCE_MM)
     if len(meshes) >= 3 and meshes[-1] >= 64:
         for force in (f for f, _ in LOADS.values()):
@@ -140,9 +171,14 @@ def main(argv=None) -> dict:
                     u, p = richardson(meshes, [tips[(el, n, force)] for n in meshes])
                     ext.append(u)
                     print(f"Richardson ({el}, F = {force:g} N): {u:.6g} mm, observed order {p:.2f}")
-                    for k, v in (("element", f"{el}_richardson"), ("elements_per_side", 0),
-                                 ("load_N", force), ("tip_uy_mm", u),
-                                 ("newton_iterations", 0), ("wall_s", 0.0)):
+                    for k, v in (
+                        ("element", f"{el}_richardson"),
+                        ("elements_per_side", 0),
+                        ("load_N", force),
+                        ("tip_uy_mm", u),
+                        ("newton_iterations", 0),
+                        ("wall_s", 0.0),
+                    ):
                         rows[k].append(v)
             if ext:
                 references[force] = float(np.mean(ext))

@@ -65,11 +65,16 @@ class Case:
 # --------------------------------------------------------------------------------------
 # cases
 
+
 # keys whose value is a length, speed or time: a huge value is meaningless (overflow of
 # the geometry, the step schedule or the contact scale)
 def _huge_is_bad(section: str, key: str) -> bool:
-    return (key.endswith("_mm") or key.endswith("_mm_s") or key.endswith("_s")
-            or section in ("billet", "ring", "block"))
+    return (
+        key.endswith("_mm")
+        or key.endswith("_mm_s")
+        or key.endswith("_s")
+        or section in ("billet", "ring", "block")
+    )
 
 
 def _toml(v) -> str:
@@ -89,9 +94,14 @@ def bad_values(section: str, key: str, f) -> list[tuple[str, object, str]]:
     out = []
     nan, inf = math.nan, math.inf
     if f.kind in ("float", "int"):
-        out += [("wrong type", "abc", "refuse"), ("wrong type list", [1.0], "refuse"),
-                ("nan", nan, "refuse"), ("+inf", inf, "refuse"), ("-inf", -inf, "refuse"),
-                ("empty string", "", "refuse")]
+        out += [
+            ("wrong type", "abc", "refuse"),
+            ("wrong type list", [1.0], "refuse"),
+            ("nan", nan, "refuse"),
+            ("+inf", inf, "refuse"),
+            ("-inf", -inf, "refuse"),
+            ("empty string", "", "refuse"),
+        ]
         if f.kind == "int":
             out.append(("huge", 10**15, "refuse" if f.high is not None else "either"))
             out.append(("float for int", 2.5, "refuse"))
@@ -101,27 +111,39 @@ def bad_values(section: str, key: str, f) -> list[tuple[str, object, str]]:
         if f.low is not None and f.low >= 0:
             out.append(("negative", -1, "refuse"))
     elif f.kind == "bool":
-        out += [("wrong type", "abc", "refuse"), ("number for bool", 1, "refuse"),
-                ("nan", nan, "refuse")]
+        out += [
+            ("wrong type", "abc", "refuse"),
+            ("number for bool", 1, "refuse"),
+            ("nan", nan, "refuse"),
+        ]
     elif f.kind == "str":
-        out += [("wrong type", 1.5, "refuse"), ("nan", nan, "refuse"),
-                ("wrong type list", ["a"], "refuse")]
+        out += [
+            ("wrong type", 1.5, "refuse"),
+            ("nan", nan, "refuse"),
+            ("wrong type list", ["a"], "refuse"),
+        ]
         if f.choices is not None:
             out += [("empty string", "", "refuse"), ("bad choice", "bogus", "refuse")]
     else:  # lists
         out += [("wrong type", "abc", "refuse"), ("scalar", 1.0, "refuse")]
         if f.kind == "floats":
-            out += [("nan entry", [nan, 1.0], "refuse"), ("inf entry", [inf, 1.0], "refuse"),
-                    ("huge entry", [0.0, 1e300], "refuse" if _huge_is_bad(section, key)
-                     else "either")]
+            out += [
+                ("nan entry", [nan, 1.0], "refuse"),
+                ("inf entry", [inf, 1.0], "refuse"),
+                ("huge entry", [0.0, 1e300], "refuse" if _huge_is_bad(section, key) else "either"),
+            ]
         elif f.kind == "points":
-            out += [("nan point", [[0.0, 1.0], [nan, 2.0]], "refuse"),
-                    ("inf point", [[0.0, 1.0], [inf, 2.0]], "refuse"),
-                    ("huge point", [[0.0, 1.0], [1e300, 1.0]], "refuse"),
-                    ("ragged point", [[0.0, 1.0], [1.0]], "refuse")]
+            out += [
+                ("nan point", [[0.0, 1.0], [nan, 2.0]], "refuse"),
+                ("inf point", [[0.0, 1.0], [inf, 2.0]], "refuse"),
+                ("huge point", [[0.0, 1.0], [1e300, 1.0]], "refuse"),
+                ("ragged point", [[0.0, 1.0], [1.0]], "refuse"),
+            ]
         else:
-            out += [("number entry", [1.0], "refuse"), ("bad entry", ["bogus"], "refuse"
-                    if f.choices is not None else "either")]
+            out += [
+                ("number entry", [1.0], "refuse"),
+                ("bad entry", ["bogus"], "refuse" if f.choices is not None else "either"),
+            ]
         required = f.default is None
         out.append(("empty list", [], "refuse" if required else "either"))
     return out
@@ -147,15 +169,38 @@ def config_cases(tmp: Path) -> list[Case]:
                     for label, value, expect in bad_values(section, key, f):
                         if expect == "either" and cmd != "run":
                             continue
-                        cases.append(Case((*base, "--set", f"{section}.{key}={_toml(value)}"),
-                                          f"{section}.{key}", expect,
-                                          f"{cmd} {path.stem} {section}.{key} {label}"))
-            cases.append(Case((*base, "--set", "mesh.bogus_key=1"), "mesh.bogus_key", "refuse",
-                              f"{cmd} {path.stem} unknown key"))
-            cases.append(Case((*base, "--set", "bogus.key=1"), "bogus", "refuse",
-                              f"{cmd} {path.stem} unknown section"))
-            cases.append(Case((*base, "--set", "meshnr=3"), "meshnr=3", "refuse",
-                              f"{cmd} {path.stem} malformed override"))
+                        cases.append(
+                            Case(
+                                (*base, "--set", f"{section}.{key}={_toml(value)}"),
+                                f"{section}.{key}",
+                                expect,
+                                f"{cmd} {path.stem} {section}.{key} {label}",
+                            )
+                        )
+            cases.append(
+                Case(
+                    (*base, "--set", "mesh.bogus_key=1"),
+                    "mesh.bogus_key",
+                    "refuse",
+                    f"{cmd} {path.stem} unknown key",
+                )
+            )
+            cases.append(
+                Case(
+                    (*base, "--set", "bogus.key=1"),
+                    "bogus",
+                    "refuse",
+                    f"{cmd} {path.stem} unknown section",
+                )
+            )
+            cases.append(
+                Case(
+                    (*base, "--set", "meshnr=3"),
+                    "meshnr=3",
+                    "refuse",
+                    f"{cmd} {path.stem} malformed override",
+                )
+            )
             cases += scene_cases(cmd, path, kind, base)
     return cases
 
@@ -173,53 +218,135 @@ def _section_applies(section: str, kind: str) -> bool:
 def scene_cases(cmd: str, path: Path, kind: str, base: tuple) -> list[Case]:
     """Bad combinations: step and mesh caps, die profiles, design set-ups."""
     name = path.stem
-    cases = [Case((*base, "--set", "time.dt_s=1e-12"), "time.dt_s", "refuse",
-                  f"{cmd} {name} 1e12 steps"),
-             Case((*base, "--set", "mesh.nr=2000", "--set", "mesh.nz=2000"), "mesh.nr",
-                  "refuse", f"{cmd} {name} 2000x2000 mesh")]
+    cases = [
+        Case(
+            (*base, "--set", "time.dt_s=1e-12"), "time.dt_s", "refuse", f"{cmd} {name} 1e12 steps"
+        ),
+        Case(
+            (*base, "--set", "mesh.nr=2000", "--set", "mesh.nz=2000"),
+            "mesh.nr",
+            "refuse",
+            f"{cmd} {name} 2000x2000 mesh",
+        ),
+    ]
     if kind == "membrane":
-        cases.append(Case((*base, "--set", "load.ramp_time_s=1e300"), "load.ramp_time_s",
-                          "refuse", f"{cmd} {name} huge ramp time"))
+        cases.append(
+            Case(
+                (*base, "--set", "load.ramp_time_s=1e300"),
+                "load.ramp_time_s",
+                "refuse",
+                f"{cmd} {name} huge ramp time",
+            )
+        )
     else:
-        cases.append(Case((*base, "--set", "die.speed_mm_s=1e-300"), "die.speed_mm_s",
-                          "refuse", f"{cmd} {name} tiny speed"))
+        cases.append(
+            Case(
+                (*base, "--set", "die.speed_mm_s=1e-300"),
+                "die.speed_mm_s",
+                "refuse",
+                f"{cmd} {name} tiny speed",
+            )
+        )
         raw = tomllib.loads(path.read_text())
         prof = raw.get("die", {}).get("profile_mm")
         if prof:
-            cases.append(Case((*base, "--set", f"die.profile_mm={_toml(prof[::-1])}"),
-                              "die.profile_mm", "refuse", f"{cmd} {name} reversed profile"))
-        top = {"billet": lambda w: w["height_mm"] / 2, "ring": lambda w: w["height_mm"] / 2,
-               "block": lambda w: w["depth_mm"]}[kind](raw[kind])
+            cases.append(
+                Case(
+                    (*base, "--set", f"die.profile_mm={_toml(prof[::-1])}"),
+                    "die.profile_mm",
+                    "refuse",
+                    f"{cmd} {name} reversed profile",
+                )
+            )
+        top = {
+            "billet": lambda w: w["height_mm"] / 2,
+            "ring": lambda w: w["height_mm"] / 2,
+            "block": lambda w: w["depth_mm"],
+        }[kind](raw[kind])
         cross = [[0.0, top + 1], [3.0, top + 2], [3.0, top + 0.5], [1.0, top + 3]]
-        cases.append(Case((*base, "--set", f"die.profile_mm={_toml(cross)}"), "die.profile_mm",
-                          "refuse", f"{cmd} {name} self-intersecting profile"))
+        cases.append(
+            Case(
+                (*base, "--set", f"die.profile_mm={_toml(cross)}"),
+                "die.profile_mm",
+                "refuse",
+                f"{cmd} {name} self-intersecting profile",
+            )
+        )
         low = [[0.0, top - 0.5], [1.0, top - 0.5]]
-        cases.append(Case((*base, "--set", f"die.profile_mm={_toml(low)}"), "die.profile_mm",
-                          "refuse", f"{cmd} {name} die overlapping the workpiece"))
+        cases.append(
+            Case(
+                (*base, "--set", f"die.profile_mm={_toml(low)}"),
+                "die.profile_mm",
+                "refuse",
+                f"{cmd} {name} die overlapping the workpiece",
+            )
+        )
         rev = [[5.0, top + 1.0], [0.0, top + 1.0]]
-        cases.append(Case((*base, "--set", f"die.profile_mm={_toml(rev)}"), "die.profile_mm",
-                          "refuse", f"{cmd} {name} flat profile walked inward"))
+        cases.append(
+            Case(
+                (*base, "--set", f"die.profile_mm={_toml(rev)}"),
+                "die.profile_mm",
+                "refuse",
+                f"{cmd} {name} flat profile walked inward",
+            )
+        )
     if cmd == "design":
-        cases.append(Case((*base, "--set", "design.variables=[]"), "design.variables",
-                          "refuse", f"{cmd} {name} no design variables"))
+        cases.append(
+            Case(
+                (*base, "--set", "design.variables=[]"),
+                "design.variables",
+                "refuse",
+                f"{cmd} {name} no design variables",
+            )
+        )
     if cmd != "run" and kind != "membrane":
-        cases.append(Case((*base, "--set", "mesh.rezone_quality=0.3"), "mesh.rezone_quality",
-                          "refuse", f"{cmd} {name} rezoning in a gradient run"))
-        cases.append(Case((*base, "--set", "design.objective=die_fill", "--set",
-                           "die.closed=false"), "die.closed", "refuse",
-                          f"{cmd} {name} die_fill without closed die"))
-        cases.append(Case((*base, "--set", "design.objective=force_misfit"),
-                          "design.target_csv", "refuse", f"{cmd} {name} misfit without target"))
+        cases.append(
+            Case(
+                (*base, "--set", "mesh.rezone_quality=0.3"),
+                "mesh.rezone_quality",
+                "refuse",
+                f"{cmd} {name} rezoning in a gradient run",
+            )
+        )
+        cases.append(
+            Case(
+                (*base, "--set", "design.objective=die_fill", "--set", "die.closed=false"),
+                "die.closed",
+                "refuse",
+                f"{cmd} {name} die_fill without closed die",
+            )
+        )
+        cases.append(
+            Case(
+                (*base, "--set", "design.objective=force_misfit"),
+                "design.target_csv",
+                "refuse",
+                f"{cmd} {name} misfit without target",
+            )
+        )
     if cmd == "taylor-test":
-        for label, h in (("zero", ["0"]), ("negative", ["-1", "-0.5"]), ("nan", ["nan", "0.5"]),
-                         ("inf", ["inf", "0.5"]), ("one value", ["1"]),
-                         ("increasing", ["0.5", "1"]), ("text", ["abc"])):
+        for label, h in (
+            ("zero", ["0"]),
+            ("negative", ["-1", "-0.5"]),
+            ("nan", ["nan", "0.5"]),
+            ("inf", ["inf", "0.5"]),
+            ("one value", ["1"]),
+            ("increasing", ["0.5", "1"]),
+            ("text", ["abc"]),
+        ):
             cases.append(Case((*base, "--h", *h), "--h", "refuse", f"{cmd} {name} --h {label}"))
-        cases.append(Case((*base, "--groups", "bogus"), "--groups", "refuse",
-                          f"{cmd} {name} --groups bogus"))
+        cases.append(
+            Case((*base, "--groups", "bogus"), "--groups", "refuse", f"{cmd} {name} --groups bogus")
+        )
         if name in ("upsetting_seed", "cooks_membrane"):  # no friction in these scenes
-            cases.append(Case((*base, "--groups", "friction"), "--groups", "refuse",
-                              f"{cmd} {name} --groups friction without friction"))
+            cases.append(
+                Case(
+                    (*base, "--groups", "friction"),
+                    "--groups",
+                    "refuse",
+                    f"{cmd} {name} --groups friction without friction",
+                )
+            )
     return cases
 
 
@@ -238,25 +365,53 @@ def path_cases(tmp: Path) -> list[Case]:
     cases = []
     for cmd in ("run", "design", "taylor-test"):
         out = ["--out", str(tmp / "out")] if cmd != "taylor-test" else []
-        for label, p in (("missing", tmp / "missing.toml"), ("directory", tmp),
-                         ("binary", binary), ("empty", empty), ("broken", broken)):
+        for label, p in (
+            ("missing", tmp / "missing.toml"),
+            ("directory", tmp),
+            ("binary", binary),
+            ("empty", empty),
+            ("broken", broken),
+        ):
             cases.append(Case((cmd, str(p), *out), str(p), "refuse", f"{cmd} {label} config"))
         cases.append(Case((cmd, str(bom), *out), str(bom), "accept", f"{cmd} BOM config"))
         for label, p in (("missing", tmp / "missing.msh"), ("directory", tmp)):
-            cases.append(Case((cmd, seed, *out, "--set", f"mesh.file={p}"), "mesh.file",
-                              "refuse", f"{cmd} mesh.file {label}"))
+            cases.append(
+                Case(
+                    (cmd, seed, *out, "--set", f"mesh.file={p}"),
+                    "mesh.file",
+                    "refuse",
+                    f"{cmd} mesh.file {label}",
+                )
+            )
         if cmd != "run":
-            for label, content in (("binary", b"\x80\x81"), ("no columns", b"a,b\n1,2\n"),
-                                   ("nan", b"stroke_mm,force_N\n0.5,nan\n")):
+            for label, content in (
+                ("binary", b"\x80\x81"),
+                ("no columns", b"a,b\n1,2\n"),
+                ("nan", b"stroke_mm,force_N\n0.5,nan\n"),
+            ):
                 target = tmp / f"target_{label.replace(' ', '_')}.csv"
                 target.write_bytes(content)
-                cases.append(Case((cmd, seed, *out, "--set", "design.objective=force_misfit",
-                                   "--set", f"design.target_csv={target}"), "design.target_csv",
-                                  "refuse", f"{cmd} design.target_csv {label}"))
+                cases.append(
+                    Case(
+                        (
+                            cmd,
+                            seed,
+                            *out,
+                            "--set",
+                            "design.objective=force_misfit",
+                            "--set",
+                            f"design.target_csv={target}",
+                        ),
+                        "design.target_csv",
+                        "refuse",
+                        f"{cmd} design.target_csv {label}",
+                    )
+                )
         if cmd != "taylor-test":
             for label, o in (("existing file", afile), ("under a file", afile / "sub")):
-                cases.append(Case((cmd, seed, "--out", str(o)), "--out", "refuse",
-                                  f"{cmd} --out {label}"))
+                cases.append(
+                    Case((cmd, seed, "--out", str(o)), "--out", "refuse", f"{cmd} --out {label}")
+                )
     return cases
 
 
@@ -274,11 +429,23 @@ def material_point_cases(tmp: Path) -> list[Case]:
     for flag, values in flags.items():
         for v in values:
             extra = ("--ram-speeds-mm-s", "1") if flag == "--height-mm" else ()
-            cases.append(Case(("material-point", flag, v, *extra, *out), flag, "refuse",
-                              f"material-point {flag} {v}"))
+            cases.append(
+                Case(
+                    ("material-point", flag, v, *extra, *out),
+                    flag,
+                    "refuse",
+                    f"material-point {flag} {v}",
+                )
+            )
     for label, o in (("existing file", afile), ("under a file", afile / "sub")):
-        cases.append(Case(("material-point", "--out", str(o)), "--out", "refuse",
-                          f"material-point --out {label}"))
+        cases.append(
+            Case(
+                ("material-point", "--out", str(o)),
+                "--out",
+                "refuse",
+                f"material-point --out {label}",
+            )
+        )
     return cases
 
 
@@ -296,10 +463,14 @@ def stubs():
     def stop(*a, **k):
         raise Reached
 
-    patched = [(jaxform.driver, "simulate"), (jaxform.materialpoint, "uniaxial_compression"),
-               (jaxform.xla_options, "jit")]
+    patched = [
+        (jaxform.driver, "simulate"),
+        (jaxform.materialpoint, "uniaxial_compression"),
+        (jaxform.xla_options, "jit"),
+    ]
     try:
         import jaxform.design.problem
+
         patched.append((jaxform.design.problem, "schedule"))
     except ImportError:
         pass
@@ -357,13 +528,20 @@ def run_case(case: Case, timeout_s: int) -> tuple[str, str]:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--show", default="silent,traceback,unclear,wrongly refused",
-                    help="outcomes whose cases are listed")
+    ap.add_argument(
+        "--show",
+        default="silent,traceback,unclear,wrongly refused",
+        help="outcomes whose cases are listed",
+    )
     ap.add_argument("--timeout", type=int, default=20, help="seconds per case")
     ap.add_argument("--grep", default="", help="only cases whose label contains this")
-    ap.add_argument("--max-memory-gb", type=float, default=6.0,
-                    help="address-space limit: a case that would exhaust the machine raises "
-                         "MemoryError (a traceback) instead")
+    ap.add_argument(
+        "--max-memory-gb",
+        type=float,
+        default=6.0,
+        help="address-space limit: a case that would exhaust the machine raises "
+        "MemoryError (a traceback) instead",
+    )
     args = ap.parse_args()
     limit = int(args.max_memory_gb * 2**30)
     resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
@@ -387,9 +565,13 @@ def main() -> int:
                 if outcome in args.show.split(","):
                     shown.append(f"{outcome:>10}  {case.label}: {detail}")
     print("\n".join(shown))
-    print(f"{len(cases)} cases in {time.perf_counter() - t0:.1f} s: " + ", ".join(
-        f"{k} {counts[k]}" for k in ("clear", "unclear", "traceback", "silent", "accepted",
-                                     "wrongly refused")))
+    print(
+        f"{len(cases)} cases in {time.perf_counter() - t0:.1f} s: "
+        + ", ".join(
+            f"{k} {counts[k]}"
+            for k in ("clear", "unclear", "traceback", "silent", "accepted", "wrongly refused")
+        )
+    )
     return 0
 
 

@@ -21,18 +21,28 @@ import numpy as np
 import jaxform
 
 SCENES = {
-    "ring m=0.5 24x12": ("configs/ring_compression.toml",
-                         ["friction.m=0.5", "mesh.nr=24", "mesh.nz=12"]),
-    "ring m=1.0 24x12": ("configs/ring_compression.toml",
-                         ["friction.m=1.0", "mesh.nr=24", "mesh.nz=12"]),
+    "ring m=0.5 24x12": (
+        "configs/ring_compression.toml",
+        ["friction.m=0.5", "mesh.nr=24", "mesh.nz=12"],
+    ),
+    "ring m=1.0 24x12": (
+        "configs/ring_compression.toml",
+        ["friction.m=1.0", "mesh.nr=24", "mesh.nz=12"],
+    ),
     "friction 80% 10x10": ("configs/upsetting_friction.toml", ["die.reduction=0.8"]),
-    "friction 80% 20x20": ("configs/upsetting_friction.toml",
-                           ["die.reduction=0.8", "mesh.nr=20", "mesh.nz=20"]),
-    "sticking 80% 10x10": ("configs/upsetting_friction.toml",
-                           ["die.reduction=0.8", "friction.model=sticking"]),
+    "friction 80% 20x20": (
+        "configs/upsetting_friction.toml",
+        ["die.reduction=0.8", "mesh.nr=20", "mesh.nz=20"],
+    ),
+    "sticking 80% 10x10": (
+        "configs/upsetting_friction.toml",
+        ["die.reduction=0.8", "friction.model=sticking"],
+    ),
     "closed die 20x20": ("configs/closed_die.toml", ["mesh.nr=20", "mesh.nz=20"]),
-    "friction q1p0 dt 20 s": ("configs/upsetting_friction.toml",
-                              ["mesh.element=q1p0", "time.dt_s=20"]),
+    "friction q1p0 dt 20 s": (
+        "configs/upsetting_friction.toml",
+        ["mesh.element=q1p0", "time.dt_s=20"],
+    ),
     "seed": ("configs/upsetting_seed.toml", []),
     "friction": ("configs/upsetting_friction.toml", []),
     "ring": ("configs/ring_compression.toml", []),
@@ -56,13 +66,17 @@ def run_one(config: str, overrides: list[str]) -> dict:
     kind = res.scene.kind
     height = cfg[kind]["depth_mm" if kind == "block" else "height_mm"]
     steps = len(h["time_s"]) - 1
-    return dict(outcome="failed" if failure else "completed",
-                reduction_pct=100.0 * h["stroke_mm"][-1] / height,
-                target_pct=100.0 * cfg["die"]["reduction"], steps=steps,
-                cutbacks=int(h["cutbacks"].sum()),
-                newton_per_step=float(h["newton_iterations"][1:].sum() / max(steps, 1)),
-                min_dt_s=float(h["dt_s"][1:].min()) if steps else float("nan"),
-                wall_s=wall, failure=failure)
+    return dict(
+        outcome="failed" if failure else "completed",
+        reduction_pct=100.0 * h["stroke_mm"][-1] / height,
+        target_pct=100.0 * cfg["die"]["reduction"],
+        steps=steps,
+        cutbacks=int(h["cutbacks"].sum()),
+        newton_per_step=float(h["newton_iterations"][1:].sum() / max(steps, 1)),
+        min_dt_s=float(h["dt_s"][1:].min()) if steps else float("nan"),
+        wall_s=wall,
+        failure=failure,
+    )
 
 
 def main() -> None:
@@ -74,27 +88,44 @@ def main() -> None:
     jaxform.enable_compilation_cache()
     names = args.only or list(SCENES)
     rows = []
-    print("| scene | outcome | reduction % (target) | steps | cutbacks | Newton/step | "
-          "smallest dt (s) | wall (s) |")
+    print(
+        "| scene | outcome | reduction % (target) | steps | cutbacks | Newton/step | "
+        "smallest dt (s) | wall (s) |"
+    )
     print("|---|---|---|---|---|---|---|---|")
     for name in names:
         config, over = SCENES[name]
         r = run_one(config, over)
         rows.append((name, r))
-        print(f"| {name} | {r['outcome']} | {r['reduction_pct']:.2f} ({r['target_pct']:.1f}) | "
-              f"{r['steps']} | {r['cutbacks']} | {r['newton_per_step']:.2f} | "
-              f"{r['min_dt_s']:.3g} | {r['wall_s']:.1f} |", flush=True)
+        print(
+            f"| {name} | {r['outcome']} | {r['reduction_pct']:.2f} ({r['target_pct']:.1f}) | "
+            f"{r['steps']} | {r['cutbacks']} | {r['newton_per_step']:.2f} | "
+            f"{r['min_dt_s']:.3g} | {r['wall_s']:.1f} |",
+            flush=True,
+        )
         if r["failure"]:
             print(f"  ({r['failure']})", flush=True)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    keys = ["outcome", "reduction_pct", "target_pct", "steps", "cutbacks", "newton_per_step",
-            "min_dt_s", "wall_s"]
+    keys = [
+        "outcome",
+        "reduction_pct",
+        "target_pct",
+        "steps",
+        "cutbacks",
+        "newton_per_step",
+        "min_dt_s",
+        "wall_s",
+    ]
     with open(out, "w") as fh:
         fh.write("scene," + ",".join(keys) + "\n")
         for name, r in rows:
-            fh.write(name + "," + ",".join(str(r[k]) if isinstance(r[k], str)
-                                           else f"{r[k]:.6g}" for k in keys) + "\n")
+            fh.write(
+                name
+                + ","
+                + ",".join(str(r[k]) if isinstance(r[k], str) else f"{r[k]:.6g}" for k in keys)
+                + "\n"
+            )
     print(f"wrote {out}")
 
 

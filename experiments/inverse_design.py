@@ -37,11 +37,17 @@ from jaxform.scenes import build_scene
 
 
 def material_study(mesh: int):
-    cfg = {"billet": {"diameter_mm": 5.0, "height_mm": 7.5},
-           "mesh": {"nr": mesh, "nz": mesh, "element": "q1p0"},
-           "die": {"speed_mm_s": 0.075, "reduction": 0.563}, "time": {"dt_s": 2.0},
-           "design": {"variables": ["material"], "objective": "forging_work",
-                      "material_params": ["s0_MPa", "h0_MPa", "s_hat_MPa"]}}
+    cfg = {
+        "billet": {"diameter_mm": 5.0, "height_mm": 7.5},
+        "mesh": {"nr": mesh, "nz": mesh, "element": "q1p0"},
+        "die": {"speed_mm_s": 0.075, "reduction": 0.563},
+        "time": {"dt_s": 2.0},
+        "design": {
+            "variables": ["material"],
+            "objective": "forging_work",
+            "material_params": ["s0_MPa", "h0_MPa", "s_hat_MPa"],
+        },
+    }
     scene = build_scene(load_config(cfg))
     truth = build_problem(scene, groups=("material",))
     _, traj = truth.value(truth.start)  # u = 0: the preset's parameters
@@ -57,12 +63,18 @@ def die_study(mesh: int):
     true_dz = np.array([0.0, 0.05, 0.12, 0.2])
 
     def scene_with(dz):
-        cfg = {"billet": {"diameter_mm": 5.0, "height_mm": 7.5},
-               "mesh": {"nr": mesh, "nz": mesh, "element": "q1p0"},
-               "die": {"speed_mm_s": 0.075, "reduction": 0.3,
-                       "profile_mm": [[r, top + d] for r, d in zip(r_pts, dz)]},
-               "friction": {"model": "coulomb", "mu": 0.2}, "time": {"dt_s": 1.5},
-               "design": {"variables": ["die"], "die_offset_max_mm": 0.3}}
+        cfg = {
+            "billet": {"diameter_mm": 5.0, "height_mm": 7.5},
+            "mesh": {"nr": mesh, "nz": mesh, "element": "q1p0"},
+            "die": {
+                "speed_mm_s": 0.075,
+                "reduction": 0.3,
+                "profile_mm": [[r, top + d] for r, d in zip(r_pts, dz)],
+            },
+            "friction": {"model": "coulomb", "mu": 0.2},
+            "time": {"dt_s": 1.5},
+            "design": {"variables": ["die"], "die_offset_max_mm": 0.3},
+        }
         return build_scene(load_config(cfg))
 
     truth = build_problem(scene_with(true_dz), groups=("die",))
@@ -88,31 +100,46 @@ def main():
     problem, start, truth = build(args.mesh or (4 if args.study == "material" else 6))
 
     def progress(it, val, gnorm, design):
-        print(f"iteration {it:3d}: objective {val:.6e} |grad| {gnorm:.3e} "
-              f"({time.perf_counter() - t0:.1f} s)", flush=True)
+        print(
+            f"iteration {it:3d}: objective {val:.6e} |grad| {gnorm:.3e} "
+            f"({time.perf_counter() - t0:.1f} s)",
+            flush=True,
+        )
 
-    hist = optimize(problem, OptimizerSettings("lbfgs", args.iterations), design=start,
-                    progress=progress)
+    hist = optimize(
+        problem, OptimizerSettings("lbfgs", args.iterations), design=start, progress=progress
+    )
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    cols = {"iteration": np.arange(len(hist.objective)), "objective": np.array(hist.objective),
-            "grad_norm": np.array(hist.grad_norm)}
+    cols = {
+        "iteration": np.arange(len(hist.objective)),
+        "objective": np.array(hist.objective),
+        "grad_norm": np.array(hist.grad_norm),
+    }
     phys = [problem.physical(u) for u in hist.designs]
     for key in phys[0]:
         cols[key] = np.array([p[key] for p in phys])
     write_csv(out / f"{args.study}_history.csv", cols)
-    design_objective(hist.objective, out / f"{args.study}_design.png",
-                     f"{args.study}: twin experiment (L-BFGS)", problem.objective.unit)
+    design_objective(
+        hist.objective,
+        out / f"{args.study}_design.png",
+        f"{args.study}: twin experiment (L-BFGS)",
+        problem.objective.unit,
+    )
     true_phys, found = problem.physical(truth), phys[-1]
     start_phys = phys[0]
-    print(f"done in {time.perf_counter() - t0:.1f} s ({hist.stop_reason}): "
-          f"{len(hist.objective) - 1} iterations, {hist.evaluations} gradient evaluations")
+    print(
+        f"done in {time.perf_counter() - t0:.1f} s ({hist.stop_reason}): "
+        f"{len(hist.objective) - 1} iterations, {hist.evaluations} gradient evaluations"
+    )
     print(f"objective {hist.objective[0]:.4e} -> {hist.objective[-1]:.4e}")
     for k in true_phys:
         err = found[k] - true_phys[k]
         rel = f" ({100 * err / true_phys[k]:+.3f} %)" if true_phys[k] != 0 else ""
-        print(f"  {k:>14}: start {start_phys[k]:.6g}  found {found[k]:.6g}  "
-              f"true {true_phys[k]:.6g}  error {err:+.3e}{rel}")
+        print(
+            f"  {k:>14}: start {start_phys[k]:.6g}  found {found[k]:.6g}  "
+            f"true {true_phys[k]:.6g}  error {err:+.3e}{rel}"
+        )
 
 
 if __name__ == "__main__":

@@ -98,7 +98,8 @@ def write_j2(path: Path, sigma_y0: float, h_mod: float) -> None:
         "# scene at 0.075 mm/s (experiments/model_selection.py); moduli of al1100_673K.\n"
         'law = "j2"\ndescription = "J2 fit to Al 1100-O 673 K at a nominal rate of 0.01 /s"\n\n'
         f"[params]\nG_MPa = {float(params.G_MPa)!r}\nK_MPa = {float(params.K_MPa)!r}\n"
-        f"sigma_y0_MPa = {sigma_y0!r}\nH_MPa = {h_mod!r}\n")
+        f"sigma_y0_MPa = {sigma_y0!r}\nH_MPa = {h_mod!r}\n"
+    )
 
 
 def force_on_strokes(res, strokes: np.ndarray) -> np.ndarray:
@@ -124,10 +125,17 @@ def full_width_mesh(radius: float, half_height: float, nr: int, nz: int) -> Mesh
     r = rectangle(2.0 * radius, half_height, 2 * nr, nz, origin=(-radius, 0.0))
     centre = np.flatnonzero(np.hypot(r.coords[:, 0], r.coords[:, 1]) < 1e-9 * radius)
     side = np.concatenate([r.facet_sets["left"], r.facet_sets["right"]])
-    return Mesh(r.coords, r.elements,
-                {"symmetry": r.node_sets["bottom"], "top": r.node_sets["top"],
-                 "side": np.unique(side), "axis": centre},
-                {"symmetry": r.facet_sets["bottom"], "top": r.facet_sets["top"], "side": side})
+    return Mesh(
+        r.coords,
+        r.elements,
+        {
+            "symmetry": r.node_sets["bottom"],
+            "top": r.node_sets["top"],
+            "side": np.unique(side),
+            "axis": centre,
+        },
+        {"symmetry": r.facet_sets["bottom"], "top": r.facet_sets["top"], "side": side},
+    )
 
 
 def timed_run(config: Path, overrides: list[str]):
@@ -152,8 +160,7 @@ def symmetry_study(out: Path) -> dict[str, float]:
         half_sc, half, t_half = timed_run(FRICTION, PLANE_FRICTION)
         full_sc, whole, t_full = timed_run(FRICTION, full)
         # the tilted die touches first at x = +R: the half model cannot represent it
-        tilt_sc, tilted_res, t_tilt = timed_run(FRICTION,
-                                                full + [f"die.profile_mm={tilted!r}"])
+        tilt_sc, tilted_res, t_tilt = timed_run(FRICTION, full + [f"die.profile_mm={tilted!r}"])
     n = min(len(half.history["force_N"]), len(whole.history["force_N"]))
     f_half, f_full = 2.0 * half.history["force_N"][1:n], whole.history["force_N"][1:n]
     same_t = np.allclose(half.history["time_s"][:n], whole.history["time_s"][:n], atol=1e-12)
@@ -165,29 +172,41 @@ def symmetry_study(out: Path) -> dict[str, float]:
     mirror = [int(np.argmin(np.sum((x0_full - x * [-1.0, 1.0]) ** 2, axis=1))) for x in x0_full]
     shape_diff = float(np.max(np.linalg.norm(p_full[twin] - p_half, axis=1)))
     asym = float(np.max(np.linalg.norm(p_full - p_full[mirror] * [-1.0, 1.0], axis=1)))
-    v = {"half_unknowns": half_sc.model.layout.n_dofs, "full_unknowns": full_sc.model.layout.n_dofs,
-         "same_time_steps": float(same_t), "steps_half": len(half.history["time_s"]) - 1,
-         "steps_full": len(whole.history["time_s"]) - 1,
-         "force_max_rel_diff_full_vs_2half": float(np.max(np.abs(f_full - f_half) / f_half)),
-         "final_force_N_per_mm_half_x2": float(2.0 * half.history["force_N"][-1]),
-         "final_force_N_per_mm_full": float(whole.history["force_N"][-1]),
-         "final_shape_max_diff_mm": shape_diff, "full_left_right_asymmetry_mm": asym,
-         "run_time_s_half": t_half, "run_time_s_full": t_full,
-         "newton_its_half": float(np.sum(half.history["newton_iterations"])),
-         "newton_its_full": float(np.sum(whole.history["newton_iterations"]))}
+    v = {
+        "half_unknowns": half_sc.model.layout.n_dofs,
+        "full_unknowns": full_sc.model.layout.n_dofs,
+        "same_time_steps": float(same_t),
+        "steps_half": len(half.history["time_s"]) - 1,
+        "steps_full": len(whole.history["time_s"]) - 1,
+        "force_max_rel_diff_full_vs_2half": float(np.max(np.abs(f_full - f_half) / f_half)),
+        "final_force_N_per_mm_half_x2": float(2.0 * half.history["force_N"][-1]),
+        "final_force_N_per_mm_full": float(whole.history["force_N"][-1]),
+        "final_shape_max_diff_mm": shape_diff,
+        "full_left_right_asymmetry_mm": asym,
+        "run_time_s_half": t_half,
+        "run_time_s_full": t_full,
+        "newton_its_half": float(np.sum(half.history["newton_iterations"])),
+        "newton_its_full": float(np.sum(whole.history["newton_iterations"])),
+    }
     p_tilt = positions(tilt_sc, tilted_res.fields["x"][-1])
     side = full_sc.mesh.node_sets["side"]
     right = side[x0_full[side, 0] > 0]
     left = side[x0_full[side, 0] < 0]
-    v.update({"tilt_deg": TILT_DEG, "run_time_s_tilt": t_tilt,
-              "newton_its_tilt": float(np.sum(tilted_res.history["newton_iterations"])),
-              "tilt_final_force_N_per_mm": float(tilted_res.history["force_N"][-1]),
-              "tilt_force_rel_diff_vs_parallel": float(tilted_res.history["force_N"][-1]
-                                                       / whole.history["force_N"][-1] - 1.0),
-              "tilt_right_bulge_mm": float(p_tilt[right, 0].max()),
-              "tilt_left_bulge_mm": float(-p_tilt[left, 0].min()),
-              "parallel_bulge_mm": float(p_full[right, 0].max()),
-              "tilt_final_stroke_mm": float(tilted_res.history["stroke_mm"][-1])})
+    v.update(
+        {
+            "tilt_deg": TILT_DEG,
+            "run_time_s_tilt": t_tilt,
+            "newton_its_tilt": float(np.sum(tilted_res.history["newton_iterations"])),
+            "tilt_final_force_N_per_mm": float(tilted_res.history["force_N"][-1]),
+            "tilt_force_rel_diff_vs_parallel": float(
+                tilted_res.history["force_N"][-1] / whole.history["force_N"][-1] - 1.0
+            ),
+            "tilt_right_bulge_mm": float(p_tilt[right, 0].max()),
+            "tilt_left_bulge_mm": float(-p_tilt[left, 0].min()),
+            "parallel_bulge_mm": float(p_full[right, 0].max()),
+            "tilt_final_stroke_mm": float(tilted_res.history["stroke_mm"][-1]),
+        }
+    )
     with open(out / "model_selection_symmetry.csv", "w", newline="") as fh:
         wr = csv.writer(fh)
         wr.writerow(["quantity", "value"])
@@ -202,8 +221,12 @@ def symmetry_study(out: Path) -> dict[str, float]:
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="docs/figures")
-    ap.add_argument("--part", choices=("all", "laws", "symmetry"), default="all",
-                    help="laws: parts 1-2 (J2, plane strain); symmetry: part 3")
+    ap.add_argument(
+        "--part",
+        choices=("all", "laws", "symmetry"),
+        default="all",
+        help="laws: parts 1-2 (J2, plane strain); symmetry: part 3",
+    )
     args = ap.parse_args(argv)
     jaxform.enable_x64()
     out = Path(args.out)
@@ -218,46 +241,66 @@ def main(argv=None) -> dict:
     homog = ["mesh.nr=5", "mesh.nz=5", "mesh.element=q1q1"]
     anand = {}
     for f in SPEED_FACTORS:
-        anand[f] = run(SEED, homog + [f"die.speed_mm_s={SEED_SPEED_MM_S * f!r}",
-                                      f"time.dt_s={1.0 / f!r}"])
+        anand[f] = run(
+            SEED, homog + [f"die.speed_mm_s={SEED_SPEED_MM_S * f!r}", f"time.dt_s={1.0 / f!r}"]
+        )
     strain, stress = flow_curve(*anand[1.0])
     sy, hm = fit_j2(strain, stress)
     j2_path = out / "model_selection_j2_fit.toml"
     write_j2(j2_path, sy, hm)
     values.update(j2_sigma_y0_MPa=sy, j2_H_MPa=hm)
-    print(f"J2 fit: sigma_y0 = {sy:.3f} MPa, H = {hm:.3f} MPa "
-          f"(Anand flow stress {stress[0]:.2f} -> {stress[-1]:.2f} MPa)")
+    print(
+        f"J2 fit: sigma_y0 = {sy:.3f} MPa, H = {hm:.3f} MPa "
+        f"(Anand flow stress {stress[0]:.2f} -> {stress[-1]:.2f} MPa)"
+    )
     for f in SPEED_FACTORS:
         sc_a, res_a = anand[f]
-        _, res_j = run(SEED, homog + [f"material.preset={str(j2_path)}",
-                                      f"die.speed_mm_s={SEED_SPEED_MM_S * f!r}",
-                                      f"time.dt_s={1.0 / f!r}"])
+        _, res_j = run(
+            SEED,
+            homog
+            + [
+                f"material.preset={str(j2_path)}",
+                f"die.speed_mm_s={SEED_SPEED_MM_S * f!r}",
+                f"time.dt_s={1.0 / f!r}",
+            ],
+        )
         strokes = res_a.history["stroke_mm"][4::4]
         err = rel_l2(force_on_strokes(res_j, strokes), force_on_strokes(res_a, strokes))
         values[f"j2_force_error_speed_x{f:g}"] = err
         values[f"anand_final_force_N_speed_x{f:g}"] = float(res_a.history["force_N"][-1])
         values[f"j2_final_force_N_speed_x{f:g}"] = float(res_j.history["force_N"][-1])
-        print(f"speed x {f:g}: Anand final force {res_a.history['force_N'][-1]:.1f} N, J2 "
-              f"{res_j.history['force_N'][-1]:.1f} N, force error (rel. L2) {err:.2%}")
+        print(
+            f"speed x {f:g}: Anand final force {res_a.history['force_N'][-1]:.1f} N, J2 "
+            f"{res_j.history['force_N'][-1]:.1f} N, force error (rel. L2) {err:.2%}"
+        )
 
     # 2. plane strain against axisymmetry
-    for name, config, over in (("frictionless", SEED, homog),
-                               ("coulomb", FRICTION, ["mesh.nr=10", "mesh.nz=10",
-                                                      "time.dt_s=0.5"])):
+    for name, config, over in (
+        ("frictionless", SEED, homog),
+        ("coulomb", FRICTION, ["mesh.nr=10", "mesh.nz=10", "time.dt_s=0.5"]),
+    ):
         for geometry in ("axisymmetric", "plane_strain"):
-            sc, res = (anand[1.0] if (name, geometry) == ("frictionless", "axisymmetric")
-                       else run(config, over + [f"mesh.geometry={geometry}"]))
+            sc, res = (
+                anand[1.0]
+                if (name, geometry) == ("frictionless", "axisymmetric")
+                else run(config, over + [f"mesh.geometry={geometry}"])
+            )
             p = mean_pressure(sc, res)
             values[f"mean_pressure_MPa_{name}_{geometry}"] = p
             print(f"{name:12s} {geometry:13s}: mean die pressure {p:.2f} MPa at the end")
     for g in ("axisymmetric", "plane_strain"):
-        values[f"friction_factor_{g}"] = (values[f"mean_pressure_MPa_coulomb_{g}"]
-                                          / values[f"mean_pressure_MPa_frictionless_{g}"])
+        values[f"friction_factor_{g}"] = (
+            values[f"mean_pressure_MPa_coulomb_{g}"] / values[f"mean_pressure_MPa_frictionless_{g}"]
+        )
     values["plane_strain_over_axisymmetric_frictionless"] = (
         values["mean_pressure_MPa_frictionless_plane_strain"]
-        / values["mean_pressure_MPa_frictionless_axisymmetric"])
-    for k in ("friction_factor_axisymmetric", "friction_factor_plane_strain",
-              "plane_strain_over_axisymmetric_frictionless"):
+        / values["mean_pressure_MPa_frictionless_axisymmetric"]
+    )
+    for k in (
+        "friction_factor_axisymmetric",
+        "friction_factor_plane_strain",
+        "plane_strain_over_axisymmetric_frictionless",
+    ):
         print(f"{k}: {values[k]:.4f}")
     with open(out / "model_selection.csv", "w", newline="") as fh:
         w = csv.writer(fh)

@@ -39,33 +39,44 @@ ELEMENTS = ("q4", "q1p0", "q1q1")
 QUICK = {"q4": 4.5, "q1p0": 8.5, "q1q1": 8.5}
 
 
-def punch_overrides(per_a: float, a_mm: float, fine_width_mm: float = 3.0,
-                    fine_depth_mm: float = 2.0) -> list[str]:
+def punch_overrides(
+    per_a: float, a_mm: float, fine_width_mm: float = 3.0, fine_depth_mm: float = 2.0
+) -> list[str]:
     """Config overrides for m = per_a equal elements across the punch half-width a."""
     if abs(per_a - math.floor(per_a) - 0.5) > 1e-9:
         raise SystemExit(f"--per-a {per_a}: must be a half-integer (punch corner mid-element)")
     h = a_mm / per_a
     nr, nz = round(fine_width_mm / h), round(fine_depth_mm / h)
-    return [f"mesh.nr={nr}", f"mesh.nz={nz}", f"block.fine_width_mm={nr * h!r}",
-            f"block.fine_depth_mm={nz * h!r}"]
+    return [
+        f"mesh.nr={nr}",
+        f"mesh.nz={nz}",
+        f"block.fine_width_mm={nr * h!r}",
+        f"block.fine_depth_mm={nz * h!r}",
+    ]
 
 
 def limit_run(element: str, per_a: float) -> dict:
     """Pressure ratio p / ((2 + pi) k) against travel / a for one element and refinement."""
     base = load_config(CONFIG)
     a_mm = base["die"]["profile_mm"][1][0]
-    cfg = load_config(CONFIG, [f"mesh.element={element}", "output.fields=false",
-                               "output.plots=false"] + punch_overrides(per_a, a_mm))
+    cfg = load_config(
+        CONFIG,
+        [f"mesh.element={element}", "output.fields=false", "output.plots=false"]
+        + punch_overrides(per_a, a_mm),
+    )
     sc = build_scene(cfg)
     k = float(sc.inputs.params.sigma_y0_MPa) / math.sqrt(3.0)
     t0 = time.perf_counter()
     res = simulate(sc)
     h = res.history
-    return dict(travel_over_a=h["stroke_mm"] / a_mm,
-                ratio=h["force_N"] / a_mm / ((2.0 + math.pi) * k),
-                newton_iterations=int(h["newton_iterations"].sum()),
-                cutbacks=int(h["cutbacks"].sum()), n_elements=sc.mesh.n_elements,
-                wall_s=time.perf_counter() - t0)
+    return dict(
+        travel_over_a=h["stroke_mm"] / a_mm,
+        ratio=h["force_N"] / a_mm / ((2.0 + math.pi) * k),
+        newton_iterations=int(h["newton_iterations"].sum()),
+        cutbacks=int(h["cutbacks"].sum()),
+        n_elements=sc.mesh.n_elements,
+        wall_s=time.perf_counter() - t0,
+    )
 
 
 def plot(curves: dict, path: Path) -> None:
@@ -79,8 +90,13 @@ def plot(curves: dict, path: Path) -> None:
     styles = ["-", "--", "-.", ":"]
     per_as = sorted({m for _, m in curves})
     for (el, m), c in sorted(curves.items()):
-        ax1.plot(c["travel_over_a"], c["ratio"], styles[per_as.index(m) % 4],
-                 color=colors[el], label=f"{el}, a/h = {m:g}")
+        ax1.plot(
+            c["travel_over_a"],
+            c["ratio"],
+            styles[per_as.index(m) % 4],
+            color=colors[el],
+            label=f"{el}, a/h = {m:g}",
+        )
     for el in ELEMENTS:
         sel = sorted((m, c["ratio"][-1]) for (e, m), c in curves.items() if e == el)
         if sel:
@@ -113,15 +129,21 @@ def main(argv=None) -> dict:
     jaxform.enable_x64()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    runs = ([(el, QUICK[el]) for el in args.elements] if args.quick
-            else [(el, m) for el in args.elements for m in sorted(args.per_a)])
+    runs = (
+        [(el, QUICK[el]) for el in args.elements]
+        if args.quick
+        else [(el, m) for el in args.elements for m in sorted(args.per_a)]
+    )
     curves = {}
     for el, m in runs:
         c = limit_run(el, m)
         curves[(el, m)] = c
-        print(f"{el:5s} a/h = {m:5g} ({c['n_elements']} elements): limit pressure "
-              f"{c['ratio'][-1]:.4f} (2 + pi) k, {c['newton_iterations']} Newton its, "
-              f"{c['cutbacks']} cutbacks, {c['wall_s']:.1f} s", flush=True)
+        print(
+            f"{el:5s} a/h = {m:5g} ({c['n_elements']} elements): limit pressure "
+            f"{c['ratio'][-1]:.4f} (2 + pi) k, {c['newton_iterations']} Newton its, "
+            f"{c['cutbacks']} cutbacks, {c['wall_s']:.1f} s",
+            flush=True,
+        )
     with open(out / "prandtl_punch.csv", "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(["element", "per_a", "travel_over_a", "pressure_over_2_plus_pi_k"])

@@ -9,8 +9,8 @@ the time step does; the runs show it).
 
 Runs (full mode):
 
-* friction: q4, q1p0, q1q1 on 5x5, 10x10, 20x20, 40x40 (not q1p0, see below) at dt = 1 s; on 10x10 also dt =
-  4, 2, 0.5, 0.25 s; q1p0 and q1q1 also 20x20 at dt = 0.25 s.  80x80 (the issue's
+* friction: q4, q1p0, q1q1 on 5x5, 10x10, 20x20, 40x40 (not q1p0, see below) at dt = 1 s;
+  on 10x10 also dt = 4, 2, 0.5, 0.25 s; q1p0 and q1q1 also 20x20 at dt = 0.25 s.  80x80 (the issue's
   upper end) is a separate mode, --fine 80: on the 2-core machine one 80x80 q1q1 friction
   run takes ~240 s after a ~60 s compile, too long to repeat per formulation and step.
 * frictionless: q4, q1p0, q1q1 on 5x5 and 10x10 at dt = 4, 2, 1, 0.5, 0.25 s; q1q1 also
@@ -66,15 +66,29 @@ from jaxform.scenes import build_scene
 from jaxform.simulate import SimulationError, simulate
 
 ROOT = Path(__file__).resolve().parents[1]
-SCENES = {"coulomb 0.3": ROOT / "configs" / "upsetting_friction.toml",
-          "frictionless": ROOT / "configs" / "upsetting_seed.toml"}
+SCENES = {
+    "coulomb 0.3": ROOT / "configs" / "upsetting_friction.toml",
+    "frictionless": ROOT / "configs" / "upsetting_seed.toml",
+}
 ELEMENTS = ("q4", "q1p0", "q1q1")
 TARGETS = (0.05, 0.01, 0.002)
 COMPARE_EVERY_S = 4.0  # common comparison times: multiples of this and the end
 PROFILE_POINTS = 11
-COLUMNS = ("scene", "element", "mesh", "dt_s", "wall_s", "steps", "newton_iterations",
-           "force_error", "force_max_error", "shape_error", "final_force_N", "bulge_radius_mm",
-           "failure")
+COLUMNS = (
+    "scene",
+    "element",
+    "mesh",
+    "dt_s",
+    "wall_s",
+    "steps",
+    "newton_iterations",
+    "force_error",
+    "force_max_error",
+    "shape_error",
+    "final_force_N",
+    "bulge_radius_mm",
+    "failure",
+)
 
 
 def full_plan() -> list[tuple]:
@@ -82,8 +96,9 @@ def full_plan() -> list[tuple]:
     plan = []
     for el in ELEMENTS:
         # q1p0 40x40 at dt = 1 s fails at 26.5 s (Newton, 6 cutbacks): left out
-        plan += [("coulomb 0.3", el, n, 1.0) for n in ((5, 10, 20) if el == "q1p0"
-                                                        else (5, 10, 20, 40))]
+        plan += [
+            ("coulomb 0.3", el, n, 1.0) for n in ((5, 10, 20) if el == "q1p0" else (5, 10, 20, 40))
+        ]
         plan += [("coulomb 0.3", el, 10, dt) for dt in (4.0, 2.0, 0.5, 0.25)]
         if el != "q4":
             plan.append(("coulomb 0.3", el, 20, 0.25))
@@ -95,8 +110,10 @@ def full_plan() -> list[tuple]:
 def full_references() -> dict:
     """scene -> (element, (meshes at dt_mesh, dt_mesh) or None, (dts at mesh_dt, mesh_dt))
     or "material point" (homogeneous frictionless upsetting)."""
-    return {"coulomb 0.3": ("q1p0", ((5, 10, 20), 1.0), ((1.0, 0.5, 0.25), 10)),
-            "frictionless": "material point"}
+    return {
+        "coulomb 0.3": ("q1p0", ((5, 10, 20), 1.0), ((1.0, 0.5, 0.25), 10)),
+        "frictionless": "material point",
+    }
 
 
 def fine_plan(sizes) -> list[tuple]:
@@ -123,8 +140,14 @@ def quick_references() -> dict:
 
 
 def config_for(scene: str, element: str, n: int, dt_s: float, reduction: float | None = None):
-    over = [f"mesh.element={element}", f"mesh.nr={n}", f"mesh.nz={n}", f"time.dt_s={dt_s!r}",
-            "output.fields=false", "output.plots=false"]
+    over = [
+        f"mesh.element={element}",
+        f"mesh.nr={n}",
+        f"mesh.nz={n}",
+        f"time.dt_s={dt_s!r}",
+        "output.fields=false",
+        "output.plots=false",
+    ]
     if reduction is not None:
         over.append(f"die.reduction={reduction!r}")
     return load_config(SCENES[scene], over)
@@ -144,8 +167,10 @@ def timed_run(scene_name: str, element: str, n: int, dt_s: float, warmed: set) -
     key = (scene_name, element, n)
     if key not in warmed:  # same compiled program: a short stroke of 8 steps
         base = config_for(scene_name, element, n, dt_s)
-        short = min(base["die"]["reduction"],
-                    8 * dt_s * base["die"]["speed_mm_s"] / base["billet"]["height_mm"])
+        short = min(
+            base["die"]["reduction"],
+            8 * dt_s * base["die"]["speed_mm_s"] / base["billet"]["height_mm"],
+        )
         try:
             simulate(build_scene(config_for(scene_name, element, n, dt_s, short)))
         except SimulationError:
@@ -161,11 +186,19 @@ def timed_run(scene_name: str, element: str, n: int, dt_s: float, warmed: set) -
     wall = time.perf_counter() - t0
     h = res.history
     t_cmp = np.append(np.arange(COMPARE_EVERY_S, scene.t_end - 1e-9, COMPARE_EVERY_S), scene.t_end)
-    return dict(scene=scene_name, element=element, mesh=f"{n}x{n}", n=n, dt_s=dt_s, wall_s=wall,
-                steps=len(h["time_s"]) - 1, newton_iterations=int(h["newton_iterations"].sum()),
-                force=None if failure else np.interp(t_cmp, h["time_s"], h["force_N"]),
-                profile=None if failure else side_profile(scene, res.fields["x"][-1]),
-                failure=failure)
+    return dict(
+        scene=scene_name,
+        element=element,
+        mesh=f"{n}x{n}",
+        n=n,
+        dt_s=dt_s,
+        wall_s=wall,
+        steps=len(h["time_s"]) - 1,
+        newton_iterations=int(h["newton_iterations"].sum()),
+        force=None if failure else np.interp(t_cmp, h["time_s"], h["force_N"]),
+        profile=None if failure else side_profile(scene, res.fields["x"][-1]),
+        failure=failure,
+    )
 
 
 def richardson(v1: np.ndarray, v2: np.ndarray, v3: np.ndarray) -> tuple[np.ndarray, float, bool]:
@@ -200,9 +233,16 @@ def material_point_reference(scene_name: str) -> tuple[dict, list[str]]:
     forces, radii = [], []
     for dt in (0.04, 0.02, 0.01):
         times = np.append(np.arange(1, int(np.ceil(t_end / dt - 1e-9))) * dt, t_end)
-        out = uniaxial_compression(law, params, final_strain=0.0, n_steps=0,
-                                   ram_speed_mm_s=d["speed_mm_s"], height_mm=h0,
-                                   alpha=cfg["time"]["alpha"], times_s=times)
+        out = uniaxial_compression(
+            law,
+            params,
+            final_strain=0.0,
+            n_steps=0,
+            ram_speed_mm_s=d["speed_mm_s"],
+            height_mm=h0,
+            alpha=cfg["time"]["alpha"],
+            times_s=times,
+        )
         t = np.asarray(out["time_s"])
         lam_r = np.asarray(out["lateral_stretch"])
         force = np.asarray(out["stress_MPa"]) * np.pi * (r0 * lam_r) ** 2
@@ -210,9 +250,11 @@ def material_point_reference(scene_name: str) -> tuple[dict, list[str]]:
         radii.append(np.full(PROFILE_POINTS, r0 * lam_r[-1]))
     f, p, mono = richardson(*forces)
     r, _, _ = richardson(*radii)
-    note = (f"{scene_name}: material point (jaxform.materialpoint), dt 0.04/0.02/0.01 s: "
-            + (f"monotone, observed order {p:.2f}, extrapolated" if mono
-               else "not monotone: finest dt used"))
+    note = f"{scene_name}: material point (jaxform.materialpoint), dt 0.04/0.02/0.01 s: " + (
+        f"monotone, observed order {p:.2f}, extrapolated"
+        if mono
+        else "not monotone: finest dt used"
+    )
     return {"force": f, "profile": r}, [note]
 
 
@@ -231,16 +273,28 @@ def reference(runs: dict, scene: str, spec) -> tuple[dict, list[str]]:
             vals = [runs[(scene, element, n, dt)][q] for n in meshes]
             ext, p, mono = richardson(*vals)
             base = ext
-            notes.append(f"{scene}, {q}: mesh {'x'.join(map(str, meshes))} at dt = {dt:g} s, "
-                         f"{element}: " + (f"monotone, observed order {p:.2f}, extrapolated"
-                                           if mono else "not monotone: finest mesh used"))
+            notes.append(
+                f"{scene}, {q}: mesh {'x'.join(map(str, meshes))} at dt = {dt:g} s, "
+                f"{element}: "
+                + (
+                    f"monotone, observed order {p:.2f}, extrapolated"
+                    if mono
+                    else "not monotone: finest mesh used"
+                )
+            )
         if dt_spec is not None:
             dts, n = dt_spec
             vals = [runs[(scene, element, n, dt)][q] for dt in dts]
             ext, p, mono = richardson(*vals)
-            notes.append(f"{scene}, {q}: dt {'/'.join(f'{d:g}' for d in dts)} s on {n}x{n}, "
-                         f"{element}: " + (f"monotone, observed order {p:.2f}, extrapolated"
-                                           if mono else "not monotone: finest dt used"))
+            notes.append(
+                f"{scene}, {q}: dt {'/'.join(f'{d:g}' for d in dts)} s on {n}x{n}, "
+                f"{element}: "
+                + (
+                    f"monotone, observed order {p:.2f}, extrapolated"
+                    if mono
+                    else "not monotone: finest dt used"
+                )
+            )
             if base is None:
                 base = ext
             else:  # additive: the time-step correction relative to the mesh runs' dt
@@ -252,14 +306,21 @@ def reference(runs: dict, scene: str, spec) -> tuple[dict, list[str]]:
 def errors(run: dict, ref: dict) -> dict:
     """Relative errors against the reference (inf for a failed run)."""
     if run["failure"]:
-        return dict(force_error=math.inf, force_max_error=math.inf, shape_error=math.inf,
-                    final_force_N=math.nan, bulge_radius_mm=math.nan)
+        return dict(
+            force_error=math.inf,
+            force_max_error=math.inf,
+            shape_error=math.inf,
+            final_force_N=math.nan,
+            bulge_radius_mm=math.nan,
+        )
     f, fr = run["force"], ref["force"]
-    return dict(force_error=float(np.linalg.norm(f - fr) / np.linalg.norm(fr)),
-                force_max_error=float(np.max(np.abs(f - fr) / np.abs(fr))),
-                shape_error=float(np.max(np.abs(run["profile"] - ref["profile"]))
-                                  / np.max(ref["profile"])),
-                final_force_N=float(f[-1]), bulge_radius_mm=float(np.max(run["profile"])))
+    return dict(
+        force_error=float(np.linalg.norm(f - fr) / np.linalg.norm(fr)),
+        force_max_error=float(np.max(np.abs(f - fr) / np.abs(fr))),
+        shape_error=float(np.max(np.abs(run["profile"] - ref["profile"])) / np.max(ref["profile"])),
+        final_force_N=float(f[-1]),
+        bulge_radius_mm=float(np.max(run["profile"])),
+    )
 
 
 def pareto(rows: list[dict], key: str) -> list[dict]:
@@ -306,37 +367,61 @@ def plot(rows: list[dict], path: Path) -> None:
     markers = {4: "v", 5: "v", 8: "o", 10: "o", 16: "s", 20: "s", 40: "D", 80: "*"}
     for i, scene in enumerate(scenes):
         sel = [r for r in rows if r["scene"] == scene]
-        for j, (key, label) in enumerate((("force_error", "force-stroke error (rel. L2)"),
-                                          ("shape_error", "final side-profile error "
-                                                          "(max dev. / bulge radius)"))):
+        for j, (key, label) in enumerate(
+            (
+                ("force_error", "force-stroke error (rel. L2)"),
+                ("shape_error", "final side-profile error (max dev. / bulge radius)"),
+            )
+        ):
             ax = axes[i][j]
             shown = [r for r in sel if r[key] > 0.0]  # an error of 0: the reference itself
             for r in shown:
-                ax.loglog(r["wall_s"], r[key], markers.get(r["n"], "o"),
-                          color=colours[r["element"]], mfc="none" if r["dt_s"] != 1.0 else None,
-                          ms=4 + 2 * math.log2(4.0 / r["dt_s"] + 1.0))
+                ax.loglog(
+                    r["wall_s"],
+                    r[key],
+                    markers.get(r["n"], "o"),
+                    color=colours[r["element"]],
+                    mfc="none" if r["dt_s"] != 1.0 else None,
+                    ms=4 + 2 * math.log2(4.0 / r["dt_s"] + 1.0),
+                )
             front = pareto(shown, key)
-            ax.loglog([r["wall_s"] for r in front], [r[key] for r in front], "k--",
-                      lw=1, drawstyle="steps-post", label="Pareto front")
+            ax.loglog(
+                [r["wall_s"] for r in front],
+                [r[key] for r in front],
+                "k--",
+                lw=1,
+                drawstyle="steps-post",
+                label="Pareto front",
+            )
             for r in front:
-                ax.annotate(f"{r['element']} {r['mesh']} dt {r['dt_s']:g}",
-                            (r["wall_s"], r[key]), fontsize=6,
-                            xytext=(3, 3), textcoords="offset points")
+                ax.annotate(
+                    f"{r['element']} {r['mesh']} dt {r['dt_s']:g}",
+                    (r["wall_s"], r[key]),
+                    fontsize=6,
+                    xytext=(3, 3),
+                    textcoords="offset points",
+                )
             for tol in TARGETS:
                 ax.axhline(tol, color="0.7", lw=0.8, ls=":")
             ax.set_xlabel("wall time after compile [s]")
             ax.set_ylabel(label)
             ax.set_title(scene, fontsize=9)
             ax.grid(True, which="both", alpha=0.2)
-        handles = [plt.Line2D([], [], color=c, marker="o", ls="", label=e)
-                   for e, c in colours.items()]
-        handles += [plt.Line2D([], [], color="k", marker=m, ls="", mfc="none", label=f"{n}x{n}")
-                    for n, m in markers.items() if any(r["n"] == n for r in sel)]
+        handles = [
+            plt.Line2D([], [], color=c, marker="o", ls="", label=e) for e, c in colours.items()
+        ]
+        handles += [
+            plt.Line2D([], [], color="k", marker=m, ls="", mfc="none", label=f"{n}x{n}")
+            for n, m in markers.items()
+            if any(r["n"] == n for r in sel)
+        ]
         handles.append(plt.Line2D([], [], color="k", ls="--", label="Pareto front"))
-        axes[i][0].legend(handles=handles, fontsize=7, title="filled: dt = 1 s; size ~ 1/dt",
-                          title_fontsize=7)
-    fig.suptitle("Upsetting, Al 1100-O 673 K: error against wall time (mesh, formulation, dt)",
-                 fontsize=10)
+        axes[i][0].legend(
+            handles=handles, fontsize=7, title="filled: dt = 1 s; size ~ 1/dt", title_fontsize=7
+        )
+    fig.suptitle(
+        "Upsetting, Al 1100-O 673 K: error against wall time (mesh, formulation, dt)", fontsize=10
+    )
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
@@ -344,13 +429,22 @@ def plot(rows: list[dict], path: Path) -> None:
 
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true",
-                    help="friction, q1p0, 5x5/10x10/20x20 at dt = 1 s (CI)")
-    ap.add_argument("--fine", type=int, nargs="+", default=[],
-                    help="only the friction reference and q1q1 on these meshes (e.g. 80), dt 1 s")
+    ap.add_argument(
+        "--quick", action="store_true", help="friction, q1p0, 5x5/10x10/20x20 at dt = 1 s (CI)"
+    )
+    ap.add_argument(
+        "--fine",
+        type=int,
+        nargs="+",
+        default=[],
+        help="only the friction reference and q1q1 on these meshes (e.g. 80), dt 1 s",
+    )
     ap.add_argument("--out", default="docs/figures")
-    ap.add_argument("--runs-file", default="",
-                    help="pickle of the runs: reused if it exists, else written after the runs")
+    ap.add_argument(
+        "--runs-file",
+        default="",
+        help="pickle of the runs: reused if it exists, else written after the runs",
+    )
     args = ap.parse_args(argv)
     jaxform.enable_x64()
     if args.quick:
@@ -371,11 +465,17 @@ def main(argv=None) -> dict:
             continue
         r = timed_run(scene, el, n, dt, warmed)
         runs[(scene, el, n, dt)] = r
-        print(f"{scene:12s} {el:5s} {n:3d}x{n:<3d} dt {dt:5g} s: {r['wall_s']:7.2f} s, "
-              f"{r['steps']} steps, {r['newton_iterations']} Newton its, " +
-              (f"FAILED: {r['failure']}" if r["failure"] else
-               f"final force {r['force'][-1]:.2f} N, bulge radius {np.max(r['profile']):.4f} mm"),
-              flush=True)
+        print(
+            f"{scene:12s} {el:5s} {n:3d}x{n:<3d} dt {dt:5g} s: {r['wall_s']:7.2f} s, "
+            f"{r['steps']} steps, {r['newton_iterations']} Newton its, "
+            + (
+                f"FAILED: {r['failure']}"
+                if r["failure"]
+                else f"final force {r['force'][-1]:.2f} N, "
+                f"bulge radius {np.max(r['profile']):.4f} mm"
+            ),
+            flush=True,
+        )
     if cache is not None:
         with open(cache, "wb") as fh:
             pickle.dump(runs, fh)
@@ -387,26 +487,43 @@ def main(argv=None) -> dict:
             print("reference:", line)
         for r in (v for k, v in runs.items() if k[0] == scene):
             rows.append(dict(r, **errors(r, ref)))
-        rows.append(dict(scene=scene, element=spec if isinstance(spec, str) else spec[0],
-                         mesh="reference", n=0, dt_s=0.0,
-                         wall_s=0.0, steps=0, newton_iterations=0, force_error=0.0,
-                         force_max_error=0.0, shape_error=0.0,
-                         final_force_N=float(ref["force"][-1]),
-                         bulge_radius_mm=float(np.max(ref["profile"])), failure=""))
+        rows.append(
+            dict(
+                scene=scene,
+                element=spec if isinstance(spec, str) else spec[0],
+                mesh="reference",
+                n=0,
+                dt_s=0.0,
+                wall_s=0.0,
+                steps=0,
+                newton_iterations=0,
+                force_error=0.0,
+                force_max_error=0.0,
+                shape_error=0.0,
+                final_force_N=float(ref["force"][-1]),
+                bulge_radius_mm=float(np.max(ref["profile"])),
+                failure="",
+            )
+        )
     measured = [r for r in rows if r["mesh"] != "reference" and not r["failure"]]
     for r in rows:
         if r["mesh"] == "reference":
             continue
-        print(f"{r['scene']:12s} {r['element']:5s} {r['mesh']:>6s} dt {r['dt_s']:5g} s: "
-              f"force error {r['force_error']:.2e} (max {r['force_max_error']:.2e}), shape "
-              f"error {r['shape_error']:.2e}, {r['wall_s']:.2f} s")
+        print(
+            f"{r['scene']:12s} {r['element']:5s} {r['mesh']:>6s} dt {r['dt_s']:5g} s: "
+            f"force error {r['force_error']:.2e} (max {r['force_max_error']:.2e}), shape "
+            f"error {r['shape_error']:.2e}, {r['wall_s']:.2f} s"
+        )
     picks = choices(measured)
     print("\ncheapest run with force and shape errors within the target:")
     for c in picks:
         r = c["run"]
-        text = ("none of the runs" if r is None else
-                f"{r['element']} {r['mesh']} dt = {r['dt_s']:g} s: {r['wall_s']:.2f} s, force "
-                f"{r['force_error']:.2e}, shape {r['shape_error']:.2e}")
+        text = (
+            "none of the runs"
+            if r is None
+            else f"{r['element']} {r['mesh']} dt = {r['dt_s']:g} s: {r['wall_s']:.2f} s, force "
+            f"{r['force_error']:.2e}, shape {r['shape_error']:.2e}"
+        )
         print(f"  {c['scene']:12s} {c['target']:6.1%}: {text}")
     write_table(out / "speed_accuracy.csv", rows, notes)
     plot(measured, out / "speed_accuracy.png")

@@ -39,9 +39,20 @@ _EXPORTS = {
     "OptimizerSettings": "jaxform.design.optimize",
     "taylor_test": "jaxform.design.taylor",
 }
-__all__ = ["OptimizerSettings", "build_problem", "build_scene", "enable_compilation_cache",
-           "enable_x64", "load_config", "optimize", "require_x64", "run", "simulate",
-           "taylor_test", "trajectory"]
+__all__ = [
+    "OptimizerSettings",
+    "build_problem",
+    "build_scene",
+    "enable_compilation_cache",
+    "enable_x64",
+    "load_config",
+    "optimize",
+    "require_x64",
+    "run",
+    "simulate",
+    "taylor_test",
+    "trajectory",
+]
 __version__ = "0.1.0"
 
 

@@ -116,10 +116,15 @@ class Layout:
         return x[: self.n_node_dofs].reshape(self.n_nodes, self.n_fields)
 
 
-def build_indices(mesh, n_fields: int, fixed_dofs: np.ndarray, contact_nodes: np.ndarray,
-                  reaction_dofs: np.ndarray | None = None,
-                  contact_facets: np.ndarray | None = None,
-                  load_facets: np.ndarray | None = None) -> tuple[Layout, Indices]:
+def build_indices(
+    mesh,
+    n_fields: int,
+    fixed_dofs: np.ndarray,
+    contact_nodes: np.ndarray,
+    reaction_dofs: np.ndarray | None = None,
+    contact_facets: np.ndarray | None = None,
+    load_facets: np.ndarray | None = None,
+) -> tuple[Layout, Indices]:
     """contact_facets: (n_f, 2) node pairs of the free surface (for contact areas);
     load_facets: (n_lf, 2) node pairs of the boundary carrying a traction load."""
     nf = n_fields
@@ -156,10 +161,14 @@ def build_indices(mesh, n_fields: int, fixed_dofs: np.ndarray, contact_nodes: np
         cols=jnp.asarray(uniq % n, dtype=jnp.int32),
         slot=jnp.asarray(slot.ravel(), dtype=jnp.int32),
         bottom_reaction_dofs=jnp.asarray(
-            reaction_dofs if reaction_dofs is not None else np.zeros(0, np.int64),
-            dtype=jnp.int32),
-        load_facets=jnp.asarray(np.zeros((0, 2), np.int64) if load_facets is None
-                                else np.asarray(load_facets, dtype=np.int64), dtype=jnp.int32),
+            reaction_dofs if reaction_dofs is not None else np.zeros(0, np.int64), dtype=jnp.int32
+        ),
+        load_facets=jnp.asarray(
+            np.zeros((0, 2), np.int64)
+            if load_facets is None
+            else np.asarray(load_facets, dtype=np.int64),
+            dtype=jnp.int32,
+        ),
     )
     return layout, idx
 
@@ -220,8 +229,9 @@ class Model:
                 a = jnp.concatenate([a, jnp.broadcast_to(a[:1], (n_pad,) + a.shape[1:])])
             return a.reshape((-1, b) + a.shape[1:])
 
-        out = jax.lax.map(lambda c: jac(*c),
-                          jax.tree_util.tree_map(chunked, (xe, x_ref, gstate, solution)))
+        out = jax.lax.map(
+            lambda c: jac(*c), jax.tree_util.tree_map(chunked, (xe, x_ref, gstate, solution))
+        )
         return jax.tree_util.tree_map(lambda a: a.reshape((-1,) + a.shape[2:])[:n_el], out)
 
     def _gather(self, x, idx: Indices):
@@ -239,8 +249,9 @@ class Model:
 
     def _contact_fn(self, ctx: StepContext):
         def fn(v, k):  # v = (x_r, x_z, lambda_n, lambda_t) of candidate k
-            r_u, comp = self.contact.pair_terms(ctx.die, v[:2], v[2:], ctx.t, ctx.c_contact,
-                                                ctx.cstep, k)
+            r_u, comp = self.contact.pair_terms(
+                ctx.die, v[:2], v[2:], ctx.t, ctx.c_contact, ctx.cstep, k
+            )
             return jnp.concatenate([r_u, comp])
 
         return fn
@@ -255,16 +266,17 @@ class Model:
             z = jnp.zeros((0, 2), dtype=x.dtype)
             return jnp.zeros(0, jnp.int32), z, z, jnp.zeros(0, dtype=x.dtype)
         v = self._contact_vars(x, ctx.coords, ctx.idx)
-        return jax.vmap(lambda vk, k: self.contact.pair_status(
-            ctx.die, vk[:2], vk[2:], ctx.t, ctx.c_contact, ctx.cstep, k))(
-                v, jnp.arange(self.layout.n_contact))
+        return jax.vmap(
+            lambda vk, k: self.contact.pair_status(
+                ctx.die, vk[:2], vk[2:], ctx.t, ctx.c_contact, ctx.cstep, k
+            )
+        )(v, jnp.arange(self.layout.n_contact))
 
     def residual_and_jacobian(self, x, ctx: StepContext):
         """(R, Jacobian values on the pattern, new Gauss state, status code, force scale).
         A dead load ctx.f_ext adds nothing to the Jacobian."""
         fn = self._element_fn(ctx.params, ctx.dt)
-        xe, x_ref, r_e, gnew, ok_e = self._element_residuals(fn, x, ctx.coords, ctx.gauss,
-                                                             ctx.idx)
+        xe, x_ref, r_e, gnew, ok_e = self._element_residuals(fn, x, ctx.coords, ctx.gauss, ctx.idx)
         k_e, _ = self._element_jacobians(fn, xe, x_ref, ctx.gauss, gnew)
         r, gnew, ok, scale = self._finish_residual(x, r_e, gnew, ok_e, ctx)
         return r, self._jacobian_values(x, k_e, ctx), gnew, ok, scale
@@ -286,9 +298,10 @@ class Model:
         xe, x_ref, _, g_conv, _ = self._element_residuals(fn, x, ctx.coords, ctx.gauss, ctx.idx)
         (k_e, dg_e), _ = self._element_jacobians(fn_state, xe, x_ref, ctx.gauss, g_conv)
         n_e, n_d = k_e.shape[0], k_e.shape[-1]
-        xg_e = sum(jnp.einsum("ek,ekd->ed", gb.reshape(n_e, -1), dg.reshape(n_e, -1, n_d))
-                   for gb, dg in zip(jax.tree_util.tree_leaves(g_bar),
-                                     jax.tree_util.tree_leaves(dg_e)))
+        xg_e = sum(
+            jnp.einsum("ek,ekd->ed", gb.reshape(n_e, -1), dg.reshape(n_e, -1, n_d))
+            for gb, dg in zip(jax.tree_util.tree_leaves(g_bar), jax.tree_util.tree_leaves(dg_e))
+        )
         xg = jnp.zeros(self.layout.n_dofs, dtype=x.dtype).at[ctx.idx.edofs].add(xg_e)
         return self._jacobian_values(x, k_e, ctx), xg
 
@@ -298,7 +311,8 @@ class Model:
         # contact blocks (4 x 4 per candidate)
         if self.layout.n_contact:
             k_c = jax.vmap(jax.jacfwd(self._contact_fn(ctx)))(
-                self._contact_vars(x, ctx.coords, idx), jnp.arange(self.layout.n_contact))
+                self._contact_vars(x, ctx.coords, idx), jnp.arange(self.layout.n_contact)
+            )
         else:
             k_c = jnp.zeros((0, 4, 4), dtype=x.dtype)
         n = self.layout.n_dofs
@@ -316,7 +330,8 @@ class Model:
         lam = x[idx.mult_dofs]
         if self.layout.n_contact:
             rc = jax.vmap(self._contact_fn(ctx))(
-                self._contact_vars(x, ctx.coords, idx), jnp.arange(self.layout.n_contact))
+                self._contact_vars(x, ctx.coords, idx), jnp.arange(self.layout.n_contact)
+            )
             r = r.at[idx.contact_dofs].add(rc[:, :2])
             r = r.at[idx.mult_dofs].set(rc[:, 2:])
         if f_ext is not None:

@@ -32,8 +32,8 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from jaxform.design.problem import DesignProblem
-from jaxform.status import CAUSES, OK
 from jaxform.gradients import GradientRunError
+from jaxform.status import CAUSES, OK
 from jaxform.xla_options import jit
 
 AXIS = "batch"
@@ -71,8 +71,15 @@ class BatchProblem:
         spec = PartitionSpec(AXIS)
         # check_vma=False: the lanes are independent and the Newton/scan carries start from
         # replicated constants, which the varying-manual-axes check would reject
-        return jit(jax.shard_map(batched, mesh=self.mesh, in_specs=(spec, PartitionSpec()),
-                                 out_specs=spec, check_vma=False))
+        return jit(
+            jax.shard_map(
+                batched,
+                mesh=self.mesh,
+                in_specs=(spec, PartitionSpec()),
+                out_specs=spec,
+                check_vma=False,
+            )
+        )
 
     @cached_property
     def _value(self):
@@ -97,7 +104,8 @@ class BatchProblem:
         pad = (-n) % k
         if pad:
             designs = jax.tree_util.tree_map(
-                lambda a: jnp.concatenate([a, jnp.repeat(a[-1:], pad, axis=0)]), designs)
+                lambda a: jnp.concatenate([a, jnp.repeat(a[-1:], pad, axis=0)]), designs
+            )
         sharding = NamedSharding(self.mesh, PartitionSpec(AXIS))
         return jax.device_put(designs, sharding), n
 
@@ -131,4 +139,5 @@ def check_batch(traj) -> None:
         raise GradientRunError(
             f"batched run: design {b}, step {k + 1} (to t = {t:g} s) failed: "
             f"{CAUSES.get(int(codes[b, k]), 'unknown')}; use a smaller time.dt_s or a finer "
-            f"step schedule")
+            f"step schedule"
+        )

@@ -109,14 +109,19 @@ def enable_compilation_cache(path: str | os.PathLike | None = None) -> Path | No
         try:
             target.mkdir(parents=True, exist_ok=True)
         except OSError as err:
-            warnings.warn(f"compilation cache directory {target}: {err}; running without "
-                          f"the cache (set {ENV_VAR}=off to silence)", CompilationCacheWarning,
-                          stacklevel=2)
+            warnings.warn(
+                f"compilation cache directory {target}: {err}; running without "
+                f"the cache (set {ENV_VAR}=off to silence)",
+                CompilationCacheWarning,
+                stacklevel=2,
+            )
             return None
         jax.config.update("jax_compilation_cache_dir", str(target))
         if current:
             cc.reset_cache()  # JAX opens its cache once per process: reopen here
-    if (jax.config.jax_persistent_cache_min_compile_time_secs == _JAX_DEFAULT_MIN_COMPILE_TIME_S
-            and "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS" not in os.environ):
+    if (
+        jax.config.jax_persistent_cache_min_compile_time_secs == _JAX_DEFAULT_MIN_COMPILE_TIME_S
+        and "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS" not in os.environ
+    ):
         jax.config.update("jax_persistent_cache_min_compile_time_secs", MIN_COMPILE_TIME_S)
     return target

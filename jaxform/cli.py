@@ -1,9 +1,9 @@
 """Command line: the only module that prints.
 
-    jaxform run CONFIG [--set section.key=value ...] --out DIR
-    jaxform material-point [--material NAME] [--rates R ...] [--strain E] --out DIR
-    jaxform taylor-test CONFIG [--set section.key=value ...] [--groups G ...]
-    jaxform design CONFIG [--set section.key=value ...] --out DIR
+jaxform run CONFIG [--set section.key=value ...] --out DIR
+jaxform material-point [--material NAME] [--rates R ...] [--strain E] --out DIR
+jaxform taylor-test CONFIG [--set section.key=value ...] [--groups G ...]
+jaxform design CONFIG [--set section.key=value ...] --out DIR
 """
 
 from __future__ import annotations
@@ -70,11 +70,16 @@ def _check_material_point_flags(args) -> None:
 def _check_taylor_steps(h) -> None:
     """--h: at least two finite step sizes > 0, strictly decreasing (the rates compare
     neighbours)."""
-    ok = (len(h) >= 2 and all(math.isfinite(v) and v > 0 for v in h)
-          and all(b < a for a, b in zip(h, h[1:])))
+    ok = (
+        len(h) >= 2
+        and all(math.isfinite(v) and v > 0 for v in h)
+        and all(b < a for a, b in zip(h, h[1:]))
+    )
     if not ok:
-        raise UsageError(f"--h {' '.join(f'{v:g}' for v in h)}: give at least 2 finite step "
-                         f"sizes > 0, strictly decreasing (e.g. --h 1 0.5 0.25 0.125)")
+        raise UsageError(
+            f"--h {' '.join(f'{v:g}' for v in h)}: give at least 2 finite step "
+            f"sizes > 0, strictly decreasing (e.g. --h 1 0.5 0.25 0.125)"
+        )
 
 
 def _check_die_clearance(cfg: dict) -> None:
@@ -95,9 +100,11 @@ def _check_die_clearance(cfg: dict) -> None:
     else:
         r0, r1, top = 0.0, 0.5 * cfg["billet"]["diameter_mm"], 0.5 * cfg["billet"]["height_mm"]
     s = np.linspace(0.0, 1.0, 65)
-    edges = [np.column_stack([r0 + (r1 - r0) * s, np.full_like(s, top)]),  # top face
-             np.column_stack([np.full_like(s, r1), top * s]),  # outer side
-             np.column_stack([np.full_like(s, r0), top * s])]  # axis or inner side
+    edges = [
+        np.column_stack([r0 + (r1 - r0) * s, np.full_like(s, top)]),  # top face
+        np.column_stack([np.full_like(s, r1), top * s]),  # outer side
+        np.column_stack([np.full_like(s, r0), top * s]),
+    ]  # axis or inner side
     try:
         pts = check_profile(np.asarray(d["profile_mm"]), "die.profile_mm")
         if d["profile_kind"] == "spline":
@@ -139,15 +146,20 @@ def _material_point(args) -> int:
     out_dir.mkdir(parents=True, exist_ok=True)
 
     def one(load):
-        kw = (dict(ram_speed_mm_s=load, height_mm=args.height_mm) if by_speed
-              else dict(strain_rate_1_s=load))
+        kw = (
+            dict(ram_speed_mm_s=load, height_mm=args.height_mm)
+            if by_speed
+            else dict(strain_rate_1_s=load)
+        )
         return uniaxial_compression(law, params, final_strain=args.strain, n_steps=args.steps, **kw)
 
     t0 = time.perf_counter()
     res = jit(jax.vmap(one))(jnp.asarray(loads, dtype=jnp.float64))
     res = {k: np.asarray(v) for k, v in res.items()}
-    print(f"material point: {len(loads)} loadings x {args.steps} steps in "
-          f"{time.perf_counter() - t0:.2f} s (including compilation)")
+    print(
+        f"material point: {len(loads)} loadings x {args.steps} steps in "
+        f"{time.perf_counter() - t0:.2f} s (including compilation)"
+    )
     curves = {}
     unit = "mm/s" if by_speed else "/s"
     for i, rate in enumerate(loads):
@@ -155,8 +167,9 @@ def _material_point(args) -> int:
             bad = int(np.argmin(res["ok"][i]))
             print(f"{rate:g} {unit}: local solve failed at step {bad}", file=sys.stderr)
             return 2
-        name = (f"uniaxial_speed_{rate:g}_mm_s.csv" if by_speed
-                else f"uniaxial_rate_{rate:g}_1_s.csv")
+        name = (
+            f"uniaxial_speed_{rate:g}_mm_s.csv" if by_speed else f"uniaxial_rate_{rate:g}_1_s.csv"
+        )
         write_csv(
             out_dir / name,
             {
@@ -168,8 +181,10 @@ def _material_point(args) -> int:
             },
         )
         curves[f"{rate:g} {unit}"] = (res["strain"][i], res["stress_MPa"][i])
-        print(f"  {rate:>8g} {unit}: stress at strain {args.strain:g} = "
-              f"{res['stress_MPa'][i][-1]:.3f} MPa, s = {res['s_MPa'][i][-1]:.3f} MPa -> {name}")
+        print(
+            f"  {rate:>8g} {unit}: stress at strain {args.strain:g} = "
+            f"{res['stress_MPa'][i][-1]:.3f} MPa, s = {res['s_MPa'][i][-1]:.3f} MPa -> {name}"
+        )
     png = out_dir / "stress_strain.png"
     stress_strain(curves, png, f"{args.material}: uniaxial compression")
     print(f"wrote {png}")
@@ -191,10 +206,13 @@ def _run(args) -> int:
             first.append(time.perf_counter() - t0)
         done = p["step"] / p["n_steps"]
         bar = "#" * int(30 * done) + "." * (30 - int(30 * done))
-        print(f"[{bar}] step {p['step']:4d}/{p['n_steps']} t={p['time_s']:8.3f} s "
-              f"dt={p['dt_s']:.4g} s "
-              f"stroke={p['stroke_mm']:7.4f} mm force={p['force_N']:10.3f} N "
-              f"newton={int(p['iterations']):2d} cutbacks={int(p['cutbacks'])}", flush=True)
+        print(
+            f"[{bar}] step {p['step']:4d}/{p['n_steps']} t={p['time_s']:8.3f} s "
+            f"dt={p['dt_s']:.4g} s "
+            f"stroke={p['stroke_mm']:7.4f} mm force={p['force_N']:10.3f} N "
+            f"newton={int(p['iterations']):2d} cutbacks={int(p['cutbacks'])}",
+            flush=True,
+        )
 
     try:
         result = run(cfg, (), out_dir=args.out, progress=progress)
@@ -206,11 +224,13 @@ def _run(args) -> int:
         print(f"last converged state written to {args.out}", file=sys.stderr)
         return 1
     h = result.history
-    print(f"done: {len(h['time_s']) - 1} steps, {int(h['newton_iterations'].sum())} Newton "
-          f"iterations, {int(h['cutbacks'].sum())} cutbacks, {int(h['rezoned'].sum())} rezonings, "
-          f"final force {h['force_N'][-1]:.2f} N, "
-          f"{time.perf_counter() - t0:.1f} s wall (first chunk incl. compile "
-          f"{first[0] if first else 0:.1f} s)")
+    print(
+        f"done: {len(h['time_s']) - 1} steps, {int(h['newton_iterations'].sum())} Newton "
+        f"iterations, {int(h['cutbacks'].sum())} cutbacks, {int(h['rezoned'].sum())} rezonings, "
+        f"final force {h['force_N'][-1]:.2f} N, "
+        f"{time.perf_counter() - t0:.1f} s wall (first chunk incl. compile "
+        f"{first[0] if first else 0:.1f} s)"
+    )
     written = sorted(p.name for p in Path(args.out).iterdir() if p.is_file())
     print(f"outputs in {args.out}: {', '.join(written)}")
     return 0
@@ -228,8 +248,10 @@ def _taylor(args) -> int:
         return code
     print(format_table(rows))
     min_rate = min(r.min_rate for r in rows)
-    print(f"({time.perf_counter() - t0:.1f} s; groups: {', '.join(r.group for r in rows)}; "
-          f"pass: every rate >= 1.9)")
+    print(
+        f"({time.perf_counter() - t0:.1f} s; groups: {', '.join(r.group for r in rows)}; "
+        f"pass: every rate >= 1.9)"
+    )
     print(f"min_rate={min_rate:.4f}")
     return 0 if min_rate >= 1.9 else 1
 
@@ -259,19 +281,23 @@ def _design(args) -> int:
     t0 = time.perf_counter()
 
     def progress(it, val, gnorm, design):
-        print(f"iteration {it:3d}: objective {val:.8g}  |projected grad| {gnorm:.3e}  "
-              f"({time.perf_counter() - t0:.1f} s)", flush=True)
+        print(
+            f"iteration {it:3d}: objective {val:.8g}  |projected grad| {gnorm:.3e}  "
+            f"({time.perf_counter() - t0:.1f} s)",
+            flush=True,
+        )
 
-    out, code = _guarded("design", lambda: run_design(cfg, (), out_dir=args.out,
-                                                      progress=progress))
+    out, code = _guarded("design", lambda: run_design(cfg, (), out_dir=args.out, progress=progress))
     if code:
         return code
     problem, hist = out
     final = problem.physical(hist.designs[-1])
-    print(f"done ({hist.stop_reason}): objective {hist.objective[0]:.6g} -> "
-          f"{hist.objective[-1]:.6g} in {len(hist.objective) - 1} iterations, "
-          f"{hist.evaluations} gradient evaluations, {hist.rejected} rejected trials, "
-          f"{time.perf_counter() - t0:.1f} s")
+    print(
+        f"done ({hist.stop_reason}): objective {hist.objective[0]:.6g} -> "
+        f"{hist.objective[-1]:.6g} in {len(hist.objective) - 1} iterations, "
+        f"{hist.evaluations} gradient evaluations, {hist.rejected} rejected trials, "
+        f"{time.perf_counter() - t0:.1f} s"
+    )
     print("design: " + ", ".join(f"{k} = {v:.6g}" for k, v in final.items()))
     print(f"outputs in {args.out}: design_history.csv, objective.png, shapes.png, config.toml")
     return 0
@@ -295,26 +321,49 @@ def main(argv: list[str] | None = None) -> int:
     from jaxform.precision import enable_x64
 
     enable_x64()
-    parser = _Parser(prog="jaxform", description=__doc__,
-                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = _Parser(
+        prog="jaxform", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     sub = parser.add_subparsers(dest="command", required=True)
 
     rp = sub.add_parser("run", help="run a forging scene from a TOML config")
     rp.add_argument("config", help="scene config (TOML), e.g. configs/upsetting_seed.toml")
-    rp.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
-                    help="override a config value (repeatable)")
+    rp.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="SECTION.KEY=VALUE",
+        help="override a config value (repeatable)",
+    )
     rp.add_argument("--out", default="out/run", help="output folder")
     rp.set_defaults(func=_run)
 
     mp = sub.add_parser("material-point", help="uniaxial compression of one material point")
-    mp.add_argument("--material", default="al1100_673K",
-                    help="material preset name (jaxform/materials/data) or a .toml path")
-    mp.add_argument("--rates", type=float, nargs="+", default=[0.001, 0.01, 0.1, 1.0],
-                    help="true strain rates in 1/s")
-    mp.add_argument("--ram-speeds-mm-s", type=float, nargs="+", default=None,
-                    help="constant ram speeds in mm/s instead of true strain rates")
-    mp.add_argument("--height-mm", type=float, default=7.5,
-                    help="specimen height in mm (with --ram-speeds-mm-s)")
+    mp.add_argument(
+        "--material",
+        default="al1100_673K",
+        help="material preset name (jaxform/materials/data) or a .toml path",
+    )
+    mp.add_argument(
+        "--rates",
+        type=float,
+        nargs="+",
+        default=[0.001, 0.01, 0.1, 1.0],
+        help="true strain rates in 1/s",
+    )
+    mp.add_argument(
+        "--ram-speeds-mm-s",
+        type=float,
+        nargs="+",
+        default=None,
+        help="constant ram speeds in mm/s instead of true strain rates",
+    )
+    mp.add_argument(
+        "--height-mm",
+        type=float,
+        default=7.5,
+        help="specimen height in mm (with --ram-speeds-mm-s)",
+    )
     mp.add_argument("--strain", type=float, default=1.0, help="final true strain")
     mp.add_argument("--steps", type=int, default=1000, help="number of equal steps")
     mp.add_argument("--out", default="out/material_point", help="output folder")
@@ -322,18 +371,37 @@ def main(argv: list[str] | None = None) -> int:
 
     tp = sub.add_parser("taylor-test", help="check the scene's gradients (Taylor remainders)")
     tp.add_argument("config", help="scene config (TOML)")
-    tp.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
-                    help="override a config value (repeatable)")
-    tp.add_argument("--groups", nargs="+", default=None,
-                    help="design groups to test (default: every group of the scene)")
-    tp.add_argument("--h", type=float, nargs="+", default=[1.0, 0.5, 0.25, 0.125],
-                    help="decreasing step sizes (multiples of the random direction)")
+    tp.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="SECTION.KEY=VALUE",
+        help="override a config value (repeatable)",
+    )
+    tp.add_argument(
+        "--groups",
+        nargs="+",
+        default=None,
+        help="design groups to test (default: every group of the scene)",
+    )
+    tp.add_argument(
+        "--h",
+        type=float,
+        nargs="+",
+        default=[1.0, 0.5, 0.25, 0.125],
+        help="decreasing step sizes (multiples of the random direction)",
+    )
     tp.set_defaults(func=_taylor)
 
     dp = sub.add_parser("design", help="gradient-based design from the config's [design]")
     dp.add_argument("config", help="scene config (TOML) with a [design] section")
-    dp.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
-                    help="override a config value (repeatable)")
+    dp.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="SECTION.KEY=VALUE",
+        help="override a config value (repeatable)",
+    )
     dp.add_argument("--out", default="out/design", help="output folder")
     dp.set_defaults(func=_design)
 

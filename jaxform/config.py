@@ -14,15 +14,26 @@ import copy
 import csv
 import math
 import tomllib
+from collections.abc import Iterable
 from dataclasses import dataclass, replace
 from os import PathLike
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any
 
 import tomli_w
 
-__all__ = ["ConfigError", "Field", "SCHEMA", "load_config", "dump_config", "describe_schema",
-           "check_gradient_run", "MAX_STEPS", "MAX_ELEMENTS", "MAX_LENGTH_MM"]
+__all__ = [
+    "ConfigError",
+    "Field",
+    "SCHEMA",
+    "load_config",
+    "dump_config",
+    "describe_schema",
+    "check_gradient_run",
+    "MAX_STEPS",
+    "MAX_ELEMENTS",
+    "MAX_LENGTH_MM",
+]
 
 # Sizes a run can hold: beyond them a scene overflows the step schedule or the machine's
 # memory, so it is refused up front with the keys that set it.
@@ -41,7 +52,8 @@ class ConfigError(ValueError):
 class Field:
     """One config key: kind, default (None = required), allowed range or choices, doc."""
 
-    kind: str  # "float" | "int" | "str" | "bool" | "floats" | "strs" (lists) | "points" (list of [a, b])
+    # "float" | "int" | "str" | "bool" | "floats" | "strs" (lists) | "points" (list of [a, b])
+    kind: str
     default: Any = None
     low: float | None = None
     high: float | None = None
@@ -74,212 +86,470 @@ SCHEMA: dict[str, dict[str, Field]] = {
         "height_mm": Field("float", None, 0.0, None, False, False, doc="billet height (mm)"),
     },
     "ring": {
-        "outer_diameter_mm": Field("float", None, 0.0, None, False, False,
-                                   doc="ring outer diameter (mm)"),
-        "inner_diameter_mm": Field("float", None, 0.0, None, False, False,
-                                   doc="ring inner diameter (mm), < outer"),
+        "outer_diameter_mm": Field(
+            "float", None, 0.0, None, False, False, doc="ring outer diameter (mm)"
+        ),
+        "inner_diameter_mm": Field(
+            "float", None, 0.0, None, False, False, doc="ring inner diameter (mm), < outer"
+        ),
         "height_mm": Field("float", None, 0.0, None, False, False, doc="ring height (mm)"),
     },
     "block": {
-        "width_mm": Field("float", None, 0.0, None, False, False,
-                          doc="plane-strain block for indentation: modelled half-width from the "
-                              "symmetry line x = 0 (mm)"),
-        "depth_mm": Field("float", None, 0.0, None, False, False,
-                          doc="block depth (mm): frictionless support at y = 0, indented face at "
-                              "y = depth"),
-        "fine_width_mm": Field("float", None, 0.0, None, False, False,
-                               doc="width of the zone of equal elements at the indented face "
-                                   "(mm), <= block.width_mm"),
-        "fine_depth_mm": Field("float", None, 0.0, None, False, False,
-                               doc="depth of the zone of equal elements below the indented face "
-                                   "(mm), <= block.depth_mm"),
-        "growth": Field("float", 1.2, 1.0, 3.0, False, True,
-                        doc="size ratio of neighbouring elements outside the fine zone"),
+        "width_mm": Field(
+            "float",
+            None,
+            0.0,
+            None,
+            False,
+            False,
+            doc="plane-strain block for indentation: modelled half-width from the "
+            "symmetry line x = 0 (mm)",
+        ),
+        "depth_mm": Field(
+            "float",
+            None,
+            0.0,
+            None,
+            False,
+            False,
+            doc="block depth (mm): frictionless support at y = 0, indented face at y = depth",
+        ),
+        "fine_width_mm": Field(
+            "float",
+            None,
+            0.0,
+            None,
+            False,
+            False,
+            doc="width of the zone of equal elements at the indented face (mm), <= block.width_mm",
+        ),
+        "fine_depth_mm": Field(
+            "float",
+            None,
+            0.0,
+            None,
+            False,
+            False,
+            doc="depth of the zone of equal elements below the indented face "
+            "(mm), <= block.depth_mm",
+        ),
+        "growth": Field(
+            "float",
+            1.2,
+            1.0,
+            3.0,
+            False,
+            True,
+            doc="size ratio of neighbouring elements outside the fine zone",
+        ),
     },
     "membrane": {
-        "corners_mm": Field("points", None,
-                            doc="the 4 corners [x_mm, y_mm] of a convex plane-strain panel, "
-                                "counter-clockwise; edges: bottom 1-2, right 2-3, top 3-4, left 4-1"),
-        "clamped_edge": Field("str", "left", choices=("bottom", "right", "top", "left"),
-                              doc="edge with u = 0"),
-        "tip_mm": Field("floats", [], doc="[x_mm, y_mm] of the point whose displacement the "
-                        "history records as tip_ux_mm, tip_uy_mm (nearest node; [] = corner 3)"),
+        "corners_mm": Field(
+            "points",
+            None,
+            doc="the 4 corners [x_mm, y_mm] of a convex plane-strain panel, "
+            "counter-clockwise; edges: bottom 1-2, right 2-3, top 3-4, "
+            "left 4-1",
+        ),
+        "clamped_edge": Field(
+            "str", "left", choices=("bottom", "right", "top", "left"), doc="edge with u = 0"
+        ),
+        "tip_mm": Field(
+            "floats",
+            [],
+            doc="[x_mm, y_mm] of the point whose displacement the "
+            "history records as tip_ux_mm, tip_uy_mm (nearest node; [] = corner 3)",
+        ),
     },
     "load": {
-        "edge": Field("str", "right", choices=("bottom", "right", "top", "left"),
-                      doc="membrane edge carrying a uniform dead traction"),
-        "force_x_N": Field("float", 0.0, doc="x-resultant of the traction (N per mm of depth), "
-                           "spread uniformly over the edge's initial length"),
-        "force_y_N": Field("float", 0.0, doc="y-resultant of the traction (N per mm of depth), "
-                           "spread uniformly over the edge's initial length"),
-        "ramp_time_s": Field("float", 1.0, 0.0, None, False, False,
-                             doc="the load grows linearly from 0 to full over this time (s); "
-                                 "the run ends there"),
+        "edge": Field(
+            "str",
+            "right",
+            choices=("bottom", "right", "top", "left"),
+            doc="membrane edge carrying a uniform dead traction",
+        ),
+        "force_x_N": Field(
+            "float",
+            0.0,
+            doc="x-resultant of the traction (N per mm of depth), "
+            "spread uniformly over the edge's initial length",
+        ),
+        "force_y_N": Field(
+            "float",
+            0.0,
+            doc="y-resultant of the traction (N per mm of depth), "
+            "spread uniformly over the edge's initial length",
+        ),
+        "ramp_time_s": Field(
+            "float",
+            1.0,
+            0.0,
+            None,
+            False,
+            False,
+            doc="the load grows linearly from 0 to full over this time (s); the run ends there",
+        ),
     },
     "mesh": {
-        "nr": Field("int", 10, 1, 2000, doc="elements across the radius of the quarter section "
-                    "(block: across the fine zone; membrane: along edges bottom and top)"),
-        "nz": Field("int", 10, 1, 2000, doc="elements along the half height of the quarter section "
-                    "(block: down the fine zone; membrane: along edges left and right)"),
-        "element": Field("str", "q1q1", choices=("q1q1", "q1p0", "q4"),
-                         doc="element formulation: stabilized mixed u-p (seed), "
-                             "mean-dilatation F-bar, plain displacement"),
-        "geometry": Field("str", "axisymmetric", choices=("axisymmetric", "plane_strain"),
-                          doc="2-D idealization (plane strain: forces per mm of depth)"),
-        "stabilization": Field("float", 0.1, 0.0, None, True, False,
-                               doc="q1q1 pressure stabilization theta in tau = theta h^2/(2G) "
-                                   "(the thesis used 1e-4)"),
-        "file": Field("str", "", doc="optional gmsh/meshio quadrilateral mesh file replacing "
-                                     "the structured mesh ('' = structured); line groups name the "
-                                     "boundary sets (symmetry, top required; axis, side, inner, "
-                                     "outer), point groups node sets (e.g. one axis node)"),
-        "rezone_quality": Field("float", 0.0, 0.0, 1.0, True, False,
-                                doc="rezone (relocate the nodes, carry the state over) after a "
-                                    "step whose worst element corner quality (jaxform.rezone: "
-                                    "1 for squares) falls below this (0 = never; structured "
-                                    "meshes only)"),
+        "nr": Field(
+            "int",
+            10,
+            1,
+            2000,
+            doc="elements across the radius of the quarter section "
+            "(block: across the fine zone; membrane: along edges bottom and top)",
+        ),
+        "nz": Field(
+            "int",
+            10,
+            1,
+            2000,
+            doc="elements along the half height of the quarter section "
+            "(block: down the fine zone; membrane: along edges left and right)",
+        ),
+        "element": Field(
+            "str",
+            "q1q1",
+            choices=("q1q1", "q1p0", "q4"),
+            doc="element formulation: stabilized mixed u-p (seed), "
+            "mean-dilatation F-bar, plain displacement",
+        ),
+        "geometry": Field(
+            "str",
+            "axisymmetric",
+            choices=("axisymmetric", "plane_strain"),
+            doc="2-D idealization (plane strain: forces per mm of depth)",
+        ),
+        "stabilization": Field(
+            "float",
+            0.1,
+            0.0,
+            None,
+            True,
+            False,
+            doc="q1q1 pressure stabilization theta in tau = theta h^2/(2G) (the thesis used 1e-4)",
+        ),
+        "file": Field(
+            "str",
+            "",
+            doc="optional gmsh/meshio quadrilateral mesh file replacing "
+            "the structured mesh ('' = structured); line groups name the "
+            "boundary sets (symmetry, top required; axis, side, inner, "
+            "outer), point groups node sets (e.g. one axis node)",
+        ),
+        "rezone_quality": Field(
+            "float",
+            0.0,
+            0.0,
+            1.0,
+            True,
+            False,
+            doc="rezone (relocate the nodes, carry the state over) after a "
+            "step whose worst element corner quality (jaxform.rezone: "
+            "1 for squares) falls below this (0 = never; structured "
+            "meshes only)",
+        ),
     },
     "material": {
-        "preset": Field("str", "al1100_673K",
-                        doc="material preset name (jaxform/materials/data) or a .toml path"),
+        "preset": Field(
+            "str",
+            "al1100_673K",
+            doc="material preset name (jaxform/materials/data) or a .toml path",
+        ),
     },
     "die": {
-        "speed_mm_s": Field("float", None, 0.0, None, False, False,
-                            doc="ram speed (mm/s): the dies close at this speed (each moves at "
-                                "half of it towards the mid-plane; a block's die at all of it); "
-                                "required unless a path table is given"),
-        "reduction": Field("float", None, 0.0, 1.0, False, False,
-                           doc="final height reduction (fraction of the initial height; block: "
-                               "of its depth); the run ends when the ram stroke reaches it"),
-        "profile_mm": Field("points", [], doc="top-die profile as [r_mm, z_mm] points at t = 0, "
-                            "walked with the workpiece on the right (from the axis outward for "
-                            "a top die); [] = flat die on the billet's top face"),
-        "profile_kind": Field("str", "polyline", choices=("polyline", "spline"),
-                              doc="straight segments between the points, or the Catmull-Rom "
-                                  "spline through them"),
-        "path_time_s": Field("floats", [], doc="die path table: times (s), starting at 0 "
-                             "([] = constant speed)"),
-        "path_travel_mm": Field("floats", [], doc="die path table: downward travel of the top "
-                                "die relative to the mid-plane at those times (mm), starting "
-                                "at 0 (the ram stroke is twice it)"),
-        "corner_radius_mm": Field("float", 0.5, 0.0, None, False, False,
-                                  doc="radius of the arcs that round the profile's vertices "
-                                      "(mm): the die surface is C1; where two segments are "
-                                      "too short for it, the arc runs between their midpoints "
-                                      "(so sampled fillets and splines keep their shape)"),
-        "closed": Field("bool", False, doc="the profile closes a cavity with the mid-plane: "
-                        "report die_fill (cavity volume filled with material / cavity volume) in the "
-                        "history"),
+        "speed_mm_s": Field(
+            "float",
+            None,
+            0.0,
+            None,
+            False,
+            False,
+            doc="ram speed (mm/s): the dies close at this speed (each moves at "
+            "half of it towards the mid-plane; a block's die at all of it); "
+            "required unless a path table is given",
+        ),
+        "reduction": Field(
+            "float",
+            None,
+            0.0,
+            1.0,
+            False,
+            False,
+            doc="final height reduction (fraction of the initial height; block: "
+            "of its depth); the run ends when the ram stroke reaches it",
+        ),
+        "profile_mm": Field(
+            "points",
+            [],
+            doc="top-die profile as [r_mm, z_mm] points at t = 0, "
+            "walked with the workpiece on the right (from the axis outward for "
+            "a top die); [] = flat die on the billet's top face",
+        ),
+        "profile_kind": Field(
+            "str",
+            "polyline",
+            choices=("polyline", "spline"),
+            doc="straight segments between the points, or the Catmull-Rom spline through them",
+        ),
+        "path_time_s": Field(
+            "floats", [], doc="die path table: times (s), starting at 0 ([] = constant speed)"
+        ),
+        "path_travel_mm": Field(
+            "floats",
+            [],
+            doc="die path table: downward travel of the top "
+            "die relative to the mid-plane at those times (mm), starting "
+            "at 0 (the ram stroke is twice it)",
+        ),
+        "corner_radius_mm": Field(
+            "float",
+            0.5,
+            0.0,
+            None,
+            False,
+            False,
+            doc="radius of the arcs that round the profile's vertices "
+            "(mm): the die surface is C1; where two segments are "
+            "too short for it, the arc runs between their midpoints "
+            "(so sampled fillets and splines keep their shape)",
+        ),
+        "closed": Field(
+            "bool",
+            False,
+            doc="the profile closes a cavity with the mid-plane: "
+            "report die_fill (cavity volume filled with material / cavity "
+            "volume) in the history",
+        ),
     },
     "friction": {
-        "model": Field("str", "none", choices=("none", "coulomb", "shear", "sticking"),
-                       doc="die-workpiece friction law"),
+        "model": Field(
+            "str",
+            "none",
+            choices=("none", "coulomb", "shear", "sticking"),
+            doc="die-workpiece friction law",
+        ),
         "mu": Field("float", 0.0, 0.0, 10.0, doc="Coulomb coefficient (friction.model = coulomb)"),
-        "m": Field("float", 0.0, 0.0, 1.0, doc="shear friction factor, tau = m sigma_eq/sqrt(3) "
-                   "(friction.model = shear)"),
+        "m": Field(
+            "float",
+            0.0,
+            0.0,
+            1.0,
+            doc="shear friction factor, tau = m sigma_eq/sqrt(3) (friction.model = shear)",
+        ),
     },
     "time": {
-        "dt_s": Field("float", None, 0.0, None, False, False,
-                      doc="largest time step (s): steps adapt below it"),
-        "dt_growth": Field("float", 1.5, 1.0, 4.0,
-                           doc="after an easy step (no cutback, few Newton iterations) the next "
-                           "step grows by this factor, up to time.dt_s (1: never grows back)"),
-        "alpha": Field("float", 0.5, 0.0, 1.0,
-                       doc="generalized mid-point parameter of the strain increment"),
+        "dt_s": Field(
+            "float",
+            None,
+            0.0,
+            None,
+            False,
+            False,
+            doc="largest time step (s): steps adapt below it",
+        ),
+        "dt_growth": Field(
+            "float",
+            1.5,
+            1.0,
+            4.0,
+            doc="after an easy step (no cutback, few Newton iterations) the next "
+            "step grows by this factor, up to time.dt_s (1: never grows back)",
+        ),
+        "alpha": Field(
+            "float", 0.5, 0.0, 1.0, doc="generalized mid-point parameter of the strain increment"
+        ),
     },
     "solver": {
-        "max_newton_iterations": Field("int", 25, 1, 1000,
-                                       doc="Newton iterations per step before a cutback (modified "
-                                           "Newton: those with a new Jacobian; up to 3x as "
-                                           "many more with a kept factorization)"),
-        "rtol": Field("float", 1e-10, 0.0, 1.0, False, False,
-                      doc="relative residual tolerance of Newton"),
+        "max_newton_iterations": Field(
+            "int",
+            25,
+            1,
+            1000,
+            doc="Newton iterations per step before a cutback (modified "
+            "Newton: those with a new Jacobian; up to 3x as "
+            "many more with a kept factorization)",
+        ),
+        "rtol": Field(
+            "float", 1e-10, 0.0, 1.0, False, False, doc="relative residual tolerance of Newton"
+        ),
         "max_cutbacks": Field("int", 6, 0, 30, doc="times a failed step may be halved"),
         "line_search": Field("bool", True, doc="backtracking line search in Newton"),
-        "linear": Field("str", "auto", choices=("auto", "dense", "sparse", "jax-sparse"),
-                        doc="linear solver backend (auto: on CPU dense LU below 100 unknowns, "
-                            "klujax sparse LU above; on a GPU dense LU below 20 000, "
-                            "jax-sparse (cuSolver) above; see jaxform/linear.py)"),
-        "newton": Field("str", "auto", choices=("auto", "newton", "modified"),
-                        doc="newton: a new Jacobian and factorization every iteration; "
-                            "modified: one factorization kept across iterations and steps, "
-                            "refreshed when a step contracts the residual by less than "
-                            "2x (needs linear = dense or sparse); auto: modified on the "
-                            "sparse backend from MODIFIED_MIN_UNKNOWNS unknowns, newton "
-                            "below (see jaxform/solver.py)"),
-        "adjoint_memory_mb": Field("float", 4096.0, 0.0, None,
-                                   doc="memory (MB) a gradient run may hold in forward "
-                                       "factorizations kept for its reverse pass, which then "
-                                       "refines each step's adjoint solve with the kept "
-                                       "factors instead of factoring again; the last steps "
-                                       "that fit are kept, the others factor in the reverse "
-                                       "pass (0: none kept; ~69 MB a step at 100 x 100 with "
-                                       "klujax; see jaxform/gradients.py)"),
-        "chunk_steps": Field("int", 8, 1, 10000,
-                             doc="load steps per compiled chunk (progress is reported between chunks)"),
-        "compilation_cache_dir": Field("str", "auto",
-                                       doc="where compiled programs are kept for the next run: "
-                                           "a directory, 'off', or 'auto' (the environment "
-                                           "variable JAXFORM_CACHE_DIR, else "
-                                           "~/.cache/jaxform; see jaxform/cache.py)"),
+        "linear": Field(
+            "str",
+            "auto",
+            choices=("auto", "dense", "sparse", "jax-sparse"),
+            doc="linear solver backend (auto: on CPU dense LU below 100 unknowns, "
+            "klujax sparse LU above; on a GPU dense LU below 20 000, "
+            "jax-sparse (cuSolver) above; see jaxform/linear.py)",
+        ),
+        "newton": Field(
+            "str",
+            "auto",
+            choices=("auto", "newton", "modified"),
+            doc="newton: a new Jacobian and factorization every iteration; "
+            "modified: one factorization kept across iterations and steps, "
+            "refreshed when a step contracts the residual by less than "
+            "2x (needs linear = dense or sparse); auto: modified on the "
+            "sparse backend from MODIFIED_MIN_UNKNOWNS unknowns, newton "
+            "below (see jaxform/solver.py)",
+        ),
+        "adjoint_memory_mb": Field(
+            "float",
+            4096.0,
+            0.0,
+            None,
+            doc="memory (MB) a gradient run may hold in forward "
+            "factorizations kept for its reverse pass, which then "
+            "refines each step's adjoint solve with the kept "
+            "factors instead of factoring again; the last steps "
+            "that fit are kept, the others factor in the reverse "
+            "pass (0: none kept; ~69 MB a step at 100 x 100 with "
+            "klujax; see jaxform/gradients.py)",
+        ),
+        "chunk_steps": Field(
+            "int",
+            8,
+            1,
+            10000,
+            doc="load steps per compiled chunk (progress is reported between chunks)",
+        ),
+        "compilation_cache_dir": Field(
+            "str",
+            "auto",
+            doc="where compiled programs are kept for the next run: "
+            "a directory, 'off', or 'auto' (the environment "
+            "variable JAXFORM_CACHE_DIR, else "
+            "~/.cache/jaxform; see jaxform/cache.py)",
+        ),
     },
     "output": {
         "fields": Field("bool", True, doc="write ParaView fields (VTU series)"),
         "plots": Field("bool", True, doc="write PNG plots"),
-        "profile_strokes_mm": Field("floats", [], doc="ram strokes (mm) at which the contact "
-                                    "pressure/slip profile is plotted ([] = 25/50/75/100 %)"),
+        "profile_strokes_mm": Field(
+            "floats",
+            [],
+            doc="ram strokes (mm) at which the contact "
+            "pressure/slip profile is plotted ([] = 25/50/75/100 %)",
+        ),
     },
     "design": {
-        "objective": Field("str", "forging_work", choices=(
-            "forging_work", "peak_force", "side_straightness", "shape_target", "force_misfit",
-            "eqps_spread", "die_fill"),
+        "objective": Field(
+            "str",
+            "forging_work",
+            choices=(
+                "forging_work",
+                "peak_force",
+                "side_straightness",
+                "shape_target",
+                "force_misfit",
+                "eqps_spread",
+                "die_fill",
+            ),
             doc="design objective (jaxform design / taylor-test), a function of the run: "
-                "force integral over stroke (N mm), peak ram force (N), mean squared "
-                "deviation of the final side from straight (mm^2), of chosen nodes from "
-                "target positions (mm^2), force-stroke misfit against a target curve, "
-                "variance of eqps, 1 - die fill"),
-        "variables": Field("strs", ["material"], choices=(
-            "material", "friction", "speed", "preform", "nodes", "die"),
-            doc="design variable groups jaxform design optimizes"),
-        "material_params": Field("strs", ["s0_MPa", "h0_MPa", "s_hat_MPa"],
-                                 doc="material parameters of the 'material' group (names "
-                                     "of the law's parameters)"),
-        "material_start_factor": Field("float", 1.0, 0.0, None, False, True,
-                                       doc="the design starts from the material parameters "
-                                           "times this (e.g. 0.7 to identify from 30 % off)"),
+            "force integral over stroke (N mm), peak ram force (N), mean squared "
+            "deviation of the final side from straight (mm^2), of chosen nodes from "
+            "target positions (mm^2), force-stroke misfit against a target curve, "
+            "variance of eqps, 1 - die fill",
+        ),
+        "variables": Field(
+            "strs",
+            ["material"],
+            choices=("material", "friction", "speed", "preform", "nodes", "die"),
+            doc="design variable groups jaxform design optimizes",
+        ),
+        "material_params": Field(
+            "strs",
+            ["s0_MPa", "h0_MPa", "s_hat_MPa"],
+            doc="material parameters of the 'material' group (names of the law's parameters)",
+        ),
+        "material_start_factor": Field(
+            "float",
+            1.0,
+            0.0,
+            None,
+            False,
+            True,
+            doc="the design starts from the material parameters "
+            "times this (e.g. 0.7 to identify from 30 % off)",
+        ),
         "preform_modes": Field("int", 3, 1, 20, doc="cosine modes of the preform profile"),
-        "preform_amplitude_max": Field("float", 0.2, 0.0, 0.9, False, True,
-                                       doc="bound on each preform mode amplitude (fraction "
-                                           "of the radius)"),
-        "node_offset_max_mm": Field("float", 0.1, 0.0, None, False, True,
-                                    doc="bound on each initial node coordinate's offset of "
-                                        "the 'nodes' group (mm)"),
-        "die_points": Field("floats", [], doc="indices of die.profile_mm points whose z is "
-                            "a design variable ([] = all)"),
-        "die_offset_max_mm": Field("float", 1.0, 0.0, None, False, True,
-                                   doc="bound on each die point's vertical offset (mm)"),
-        "bound_factor": Field("float", 2.0, 1.0, 1000.0, False, True,
-                              doc="material parameters and ram speed stay within "
-                                  "[p0 / factor, p0 * factor]"),
-        "target_csv": Field("str", "", doc="target for force_misfit (CSV with stroke_mm, "
-                            "force_N) or shape_target (CSV with node, r_mm, z_mm)"),
-        "optimizer": Field("str", "lbfgs", choices=("lbfgs", "adam"),
-                           doc="optax optimizer (L-BFGS with zoom line search, or Adam)"),
+        "preform_amplitude_max": Field(
+            "float",
+            0.2,
+            0.0,
+            0.9,
+            False,
+            True,
+            doc="bound on each preform mode amplitude (fraction of the radius)",
+        ),
+        "node_offset_max_mm": Field(
+            "float",
+            0.1,
+            0.0,
+            None,
+            False,
+            True,
+            doc="bound on each initial node coordinate's offset of the 'nodes' group (mm)",
+        ),
+        "die_points": Field(
+            "floats",
+            [],
+            doc="indices of die.profile_mm points whose z is a design variable ([] = all)",
+        ),
+        "die_offset_max_mm": Field(
+            "float",
+            1.0,
+            0.0,
+            None,
+            False,
+            True,
+            doc="bound on each die point's vertical offset (mm)",
+        ),
+        "bound_factor": Field(
+            "float",
+            2.0,
+            1.0,
+            1000.0,
+            False,
+            True,
+            doc="material parameters and ram speed stay within [p0 / factor, p0 * factor]",
+        ),
+        "target_csv": Field(
+            "str",
+            "",
+            doc="target for force_misfit (CSV with stroke_mm, "
+            "force_N) or shape_target (CSV with node, r_mm, z_mm)",
+        ),
+        "optimizer": Field(
+            "str",
+            "lbfgs",
+            choices=("lbfgs", "adam"),
+            doc="optax optimizer (L-BFGS with zoom line search, or Adam)",
+        ),
         "iterations": Field("int", 20, 1, 10000, doc="optimizer iterations"),
-        "learning_rate": Field("float", 0.05, 0.0, None, False, False,
-                               doc="Adam step size in the scaled design variables"),
+        "learning_rate": Field(
+            "float",
+            0.05,
+            0.0,
+            None,
+            False,
+            False,
+            doc="Adam step size in the scaled design variables",
+        ),
     },
 }
 
 
-
 def _bound_lengths(schema: dict[str, dict[str, Field]]) -> dict[str, dict[str, Field]]:
     """The schema with every unbounded length or speed key capped at MAX_LENGTH_MM."""
+
     def capped(key: str, f: Field) -> Field:
         is_length = key.endswith("_mm") or key.endswith("_mm_s")
         if f.kind == "float" and is_length and f.low is not None and f.high is None:
             return replace(f, high=MAX_LENGTH_MM, high_inclusive=True)
         return f
+
     return {s: {k: capped(k, f) for k, f in t.items()} for s, t in schema.items()}
 
 
@@ -296,9 +566,11 @@ _LOAD_SECTIONS = ("load",)
 def _workpiece(raw: dict) -> str:
     given = [w for w in WORKPIECES if w in raw]
     if len(given) != 1:
-        raise ConfigError(f"give exactly one workpiece section, "
-                          f"{', '.join(f'[{w}]' for w in WORKPIECES)} "
-                          f"(found {', '.join(given) or 'none'})")
+        raise ConfigError(
+            f"give exactly one workpiece section, "
+            f"{', '.join(f'[{w}]' for w in WORKPIECES)} "
+            f"(found {', '.join(given) or 'none'})"
+        )
     return given[0]
 
 
@@ -320,8 +592,10 @@ def _parse_override(text: str) -> tuple[str, str, Any]:
     dotted, raw = (s.strip() for s in text.split("=", 1))
     section, dot, key = dotted.partition(".")
     if not dot or not section or not key or "." in key:
-        raise ConfigError(f"malformed override {text!r}: the key must be section.key, "
-                          f"sections: {', '.join(SCHEMA)}")
+        raise ConfigError(
+            f"malformed override {text!r}: the key must be section.key, "
+            f"sections: {', '.join(SCHEMA)}"
+        )
     try:
         value = tomllib.loads(f"v = {raw}")["v"]
     except tomllib.TOMLDecodeError:
@@ -344,8 +618,10 @@ def _check(name: str, f: Field, value: Any) -> Any:
             raise ConfigError(f"{name} = {value!r}: must be {f.allowed()}")
         return value
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ConfigError(f"{name} = {value!r}: must be a{'n' if f.kind == 'int' else ''} "
-                          f"{f.kind} in {f.allowed()}")
+        raise ConfigError(
+            f"{name} = {value!r}: must be a{'n' if f.kind == 'int' else ''} "
+            f"{f.kind} in {f.allowed()}"
+        )
     if f.kind == "int" and not isinstance(value, int):
         raise ConfigError(f"{name} = {value!r}: must be an int in {f.allowed()}")
     value = int(value) if f.kind == "int" else float(value)
@@ -378,13 +654,14 @@ def _check_list(name: str, f: Field, value: Any) -> list:
             raise ConfigError(f"{name} = {value!r}: must be a list of strings")
         bad = [v for v in value if f.choices is not None and v not in f.choices]
         if bad:
-            raise ConfigError(f"{name} = {value!r}: {bad[0]!r} is not allowed; each entry must "
-                              f"be {f.allowed()}")
+            raise ConfigError(
+                f"{name} = {value!r}: {bad[0]!r} is not allowed; each entry must be {f.allowed()}"
+            )
         return list(value)
-    if not all(isinstance(p, list) and len(p) == 2 and all(_is_num(v) for v in p)
-               for p in value):
-        raise ConfigError(f"{name} = {value!r}: must be a list of [r_mm, z_mm] pairs of finite "
-                          f"numbers")
+    if not all(isinstance(p, list) and len(p) == 2 and all(_is_num(v) for v in p) for p in value):
+        raise ConfigError(
+            f"{name} = {value!r}: must be a list of [r_mm, z_mm] pairs of finite numbers"
+        )
     _check_lengths(name, [v for p in value for v in p])
     return [[float(a), float(b)] for a, b in value]
 
@@ -393,8 +670,10 @@ def _check_lengths(name: str, values: list) -> None:
     """Entries of a list of lengths (key ending in _mm) lie within +-MAX_LENGTH_MM."""
     big = [v for v in values if abs(v) > MAX_LENGTH_MM]
     if name.endswith("_mm") and big:
-        raise ConfigError(f"{name}: entry {big[0]!r} mm: every entry must lie in "
-                          f"[-{_num(MAX_LENGTH_MM)}, {_num(MAX_LENGTH_MM)}] mm")
+        raise ConfigError(
+            f"{name}: entry {big[0]!r} mm: every entry must lie in "
+            f"[-{_num(MAX_LENGTH_MM)}, {_num(MAX_LENGTH_MM)}] mm"
+        )
 
 
 def _cross_checks(raw: dict, out: dict) -> None:
@@ -406,37 +685,45 @@ def _cross_checks(raw: dict, out: dict) -> None:
         b = out["block"]
         for fine, full in (("fine_width_mm", "width_mm"), ("fine_depth_mm", "depth_mm")):
             if b[fine] > b[full]:
-                raise ConfigError(f"block.{fine} = {b[fine]!r}: must be <= block.{full} = "
-                                  f"{b[full]!r}")
+                raise ConfigError(
+                    f"block.{fine} = {b[fine]!r}: must be <= block.{full} = {b[full]!r}"
+                )
     if out["die"]["reduction"] is None:
         f = SCHEMA["die"]["reduction"]
         raise ConfigError(f"missing required key die.reduction (float in {f.allowed()}): {f.doc}")
     if "ring" in out:
         r = out["ring"]
         if r["inner_diameter_mm"] >= r["outer_diameter_mm"]:
-            raise ConfigError(f"ring.inner_diameter_mm = {r['inner_diameter_mm']!r}: must be "
-                              f"< ring.outer_diameter_mm = {r['outer_diameter_mm']!r}")
+            raise ConfigError(
+                f"ring.inner_diameter_mm = {r['inner_diameter_mm']!r}: must be "
+                f"< ring.outer_diameter_mm = {r['outer_diameter_mm']!r}"
+            )
     d = out["die"]
     if len(d["path_time_s"]) != len(d["path_travel_mm"]):
         raise ConfigError("die.path_time_s and die.path_travel_mm must have the same length")
     if d["path_time_s"]:
         t, s = d["path_time_s"], d["path_travel_mm"]
         if len(t) < 2 or t[0] != 0.0 or s[0] != 0.0:
-            raise ConfigError("die.path_time_s / die.path_travel_mm: at least 2 rows, starting "
-                              "at time 0 s with travel 0 mm")
+            raise ConfigError(
+                "die.path_time_s / die.path_travel_mm: at least 2 rows, starting "
+                "at time 0 s with travel 0 mm"
+            )
         if any(b <= a for a, b in zip(t, t[1:])) or any(b < a for a, b in zip(s, s[1:])):
-            raise ConfigError("die.path_time_s must increase and die.path_travel_mm must not "
-                              "decrease")
+            raise ConfigError(
+                "die.path_time_s must increase and die.path_travel_mm must not decrease"
+            )
     elif d["speed_mm_s"] is None:
         f = SCHEMA["die"]["speed_mm_s"]
-        raise ConfigError(f"missing required key die.speed_mm_s (float in {f.allowed()}): "
-                          f"{f.doc}")
+        raise ConfigError(f"missing required key die.speed_mm_s (float in {f.allowed()}): {f.doc}")
     if d["profile_mm"] and len(d["profile_mm"]) < 2:
-        raise ConfigError("die.profile_mm: needs at least 2 [r_mm, z_mm] points (or [] for a "
-                          "flat die)")
+        raise ConfigError(
+            "die.profile_mm: needs at least 2 [r_mm, z_mm] points (or [] for a flat die)"
+        )
     if out["mesh"]["rezone_quality"] > 0.0 and out["mesh"]["file"]:
-        raise ConfigError("mesh.rezone_quality > 0 needs the structured mesh (mesh.file = ''): "
-                          "rezoning relocates the nodes of the logical grid")
+        raise ConfigError(
+            "mesh.rezone_quality > 0 needs the structured mesh (mesh.file = ''): "
+            "rezoning relocates the nodes of the logical grid"
+        )
     if out["mesh"]["file"] and not Path(out["mesh"]["file"]).is_file():
         raise ConfigError(f"mesh.file = {out['mesh']['file']!r}: no such file")
     fr = out["friction"]
@@ -449,19 +736,24 @@ def _cross_checks(raw: dict, out: dict) -> None:
 def _membrane_checks(out: dict) -> None:
     m, ld = out["membrane"], out["load"]
     if out["mesh"]["geometry"] != "plane_strain":
-        raise ConfigError(f"mesh.geometry = {out['mesh']['geometry']!r}: a [membrane] scene is "
-                          f"plane strain; set mesh.geometry = 'plane_strain'")
+        raise ConfigError(
+            f"mesh.geometry = {out['mesh']['geometry']!r}: a [membrane] scene is "
+            f"plane strain; set mesh.geometry = 'plane_strain'"
+        )
     c = m["corners_mm"]
     if len(c) != 4:
-        raise ConfigError(f"membrane.corners_mm: needs exactly 4 [x_mm, y_mm] corners, got "
-                          f"{len(c)}")
+        raise ConfigError(
+            f"membrane.corners_mm: needs exactly 4 [x_mm, y_mm] corners, got {len(c)}"
+        )
     turns = []
     for i in range(4):
         (x0, y0), (x1, y1), (x2, y2) = c[i], c[(i + 1) % 4], c[(i + 2) % 4]
         turns.append((x1 - x0) * (y2 - y1) - (y1 - y0) * (x2 - x1))
     if min(turns) <= 0.0:
-        raise ConfigError(f"membrane.corners_mm = {c!r}: the corners must form a convex "
-                          f"quadrilateral, listed counter-clockwise")
+        raise ConfigError(
+            f"membrane.corners_mm = {c!r}: the corners must form a convex "
+            f"quadrilateral, listed counter-clockwise"
+        )
     if m["tip_mm"] and len(m["tip_mm"]) != 2:
         raise ConfigError(f"membrane.tip_mm = {m['tip_mm']!r}: must be [x_mm, y_mm] or []")
     if ld["edge"] == m["clamped_edge"]:
@@ -470,8 +762,10 @@ def _membrane_checks(out: dict) -> None:
         if not math.isfinite(ld[key]):
             raise ConfigError(f"load.{key} = {ld[key]!r}: must be finite")
     if ld["force_x_N"] == 0.0 and ld["force_y_N"] == 0.0:
-        raise ConfigError("load.force_x_N and load.force_y_N are both 0: give the load's "
-                          "resultant (N per mm of depth)")
+        raise ConfigError(
+            "load.force_x_N and load.force_y_N are both 0: give the load's "
+            "resultant (N per mm of depth)"
+        )
 
 
 def _size_checks(out: dict) -> None:
@@ -479,23 +773,31 @@ def _size_checks(out: dict) -> None:
     within its bounds."""
     m = out["mesh"]
     if m["nr"] * m["nz"] > MAX_ELEMENTS:
-        raise ConfigError(f"mesh.nr x mesh.nz = {m['nr']} x {m['nz']} = {m['nr'] * m['nz']} "
-                          f"elements: at most {MAX_ELEMENTS} fit a run; use a coarser mesh")
+        raise ConfigError(
+            f"mesh.nr x mesh.nz = {m['nr']} x {m['nz']} = {m['nr'] * m['nz']} "
+            f"elements: at most {MAX_ELEMENTS} fit a run; use a coarser mesh"
+        )
     t_end, what = _end_time(out)
     dt = out["time"]["dt_s"]
     if t_end is not None and t_end / dt > MAX_STEPS:
-        raise ConfigError(f"time.dt_s = {dt!r}: the run to {t_end:.6g} s ({what}) would take "
-                          f"{t_end / dt:.3g} steps, at most {MAX_STEPS}: raise time.dt_s or "
-                          f"shorten the run")
+        raise ConfigError(
+            f"time.dt_s = {dt!r}: the run to {t_end:.6g} s ({what}) would take "
+            f"{t_end / dt:.3g} steps, at most {MAX_STEPS}: raise time.dt_s or "
+            f"shorten the run"
+        )
     if t_end is not None and t_end / dt <= 1e-9:  # jaxform.simulate.Scene.n_steps: 0 steps
-        raise ConfigError(f"time.dt_s = {dt!r}: the run to {t_end:.6g} s ({what}) would take no "
-                          f"step; give time.dt_s <= {t_end:.6g}")
+        raise ConfigError(
+            f"time.dt_s = {dt!r}: the run to {t_end:.6g} s ({what}) would take no "
+            f"step; give time.dt_s <= {t_end:.6g}"
+        )
     d = out["design"]
     lo, hi = 1.0 / d["bound_factor"], d["bound_factor"]
     if not lo <= d["material_start_factor"] <= hi:
-        raise ConfigError(f"design.material_start_factor = {d['material_start_factor']!r}: must "
-                          f"lie in [1/design.bound_factor, design.bound_factor] = "
-                          f"[{lo:.6g}, {hi:.6g}]")
+        raise ConfigError(
+            f"design.material_start_factor = {d['material_start_factor']!r}: must "
+            f"lie in [1/design.bound_factor, design.bound_factor] = "
+            f"[{lo:.6g}, {hi:.6g}]"
+        )
 
 
 def _end_time(out: dict) -> tuple[float | None, str]:
@@ -550,20 +852,24 @@ def load_config(path_or_dict: str | PathLike | dict, overrides: Iterable[str] = 
         sec[key] = value
     for section, table in raw.items():
         if section not in SCHEMA:
-            raise ConfigError(f"unknown section {section!r}; allowed sections: "
-                              f"{', '.join(SCHEMA)}")
+            raise ConfigError(f"unknown section {section!r}; allowed sections: {', '.join(SCHEMA)}")
         if not isinstance(table, dict):
-            raise ConfigError(f"{section}: must be a table of keys "
-                              f"({', '.join(SCHEMA[section])}), not {table!r}")
+            raise ConfigError(
+                f"{section}: must be a table of keys ({', '.join(SCHEMA[section])}), not {table!r}"
+            )
         for key in table:
             if key not in SCHEMA[section]:
-                raise ConfigError(f"unknown key {section}.{key}; allowed keys of [{section}]: "
-                                  f"{', '.join(SCHEMA[section])}")
+                raise ConfigError(
+                    f"unknown key {section}.{key}; allowed keys of [{section}]: "
+                    f"{', '.join(SCHEMA[section])}"
+                )
     kind = _workpiece(raw)
     for section in raw:
         if not _applies(section, kind):
-            raise ConfigError(f"[{section}] does not apply to a [{kind}] scene; allowed sections: "
-                              f"{', '.join(s for s in SCHEMA if _applies(s, kind))}")
+            raise ConfigError(
+                f"[{section}] does not apply to a [{kind}] scene; allowed sections: "
+                f"{', '.join(s for s in SCHEMA if _applies(s, kind))}"
+            )
     out: dict[str, dict[str, Any]] = {}
     for section, fields in SCHEMA.items():
         if not _applies(section, kind):
@@ -575,8 +881,9 @@ def load_config(path_or_dict: str | PathLike | dict, overrides: Iterable[str] = 
             if key in given:
                 out[section][key] = _check(name, f, given[key])
             elif f.default is None and (section, key) not in _CONDITIONAL:
-                raise ConfigError(f"missing required key {name} ({f.kind} in {f.allowed()}): "
-                                  f"{f.doc}")
+                raise ConfigError(
+                    f"missing required key {name} ({f.kind} in {f.allowed()}): {f.doc}"
+                )
             else:
                 out[section][key] = copy.deepcopy(f.default)
     _cross_checks(raw, out)
@@ -595,15 +902,18 @@ def _read_toml(path: str | PathLike) -> dict:
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read the config: {exc.strerror or exc}") from exc
     except UnicodeDecodeError as exc:
-        raise ConfigError(f"{path}: not a UTF-8 text file (byte {exc.start}): a config is "
-                          f"TOML text") from exc
+        raise ConfigError(
+            f"{path}: not a UTF-8 text file (byte {exc.start}): a config is TOML text"
+        ) from exc
     try:
         raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: invalid TOML: {exc}") from exc
     if not raw:
-        raise ConfigError(f"{path}: empty config: give a workpiece section "
-                          f"({', '.join(f'[{w}]' for w in WORKPIECES)}) and its keys")
+        raise ConfigError(
+            f"{path}: empty config: give a workpiece section "
+            f"({', '.join(f'[{w}]' for w in WORKPIECES)}) and its keys"
+        )
     return raw
 
 
@@ -625,8 +935,11 @@ def describe_schema() -> str:
             elif f.kind == "str":
                 default = f'"{f.default}"'
             elif f.kind in ("floats", "strs", "points"):
-                default = "[" + ", ".join(f'"{v}"' if isinstance(v, str) else f"{v:g}"
-                                          for v in f.default) + "]"
+                default = (
+                    "["
+                    + ", ".join(f'"{v}"' if isinstance(v, str) else f"{v:g}" for v in f.default)
+                    + "]"
+                )
             else:
                 default = f"{f.default:g}" if f.kind == "float" else str(f.default)
             cells = [f"`{section}.{key}`", f.kind, default, f.allowed(), f.doc]
@@ -637,16 +950,19 @@ def describe_schema() -> str:
 GRADIENT_GROUPS = SCHEMA["design"]["variables"].choices
 
 
-def check_gradient_run(cfg: dict, groups: list[str] | None = None,
-                       where: str = "design.variables") -> None:
+def check_gradient_run(
+    cfg: dict, groups: list[str] | None = None, where: str = "design.variables"
+) -> None:
     """Refuse a validated config that a gradient run (jaxform design, taylor-test) cannot
     use, before anything is built: rezoning, design groups the scene lacks (``groups``:
     the groups asked for, ``where`` names the key or flag that asked; None = the scene's
     own), an objective whose inputs are missing."""
     q = cfg["mesh"]["rezone_quality"]
     if q > 0.0:
-        raise ConfigError(f"mesh.rezone_quality = {q!r}: gradient runs need 0 (a rezoned "
-                          f"history has no gradient); --set mesh.rezone_quality=0")
+        raise ConfigError(
+            f"mesh.rezone_quality = {q!r}: gradient runs need 0 (a rezoned "
+            f"history has no gradient); --set mesh.rezone_quality=0"
+        )
     if groups is not None:
         _check_groups(cfg, list(groups), where)
     d = cfg["design"]
@@ -654,8 +970,9 @@ def check_gradient_run(cfg: dict, groups: list[str] | None = None,
     if name == "die_fill" and not cfg.get("die", {}).get("closed"):
         raise ConfigError("design.objective = 'die_fill' needs die.closed = true")
     if name == "side_straightness" and not ({"billet", "ring"} & set(cfg)):
-        raise ConfigError("design.objective = 'side_straightness' needs a [billet] or [ring] "
-                          "scene (a free side)")
+        raise ConfigError(
+            "design.objective = 'side_straightness' needs a [billet] or [ring] scene (a free side)"
+        )
     if name in ("force_misfit", "shape_target"):
         target = d["target_csv"]
         if not target:
@@ -678,8 +995,9 @@ def _check_target_csv(path: str, needed: tuple[str, ...]) -> None:
     except (UnicodeDecodeError, csv.Error) as exc:
         raise ConfigError(f"{where}: not a CSV text file ({exc})") from exc
     if not rows or any(k not in rows[0] for k in needed):
-        raise ConfigError(f"{where}: needs a header with columns {', '.join(needed)} and at "
-                          f"least one row")
+        raise ConfigError(
+            f"{where}: needs a header with columns {', '.join(needed)} and at least one row"
+        )
     for i, row in enumerate(rows, start=2):
         for k in needed:
             try:
@@ -687,28 +1005,37 @@ def _check_target_csv(path: str, needed: tuple[str, ...]) -> None:
             except (TypeError, ValueError):
                 ok = False
             if not ok:
-                raise ConfigError(f"{where}: line {i}, column {k} = {row[k]!r}: must be a "
-                                  f"finite number")
+                raise ConfigError(
+                    f"{where}: line {i}, column {k} = {row[k]!r}: must be a finite number"
+                )
 
 
 def _check_groups(cfg: dict, groups: list[str], where: str) -> None:
-    shown = (f"{where} = {groups!r}" if where.startswith("design.")
-             else f"{where} {' '.join(groups)}")
+    shown = (
+        f"{where} = {groups!r}" if where.startswith("design.") else f"{where} {' '.join(groups)}"
+    )
     if not groups:
-        raise ConfigError(f"{shown}: name at least one design group, of "
-                          f"{', '.join(GRADIENT_GROUPS)}")
+        raise ConfigError(
+            f"{shown}: name at least one design group, of {', '.join(GRADIENT_GROUPS)}"
+        )
     for g in groups:
         if g not in GRADIENT_GROUPS:
-            raise ConfigError(f"{shown}: {g!r} is not a design group; each must be one of "
-                              f"{', '.join(GRADIENT_GROUPS)}")
+            raise ConfigError(
+                f"{shown}: {g!r} is not a design group; each must be one of "
+                f"{', '.join(GRADIENT_GROUPS)}"
+            )
         if "membrane" in cfg and g in ("friction", "speed", "die"):
             raise ConfigError(f"{shown}: {g!r} needs a die; a [membrane] scene has none")
     if "friction" in groups and cfg["friction"]["model"] not in ("coulomb", "shear"):
-        raise ConfigError(f"{shown}: 'friction' needs friction.model = 'coulomb' or 'shear', "
-                          f"not {cfg['friction']['model']!r}")
+        raise ConfigError(
+            f"{shown}: 'friction' needs friction.model = 'coulomb' or 'shear', "
+            f"not {cfg['friction']['model']!r}"
+        )
     if "speed" in groups and cfg["die"]["path_time_s"]:
-        raise ConfigError(f"{shown}: 'speed' needs die.speed_mm_s; this scene moves the die "
-                          f"along die.path_time_s")
+        raise ConfigError(
+            f"{shown}: 'speed' needs die.speed_mm_s; this scene moves the die along die.path_time_s"
+        )
     if "preform" in groups and ("billet" not in cfg or cfg["mesh"]["file"]):
-        raise ConfigError(f"{shown}: 'preform' needs a [billet] scene on the structured mesh "
-                          f"(mesh.file = '')")
+        raise ConfigError(
+            f"{shown}: 'preform' needs a [billet] scene on the structured mesh (mesh.file = '')"
+        )

@@ -71,8 +71,20 @@ def _parts(friction, die, x, lam, t, c, step_x_old, step_t_old, shear_bound):
         bound = 0.0
     az = jnp.abs(z)
     stick = az <= bound
-    return dict(g=g, n=n, tan=tan, slip=slip, lam_n=lam_n, lam_t=lam_t, trial_n=trial_n,
-                active=active, z=z, az=az, bound=bound, stick=stick)
+    return dict(
+        g=g,
+        n=n,
+        tan=tan,
+        slip=slip,
+        lam_n=lam_n,
+        lam_t=lam_t,
+        trial_n=trial_n,
+        active=active,
+        z=z,
+        az=az,
+        bound=bound,
+        stick=stick,
+    )
 
 
 @dataclass(frozen=True)
@@ -83,14 +95,14 @@ class ContactLaw:
 
     def __post_init__(self):
         if self.friction not in FRICTION_MODELS:
-            raise ValueError(f"friction.model = {self.friction!r}: must be one of "
-                             f"{', '.join(FRICTION_MODELS)}")
+            raise ValueError(
+                f"friction.model = {self.friction!r}: must be one of {', '.join(FRICTION_MODELS)}"
+            )
 
     def pair_terms(self, die, x, lam, t, c, step: ContactStep, k):
         """Candidate k at position x with multipliers lam = (lambda_n, lambda_t):
         (force residual on the node (2,), complementarity residuals (2,))."""
-        p = _parts(self.friction, die, x, lam, t, c, step.x_old[k], step.t_old,
-                   step.shear_bound[k])
+        p = _parts(self.friction, die, x, lam, t, c, step.x_old[k], step.t_old, step.shear_bound[k])
         r_u = -(p["lam_n"] * p["n"] + p["lam_t"] * p["tan"])
         c_n = p["lam_n"] - jnp.maximum(0.0, p["trial_n"])
         if self.friction == "none":
@@ -101,16 +113,14 @@ class ContactLaw:
         else:
             safe = jnp.where(p["stick"], 1.0, p["az"])
             slip_eq = p["lam_t"] - p["bound"] * p["z"] / safe
-            c_t = jnp.where(p["active"], jnp.where(p["stick"], c * p["slip"], slip_eq),
-                            p["lam_t"])
+            c_t = jnp.where(p["active"], jnp.where(p["stick"], c * p["slip"], slip_eq), p["lam_t"])
         # where a Dirichlet condition fixes the tangential motion, friction has nothing to act on
         c_t = jnp.where(step.frictionless[k], p["lam_t"], c_t)
         return r_u, jnp.stack([c_n, c_t])
 
     def pair_status(self, die, x, lam, t, c, step: ContactStep, k):
         """(status OPEN/STICK/SLIP, normal n, tangent t, slip increment) at convergence."""
-        p = _parts(self.friction, die, x, lam, t, c, step.x_old[k], step.t_old,
-                   step.shear_bound[k])
+        p = _parts(self.friction, die, x, lam, t, c, step.x_old[k], step.t_old, step.shear_bound[k])
         in_contact = p["lam_n"] > 0.0
         if self.friction == "none":
             sticks = jnp.asarray(False)

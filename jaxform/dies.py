@@ -88,8 +88,11 @@ def rounded_profile(points, corner_radius):
     tan_half = jnp.tan(0.5 * jnp.abs(theta))
     turns = tan_half > 1e-12
     safe_tan = jnp.where(turns, tan_half, 1.0)
-    ell = jnp.where(turns, jnp.minimum(0.5 * jnp.minimum(length[:-1], length[1:]),
-                                       corner_radius * tan_half), 0.0)
+    ell = jnp.where(
+        turns,
+        jnp.minimum(0.5 * jnp.minimum(length[:-1], length[1:]), corner_radius * tan_half),
+        0.0,
+    )
     rho = ell / safe_tan
     sign = jnp.where(cross >= 0.0, 1.0, -1.0)
     a = points[1:-1] - ell[:, None] * t0
@@ -97,8 +100,18 @@ def rounded_profile(points, corner_radius):
     centre = a - (sign * rho)[:, None] * _right_normals(t0)
     lo = jnp.concatenate([jnp.array([-jnp.inf]), ell])  # straight part of segment j
     hi = jnp.concatenate([length[:-1] - ell, jnp.array([jnp.inf])])
-    return dict(start=points[:-1], t=t, lo=lo, hi=hi, centre=centre, rho=rho, a=a, b=b,
-                sign=sign, turns=turns)
+    return dict(
+        start=points[:-1],
+        t=t,
+        lo=lo,
+        hi=hi,
+        centre=centre,
+        rho=rho,
+        a=a,
+        b=b,
+        sign=sign,
+        turns=turns,
+    )
 
 
 def closest_point_gap(points, corner_radius, x):
@@ -119,8 +132,12 @@ def closest_point_gap(points, corner_radius, x):
     def cross2(p, q):
         return p[:, 0] * q[:, 1] - p[:, 1] * q[:, 0]
 
-    within = ((sg * cross2(pr["a"] - pr["centre"], v) >= 0.0)
-              & (sg * cross2(v, pr["b"] - pr["centre"]) >= 0.0) & pr["turns"] & (r2 > 0.0))
+    within = (
+        (sg * cross2(pr["a"] - pr["centre"], v) >= 0.0)
+        & (sg * cross2(v, pr["b"] - pr["centre"]) >= 0.0)
+        & pr["turns"]
+        & (r2 > 0.0)
+    )
     q_arc = pr["centre"] + pr["rho"][:, None] * u
     n_arc = sg[:, None] * u
     dist_arc = jnp.where(within, (r - pr["rho"]) ** 2, jnp.inf)
@@ -136,13 +153,17 @@ def closest_point_gap(points, corner_radius, x):
 
 def sample_rounded(points, corner_radius, per_arc: int = 16) -> np.ndarray:
     """The rounded profile as a dense polyline (NumPy; for plots and cavity volumes)."""
-    pr = {k: np.asarray(v) for k, v in rounded_profile(jnp.asarray(points, dtype=float),
-                                                     jnp.asarray(float(corner_radius))).items()}
+    pr = {
+        k: np.asarray(v)
+        for k, v in rounded_profile(
+            jnp.asarray(points, dtype=float), jnp.asarray(float(corner_radius))
+        ).items()
+    }
     p = np.asarray(points, dtype=float)
     out = [p[:1]]
     for i in range(len(pr["rho"])):
         if not pr["turns"][i]:
-            out.append(p[i + 1:i + 2])
+            out.append(p[i + 1 : i + 2])
             continue
         c, a, b = pr["centre"][i], pr["a"][i], pr["b"][i]
         ang_a = np.arctan2(*(a - c)[::-1])
@@ -171,8 +192,15 @@ def catmull_rom(points: np.ndarray, per_span: int = 16) -> np.ndarray:
     out = []
     for i in range(1, len(ext) - 2):
         p0, p1, p2, p3 = ext[i - 1], ext[i], ext[i + 1], ext[i + 2]
-        out.append(0.5 * (2 * p1 + (-p0 + p2) * u + (2 * p0 - 5 * p1 + 4 * p2 - p3) * u**2
-                          + (-p0 + 3 * p1 - 3 * p2 + p3) * u**3))
+        out.append(
+            0.5
+            * (
+                2 * p1
+                + (-p0 + p2) * u
+                + (2 * p0 - 5 * p1 + 4 * p2 - p3) * u**2
+                + (-p0 + 3 * p1 - 3 * p2 + p3) * u**3
+            )
+        )
     out.append(p[-1:])
     return np.vstack(out)
 
@@ -183,8 +211,9 @@ def check_profile(points: np.ndarray, key: str) -> np.ndarray:
     profile), or a walk with the workpiece side (below a top die) on its left."""
     p = np.asarray(points, dtype=float)
     if p.ndim != 2 or p.shape[1] != 2 or p.shape[0] < 2:
-        raise DieError(f"{key}: must be a list of at least 2 [r_mm, z_mm] points, got shape "
-                       f"{p.shape}")
+        raise DieError(
+            f"{key}: must be a list of at least 2 [r_mm, z_mm] points, got shape {p.shape}"
+        )
     if not np.all(np.isfinite(p)):
         raise DieError(f"{key}: points must be finite")
     seg = np.linalg.norm(np.diff(p, axis=0), axis=1)
@@ -194,12 +223,16 @@ def check_profile(points: np.ndarray, key: str) -> np.ndarray:
     crossing = first_crossing(p)
     if crossing is not None:
         i, j = crossing
-        raise DieError(f"{key}: segment {i}-{i + 1} crosses segment {j}-{j + 1}: the profile "
-                       f"must not intersect itself")
+        raise DieError(
+            f"{key}: segment {i}-{i + 1} crosses segment {j}-{j + 1}: the profile "
+            f"must not intersect itself"
+        )
     if side_of(p, below_probe(p)) <= 0.0:
-        raise DieError(f"{key}: the workpiece (below the die) lies on the left of the walk "
-                       f"from point 0 to point {len(p) - 1}; list the points from the axis "
-                       f"outward, with the workpiece on the right (reverse their order)")
+        raise DieError(
+            f"{key}: the workpiece (below the die) lies on the left of the walk "
+            f"from point 0 to point {len(p) - 1}; list the points from the axis "
+            f"outward, with the workpiece on the right (reverse their order)"
+        )
     return p
 
 
@@ -212,8 +245,9 @@ def first_crossing(p: np.ndarray) -> tuple[int, int] | None:
         return None
 
     def orient(o, q, r):
-        return np.sign((q[:, 0] - o[:, 0]) * (r[:, 1] - o[:, 1])
-                       - (q[:, 1] - o[:, 1]) * (r[:, 0] - o[:, 0]))
+        return np.sign(
+            (q[:, 0] - o[:, 0]) * (r[:, 1] - o[:, 1]) - (q[:, 1] - o[:, 1]) * (r[:, 0] - o[:, 0])
+        )
 
     d1, d2 = orient(a[i], b[i], a[j]), orient(a[i], b[i], b[j])
     d3, d4 = orient(a[j], b[j], a[i]), orient(a[j], b[j], b[i])
@@ -222,10 +256,12 @@ def first_crossing(p: np.ndarray) -> tuple[int, int] | None:
     def on_segment(o, q, r):  # r collinear with o-q: within its bounding box
         return ((np.minimum(o, q) - 1e-12 <= r) & (r <= np.maximum(o, q) + 1e-12)).all(axis=1)
 
-    touch = (((d1 == 0) & on_segment(a[i], b[i], a[j]))
-             | ((d2 == 0) & on_segment(a[i], b[i], b[j]))
-             | ((d3 == 0) & on_segment(a[j], b[j], a[i]))
-             | ((d4 == 0) & on_segment(a[j], b[j], b[i])))
+    touch = (
+        ((d1 == 0) & on_segment(a[i], b[i], a[j]))
+        | ((d2 == 0) & on_segment(a[i], b[i], b[j]))
+        | ((d3 == 0) & on_segment(a[j], b[j], a[i]))
+        | ((d4 == 0) & on_segment(a[j], b[j], b[i]))
+    )
     hit = np.nonzero(proper | touch)[0]
     return None if hit.size == 0 else (int(i[hit[0]]), int(j[hit[0]]))
 
@@ -259,8 +295,9 @@ def side_of(p: np.ndarray, x: np.ndarray) -> float:
     return dist if float(np.dot(x - q[k], normal)) > 0.0 else -dist
 
 
-def check_clearance(points: np.ndarray, boundary: np.ndarray, key: str,
-                    tol_mm: float = 1e-9) -> None:
+def check_clearance(
+    points: np.ndarray, boundary: np.ndarray, key: str, tol_mm: float = 1e-9
+) -> None:
     """DieError naming ``key`` if a workpiece boundary point (``boundary``: (n, 2), mm)
     lies inside the die at t = 0 (on the left of the sharp profile by more than tol_mm):
     the run would start with the die overlapping the workpiece."""
@@ -268,28 +305,35 @@ def check_clearance(points: np.ndarray, boundary: np.ndarray, key: str,
     k = int(np.argmin(depth))
     if depth[k] < -tol_mm:
         r, z = boundary[k]
-        raise DieError(f"{key}: the die overlaps the workpiece at t = 0: its point ({r:g}, "
-                       f"{z:g}) mm lies {-depth[k]:.4g} mm inside the die; the profile must "
-                       f"start on or above the workpiece")
+        raise DieError(
+            f"{key}: the die overlaps the workpiece at t = 0: its point ({r:g}, "
+            f"{z:g}) mm lies {-depth[k]:.4g} mm inside the die; the profile must "
+            f"start on or above the workpiece"
+        )
 
 
 def time_at_travel(times: np.ndarray, travel: np.ndarray, target: float, key: str) -> float:
     """Inverse of the path table (the end time of a run that stops at ``target`` mm)."""
     if target > travel[-1] + 1e-12:
-        raise DieError(f"{key}: the path ends at travel {travel[-1]:g} mm, before the "
-                       f"required {target:g} mm")
+        raise DieError(
+            f"{key}: the path ends at travel {travel[-1]:g} mm, before the required {target:g} mm"
+        )
     k = int(np.searchsorted(travel, target - 1e-12))
     k = max(k, 1)
     t0, t1, d0, d1 = times[k - 1], times[k], travel[k - 1], travel[k]
     return float(t0 + (target - d0) * (t1 - t0) / (d1 - d0)) if d1 > d0 else float(t1)
 
 
-def make_die(points, times, travel, mu: float = 0.0, m: float = 0.0,
-             corner_radius: float = 0.2) -> RigidDie:
+def make_die(
+    points, times, travel, mu: float = 0.0, m: float = 0.0, corner_radius: float = 0.2
+) -> RigidDie:
     if not corner_radius > 0.0:
         raise DieError(f"corner radius {corner_radius!r} mm: must be > 0")
-    return RigidDie(points=jnp.asarray(points, dtype=float),
-                    path_time_s=jnp.asarray(times, dtype=float),
-                    path_travel_mm=jnp.asarray(travel, dtype=float),
-                    mu=jnp.asarray(float(mu)), m=jnp.asarray(float(m)),
-                    corner_radius=jnp.asarray(float(corner_radius)))
+    return RigidDie(
+        points=jnp.asarray(points, dtype=float),
+        path_time_s=jnp.asarray(times, dtype=float),
+        path_travel_mm=jnp.asarray(travel, dtype=float),
+        mu=jnp.asarray(float(mu)),
+        m=jnp.asarray(float(m)),
+        corner_radius=jnp.asarray(float(corner_radius)),
+    )

@@ -6,8 +6,8 @@ config (TOML path or dict) --load_config--> validated dict --build_scene--> Scen
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -19,8 +19,12 @@ from jaxform.scenes import build_scene
 from jaxform.simulate import Result, SimulationError, simulate
 
 
-def run(config, overrides=(), out_dir: str | Path | None = None,
-        progress: Callable[[dict], None] | None = None) -> Result:
+def run(
+    config,
+    overrides=(),
+    out_dir: str | Path | None = None,
+    progress: Callable[[dict], None] | None = None,
+) -> Result:
     """Validate, build and run a scene; write outputs to out_dir if given.
 
     Arguments:
@@ -60,13 +64,28 @@ def write_outputs(out_dir: str | Path, result: Result) -> None:
     cfg = scene.config
     h = result.history
     if scene.kind == "membrane":  # no die: the applied load and the tip displacement
-        cols = {"time_s": h["time_s"], "dt_s": h["dt_s"], "load_N": h["force_N"],
-                "tip_ux_mm": h["tip_ux_mm"],
-                "tip_uy_mm": h["tip_uy_mm"], "newton_iterations": h["newton_iterations"],
-                "cutbacks": h["cutbacks"]}
+        cols = {
+            "time_s": h["time_s"],
+            "dt_s": h["dt_s"],
+            "load_N": h["force_N"],
+            "tip_ux_mm": h["tip_ux_mm"],
+            "tip_uy_mm": h["tip_uy_mm"],
+            "newton_iterations": h["newton_iterations"],
+            "cutbacks": h["cutbacks"],
+        }
     else:
-        cols = {k: h[k] for k in ("time_s", "dt_s", "stroke_mm", "force_N", "newton_iterations",
-                                  "cutbacks", "friction_work_Nmm")}
+        cols = {
+            k: h[k]
+            for k in (
+                "time_s",
+                "dt_s",
+                "stroke_mm",
+                "force_N",
+                "newton_iterations",
+                "cutbacks",
+                "friction_work_Nmm",
+            )
+        }
     cols.update({k: h[k] for k in ("inner_diameter_mm", "outer_diameter_mm", "die_fill") if k in h})
     if scene.rezone_quality > 0:  # worst element corner quality; 1 where the mesh was rezoned
         cols.update({k: h[k] for k in ("mesh_quality", "rezoned")})
@@ -82,36 +101,71 @@ def write_outputs(out_dir: str | Path, result: Result) -> None:
         coords1 = coords0 + u
         el = np.asarray(scene.mesh.elements)
         mesh_text = f"{cfg['mesh']['element']}, {cfg['mesh']['nr']}x{cfg['mesh']['nz']}"
-        axes = (("r [mm]", "z [mm]") if cfg["mesh"]["geometry"] == "axisymmetric"
-                else ("x [mm]", "y [mm]"))
+        axes = (
+            ("r [mm]", "z [mm]")
+            if cfg["mesh"]["geometry"] == "axisymmetric"
+            else ("x [mm]", "y [mm]")
+        )
         if scene.kind == "membrane":
             _membrane_plots(out, result, coords0, coords1, el, mesh_text, axes)
             return
         height = cfg[scene.kind]["depth_mm" if scene.kind == "block" else "height_mm"]
         red = 100.0 * h["stroke_mm"][-1] / height
-        plot.force_stroke(h["stroke_mm"], h["force_N"], out / "force_stroke.png",
-                          f"{mesh_text}, friction {cfg['friction']['model']}")
-        plot.deformed_mesh(coords0, coords1, el, out / "deformed_mesh.png",
-                           f"initial and deformed mesh, {red:.1f} % reduction", axes)
-        plot.cell_contours(coords1, el, result.fields["eqps"][-1].mean(axis=1),
-                           out / "eqps.png", f"equivalent plastic strain, {red:.1f} % reduction",
-                           "equivalent plastic strain [-]", axes)
+        plot.force_stroke(
+            h["stroke_mm"],
+            h["force_N"],
+            out / "force_stroke.png",
+            f"{mesh_text}, friction {cfg['friction']['model']}",
+        )
+        plot.deformed_mesh(
+            coords0,
+            coords1,
+            el,
+            out / "deformed_mesh.png",
+            f"initial and deformed mesh, {red:.1f} % reduction",
+            axes,
+        )
+        plot.cell_contours(
+            coords1,
+            el,
+            result.fields["eqps"][-1].mean(axis=1),
+            out / "eqps.png",
+            f"equivalent plastic strain, {red:.1f} % reduction",
+            "equivalent plastic strain [-]",
+            axes,
+        )
         _contact_plot(out / "contact_profile.png", result)
 
 
-def _membrane_plots(out: Path, result: Result, coords0, coords1, el, mesh_text: str,
-                    axes) -> None:
+def _membrane_plots(out: Path, result: Result, coords0, coords1, el, mesh_text: str, axes) -> None:
     """Load against tip displacement, deformed mesh, pressure on the deformed mesh."""
     from jaxform import plot
 
     h = result.history
-    plot.load_displacement(h["tip_uy_mm"], h["force_N"], out / "load_displacement.png",
-                           f"{mesh_text}: load against tip displacement")
-    plot.deformed_mesh(coords0, coords1, el, out / "deformed_mesh.png",
-                       "initial and deformed mesh (displacements to scale)", axes)
+    plot.load_displacement(
+        h["tip_uy_mm"],
+        h["force_N"],
+        out / "load_displacement.png",
+        f"{mesh_text}: load against tip displacement",
+    )
+    plot.deformed_mesh(
+        coords0,
+        coords1,
+        el,
+        out / "deformed_mesh.png",
+        "initial and deformed mesh (displacements to scale)",
+        axes,
+    )
     stress = result.fields["stress"][-1].mean(axis=1)
-    plot.cell_contours(coords1, el, -np.trace(stress, axis1=1, axis2=2) / 3.0,
-                       out / "pressure.png", "pressure (element mean)", "pressure [MPa]", axes)
+    plot.cell_contours(
+        coords1,
+        el,
+        -np.trace(stress, axis1=1, axis2=2) / 3.0,
+        out / "pressure.png",
+        "pressure (element mean)",
+        "pressure [MPa]",
+        axes,
+    )
 
 
 def _contact_plot(path: Path, result: Result) -> None:
@@ -121,10 +175,12 @@ def _contact_plot(path: Path, result: Result) -> None:
 
     h, f = result.history, result.fields
     strokes = result.scene.config["output"]["profile_strokes_mm"] or [
-        q * h["stroke_mm"][-1] for q in (0.25, 0.5, 0.75, 1.0)]
+        q * h["stroke_mm"][-1] for q in (0.25, 0.5, 0.75, 1.0)
+    ]
     profiles = {}
     for s in strokes:
         k = int(np.argmin(np.abs(h["stroke_mm"] - s)))
         profiles[float(h["stroke_mm"][k])] = contact_profile(
-            result.scene, f["x"][k], f["slip_mm"][k], f["contact_status"][k])
+            result.scene, f["x"][k], f["slip_mm"][k], f["contact_status"][k]
+        )
     plot.contact_profiles(profiles, path)

@@ -18,9 +18,9 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from jaxform.smallmat import det2, det3, inv2, inv3
-import numpy as np
 
 _G = 1.0 / np.sqrt(3.0)
 GAUSS_POINTS = np.array([[-_G, -_G], [_G, -_G], [_G, _G], [-_G, _G]])

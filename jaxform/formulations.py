@@ -65,8 +65,9 @@ class Formulation:
     def n_fields(self) -> int:
         return 3 if self.kind == "q1q1" else 2
 
-    def residual(self, law, params, dt, x_ref, dofs, gstate: GaussState,
-                 solution: GaussState | None = None):
+    def residual(
+        self, law, params, dt, x_ref, dofs, gstate: GaussState, solution: GaussState | None = None
+    ):
         """``solution``: this element's new Gauss state from an earlier evaluation at the
         same dofs (the material updates then skip their local solves: see
         :mod:`jaxform.materials.base`); None solves."""
@@ -149,8 +150,9 @@ def _planar_matrix(v):
 
 
 def _point(law, alpha, f, state, params, dt, solution=None):
-    stress, new, ok = law.update(step_kinematics(f, alpha, planar=True), state, params, dt,
-                                 solution)
+    stress, new, ok = law.update(
+        step_kinematics(f, alpha, planar=True), state, params, dt, solution
+    )
     return stress, new, jnp.where(ok, 1.0, 0.0).astype(stress.dtype)
 
 
@@ -181,9 +183,12 @@ def _planar_point_update_jvp(law, alpha, primals, tangents):
     if not all(type(t) is SymbolicZero for t in jax.tree_util.tree_leaves(others)):
         inst = jax.tree_util.tree_map(
             lambda t, p: jnp.zeros_like(p) if type(t) is SymbolicZero else t,
-            others, (state, params, dt))
-        _, t_rest = jax.jvp(lambda s, p, d: _point(law, alpha, f, s, p, d, solution),
-                            (state, params, dt), inst)
+            others,
+            (state, params, dt),
+        )
+        _, t_rest = jax.jvp(
+            lambda s, p, d: _point(law, alpha, f, s, p, d, solution), (state, params, dt), inst
+        )
         t_out = jax.tree_util.tree_map(jnp.add, t_out, t_rest)
     return out, t_out
 

@@ -38,9 +38,10 @@ Contract
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from functools import partial
-from typing import Any, Callable
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -52,6 +53,7 @@ from jaxform.simulate import (
     Inputs,
     Scene,
     SimState,
+    Stepper,
     converged_state,
     die_force,
     solve_step,
@@ -85,9 +87,9 @@ class GradientRunError(RuntimeError):
     """A step of a differentiable run did not converge."""
 
 
-@partial(jit, static_argnums=(0, 1, 2, 3, 8))
-def _trajectory(model, linear, settings, symmetric_z, inputs: Inputs, times, state0, idx,
-                n_kept=0):
+@partial(jit, static_argnums=(0, 5))
+def _trajectory(stepper: Stepper, inputs: Inputs, times, state0, idx, n_kept=0):
+    model, linear, symmetric_z = stepper.model, stepper.linear, stepper.symmetric_z
     n_steps = times.shape[0]
 
     def step(st: SimState, xs):
@@ -98,10 +100,9 @@ def _trajectory(model, linear, settings, symmetric_z, inputs: Inputs, times, sta
         # tangent reaches it, so it has no reverse pass); with n_kept, it factors and
         # solves with the factors and returns its last factorization
         sg = jax.lax.stop_gradient
-        fac0 = (linear.empty_factorization(st.x.shape[0], st.x.dtype) if n_kept else None)
-        x1, _, its1, code1, _, _, fac1 = solve_step(model, linear, settings, sg(st), t_new,
-                                                    sg(dt), sg(inputs), idx, x_guess=guess,
-                                                    fac=fac0)
+        fac0 = linear.empty_factorization(st.x.shape[0], st.x.dtype) if n_kept else None
+        first = solve_step(stepper, sg(st), sg(t_new), sg(inputs), idx, x_guess=guess, fac=fac0)
+        x1, its1, code1, fac1 = first.x, first.iterations, first.code, first.fac
         kept = None
         if n_kept:  # steps past the memory budget free it now
             fac1 = sg(fac1)  # integer handles: no tangent, and the FFI free has no JVP
@@ -112,14 +113,25 @@ def _trajectory(model, linear, settings, symmetric_z, inputs: Inputs, times, sta
         # lax.cond: under vmap a cond runs both branches, i.e. a whole second Newton solve
         # for every lane; here a lane that converged costs one residual evaluation.  Its
         # reverse pass refines with the kept factorization (of the iterate before x1).
-        x, g, its2, code, _, cstep, _ = solve_step(model, linear, settings, st, t_new, dt,
-                                                inputs, idx,
-                                                x_guess=jnp.where(code1 == OK, x1, st.x),
-                                                adjoint_fac=kept)
-        its = its1 + its2
-        new = converged_state(model, st, x, g, t_new, inputs, cstep, idx)
-        out = (t_new, die_force(model, x, inputs, t_new, idx), new.friction_work, code, its,
-               kept if linear.backend == "sparse" else None)
+        sol = solve_step(
+            stepper,
+            st,
+            t_new,
+            inputs,
+            idx,
+            x_guess=jnp.where(code1 == OK, x1, st.x),
+            adjoint_fac=kept,
+        )
+        x, code, its = sol.x, sol.code, its1 + sol.iterations
+        new = converged_state(model, st, x, sol.gauss, t_new, inputs, sol.cstep, idx)
+        out = (
+            t_new,
+            die_force(model, x, inputs, t_new, idx),
+            new.friction_work,
+            code,
+            its,
+            kept if linear.backend == "sparse" else None,
+        )
         return new, out
 
     keep_steps = jnp.arange(n_steps) >= n_steps - n_kept  # the last n_kept steps
@@ -143,8 +155,13 @@ def _trajectory(model, linear, settings, symmetric_z, inputs: Inputs, times, sta
     )
 
 
-def trajectory(scene: Scene, inputs: Inputs | None = None, times=None,
-               reuse_factorizations: bool = False, idx=None) -> Trajectory:
+def trajectory(
+    scene: Scene,
+    inputs: Inputs | None = None,
+    times=None,
+    reuse_factorizations: bool = False,
+    idx=None,
+) -> Trajectory:
     """Run ``scene`` (with ``inputs`` in place of ``scene.inputs``) over the step end
     times ``times`` (default: the scene's schedule).  Traceable and differentiable.
 
@@ -173,12 +190,22 @@ def trajectory(scene: Scene, inputs: Inputs | None = None, times=None,
     times = jnp.asarray(scene.step_targets() if times is None else times)
     n_kept = kept_steps(scene, times.shape[0]) if reuse_factorizations else 0
     if n_kept and _under_vmap((inputs, times)):
-        raise ValueError("trajectory(reuse_factorizations=True) under jax.vmap: a vmapped "
-                         "Newton loop runs finished lanes too, which would free factorizations "
-                         "still in use; run batches without it (as jaxform.batch does)")
+        raise ValueError(
+            "trajectory(reuse_factorizations=True) under jax.vmap: a vmapped "
+            "Newton loop runs finished lanes too, which would free factorizations "
+            "still in use; run batches without it (as jaxform.batch does)"
+        )
     state0 = initial_state_for(scene, inputs)
-    return _trajectory(scene.model, scene.linear, exact_newton(scene.newton), scene.symmetric_z,
-                       inputs, times, state0, scene.idx if idx is None else idx, n_kept)
+    stepper = Stepper(scene.model, scene.linear, exact_newton(scene.newton), 0,
+                      symmetric_z=scene.symmetric_z)  # fmt: skip
+    return _trajectory(
+        stepper,
+        inputs,
+        times,
+        state0,
+        scene.idx if idx is None else idx,
+        n_kept,
+    )
 
 
 def _under_vmap(tree) -> bool:
@@ -222,9 +249,11 @@ def schedule(scene: Scene, inputs: Inputs | None = None) -> np.ndarray:
     from jaxform.simulate import simulate
 
     if scene.rezone_quality > 0.0:
-        raise ValueError("mesh.rezone_quality > 0: a rezoned history has no gradient here "
-                         "(the mesh changes between steps); set mesh.rezone_quality = 0 for "
-                         "gradient runs")
+        raise ValueError(
+            "mesh.rezone_quality > 0: a rezoned history has no gradient here "
+            "(the mesh changes between steps); set mesh.rezone_quality = 0 for "
+            "gradient runs"
+        )
     run = scene if inputs is None else replace(scene, inputs=inputs)
     h = simulate(run).history
     return np.asarray(h["time_s"][1:])
@@ -236,8 +265,15 @@ def initial_state_for(scene: Scene, inputs: Inputs) -> SimState:
 
     st = scene.initial_state()
     g = initial_gauss_state(scene.model.law, inputs.params, scene.model.layout.n_elements)
-    return SimState(x=st.x, gauss=g, t=st.t, x_rate=st.x_rate, friction_work=st.friction_work,
-                    slip_mm=st.slip_mm, contact_status=st.contact_status)
+    return SimState(
+        x=st.x,
+        gauss=g,
+        t=st.t,
+        x_rate=st.x_rate,
+        friction_work=st.friction_work,
+        slip_mm=st.slip_mm,
+        contact_status=st.contact_status,
+    )
 
 
 def check(traj: Trajectory) -> None:
@@ -250,12 +286,18 @@ def check(traj: Trajectory) -> None:
         raise GradientRunError(
             f"differentiable run: step {k + 1} (to t = {t:g} s) failed: "
             f"{CAUSES.get(int(codes[k]), 'unknown')}; the differentiable run has no cutback, "
-            f"use a smaller time.dt_s (or pass a finer step schedule)")
+            f"use a smaller time.dt_s (or pass a finer step schedule)"
+        )
 
 
-def value_and_grad(objective: Callable[[Any, Trajectory], jax.Array], scene: Scene,
-                   design: Any, to_inputs: Callable[[Any], tuple[Inputs, jax.Array]]):
-    """(J, dJ/d design, trajectory) for ``J = objective(design, trajectory(scene, *to_inputs(design)))``.
+def value_and_grad(
+    objective: Callable[[Any, Trajectory], jax.Array],
+    scene: Scene,
+    design: Any,
+    to_inputs: Callable[[Any], tuple[Inputs, jax.Array]],
+):
+    """(J, dJ/d design, trajectory) for
+    ``J = objective(design, trajectory(scene, *to_inputs(design)))``.
 
     ``to_inputs(design) -> (inputs, times)`` maps the design variables (any pytree) to the
     run's inputs.  Raises :class:`GradientRunError` when a step fails."""

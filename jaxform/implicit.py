@@ -17,8 +17,9 @@ logic; its tangent is zero.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from functools import partial
-from typing import Any, Callable
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -72,9 +73,7 @@ def root_scalar(fn: Fn, args, lo, hi, x0, xtol, ftol, maxiter):
     root, so they carry no derivative); ``maxiter`` an int scalar.
     """
     sg = jax.lax.stop_gradient
-    x, conv = _bracketed_newton(
-        fn, args, sg(lo), sg(hi), sg(x0), sg(xtol), sg(ftol), maxiter
-    )
+    x, conv = _bracketed_newton(fn, args, sg(lo), sg(hi), sg(x0), sg(xtol), sg(ftol), maxiter)
     return x, conv.astype(x.dtype)
 
 

@@ -24,12 +24,20 @@ def read_csv(path: Path) -> dict[str, np.ndarray]:
 def _contact_point_data(scene, result, k: int, n_nodes: int) -> dict:
     """Contact fields on the nodes (0 away from the candidates): pressure, shear traction
     (MPa), status (0 open, 1 stick, 2 slip), accumulated slip (mm)."""
-    cp = contact_profile(scene, result.fields["x"][k], result.fields["slip_mm"][k],
-                         result.fields["contact_status"][k])
+    cp = contact_profile(
+        scene,
+        result.fields["x"][k],
+        result.fields["slip_mm"][k],
+        result.fields["contact_status"][k],
+    )
     nodes = np.asarray(scene.idx.contact_nodes)
     out = {}
-    for name, key in (("contact_pressure", "pressure_MPa"), ("contact_shear", "shear_MPa"),
-                      ("contact_status", "status"), ("contact_slip", "slip_mm")):
+    for name, key in (
+        ("contact_pressure", "pressure_MPa"),
+        ("contact_shear", "shear_MPa"),
+        ("contact_status", "status"),
+        ("contact_slip", "slip_mm"),
+    ):
         v = np.zeros(n_nodes)
         v[nodes] = cp[key]
         out[name] = v
@@ -40,7 +48,8 @@ def write_vtu_series(out_dir: Path, scene, result, every: int = 1) -> Path:
     """ParaView fields: one VTU per written step and a .pvd time series that indexes them.
 
     Point data: displacement (mm, 3 components, the third 0), pressure (MPa; nodal for
-    q1q1), contact pressure / shear traction (MPa), contact status and slip (mm). Cell data (averages of the 4 Gauss points): Cauchy stress components (MPa),
+    q1q1), contact pressure / shear traction (MPa), contact status and slip (mm). Cell data
+    (averages of the 4 Gauss points): Cauchy stress components (MPa),
     pressure (MPa), equivalent plastic strain, deformation resistance s (MPa).
     """
     import meshio
@@ -62,19 +71,21 @@ def write_vtu_series(out_dir: Path, scene, result, every: int = 1) -> Path:
             point_data["pressure"] = p_nodes
         point_data.update(_contact_point_data(scene, result, k, len(u)))
         cell_data = {
-            "stress_11": [stress[:, 0, 0]], "stress_22": [stress[:, 1, 1]],
-            "stress_12": [stress[:, 0, 1]], "stress_33": [stress[:, 2, 2]],
+            "stress_11": [stress[:, 0, 0]],
+            "stress_22": [stress[:, 1, 1]],
+            "stress_12": [stress[:, 0, 1]],
+            "stress_33": [stress[:, 2, 2]],
             "pressure_cell": [p_cell],
             "eqps": [result.fields["eqps"][k].mean(axis=1)],
             "s": [result.fields["s"][k].mean(axis=1)],
         }
         name = f"step_{k:05d}.vtu"
-        meshio.write(fields_dir / name, meshio.Mesh(pts, cells, point_data=point_data,
-                                                    cell_data=cell_data))
+        meshio.write(
+            fields_dir / name, meshio.Mesh(pts, cells, point_data=point_data, cell_data=cell_data)
+        )
         entries.append((float(result.history["time_s"][k]), f"fields/{name}"))
     pvd = out_dir / "fields.pvd"
-    lines = ['<?xml version="1.0"?>',
-             '<VTKFile type="Collection" version="0.1">', "  <Collection>"]
+    lines = ['<?xml version="1.0"?>', '<VTKFile type="Collection" version="0.1">', "  <Collection>"]
     lines += [f'    <DataSet timestep="{t:.10g}" part="0" file="{f}"/>' for t, f in entries]
     lines += ["  </Collection>", "</VTKFile>"]
     pvd.write_text("\n".join(lines) + "\n")

@@ -94,8 +94,9 @@ def strain_increment(u: jax.Array, alpha: float | jax.Array = 0.5) -> jax.Array:
     return 0.5 * (de + de.T)
 
 
-def step_kinematics(f: jax.Array, alpha: float | jax.Array = 0.5,
-                    planar: bool = False) -> StepKinematics:
+def step_kinematics(
+    f: jax.Array, alpha: float | jax.Array = 0.5, planar: bool = False
+) -> StepKinematics:
     """Kinematics of a step from its relative deformation gradient f (3x3).
 
     ``planar=True`` promises the plane-strain/axisymmetric block structure (f13 = f23 =

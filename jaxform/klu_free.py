@@ -36,13 +36,21 @@ class _ExtensionBase(C.Structure):
 
 
 class _ApiVersion(C.Structure):
-    _fields_ = [("struct_size", C.c_size_t), ("extension_start", C.c_void_p),
-                ("major", C.c_int), ("minor", C.c_int)]
+    _fields_ = [
+        ("struct_size", C.c_size_t),
+        ("extension_start", C.c_void_p),
+        ("major", C.c_int),
+        ("minor", C.c_int),
+    ]
 
 
 class _Metadata(C.Structure):
-    _fields_ = [("struct_size", C.c_size_t), ("api_version", _ApiVersion),
-                ("traits", C.c_uint32), ("state_type_id", C.c_int64)]
+    _fields_ = [
+        ("struct_size", C.c_size_t),
+        ("api_version", _ApiVersion),
+        ("traits", C.c_uint32),
+        ("state_type_id", C.c_int64),
+    ]
 
 
 class _MetadataExtension(C.Structure):
@@ -50,26 +58,49 @@ class _MetadataExtension(C.Structure):
 
 
 class _Span(C.Structure):  # XLA_FFI_Args and XLA_FFI_Rets
-    _fields_ = [("struct_size", C.c_size_t), ("extension_start", C.c_void_p),
-                ("size", C.c_int64), ("types", C.c_void_p), ("ptrs", C.POINTER(C.c_void_p))]
+    _fields_ = [
+        ("struct_size", C.c_size_t),
+        ("extension_start", C.c_void_p),
+        ("size", C.c_int64),
+        ("types", C.c_void_p),
+        ("ptrs", C.POINTER(C.c_void_p)),
+    ]
 
 
 class _Attrs(C.Structure):
-    _fields_ = [("struct_size", C.c_size_t), ("extension_start", C.c_void_p),
-                ("size", C.c_int64), ("types", C.c_void_p), ("names", C.c_void_p),
-                ("attrs", C.c_void_p)]
+    _fields_ = [
+        ("struct_size", C.c_size_t),
+        ("extension_start", C.c_void_p),
+        ("size", C.c_int64),
+        ("types", C.c_void_p),
+        ("names", C.c_void_p),
+        ("attrs", C.c_void_p),
+    ]
 
 
 class _CallFrame(C.Structure):
-    _fields_ = [("struct_size", C.c_size_t), ("extension_start", C.c_void_p),
-                ("api", C.c_void_p), ("ctx", C.c_void_p), ("stage", C.c_int),
-                ("args", _Span), ("rets", _Span), ("attrs", _Attrs), ("future", C.c_void_p)]
+    _fields_ = [
+        ("struct_size", C.c_size_t),
+        ("extension_start", C.c_void_p),
+        ("api", C.c_void_p),
+        ("ctx", C.c_void_p),
+        ("stage", C.c_int),
+        ("args", _Span),
+        ("rets", _Span),
+        ("attrs", _Attrs),
+        ("future", C.c_void_p),
+    ]
 
 
 class _Buffer(C.Structure):
-    _fields_ = [("struct_size", C.c_size_t), ("extension_start", C.c_void_p),
-                ("dtype", C.c_int), ("data", C.c_void_p), ("rank", C.c_int64),
-                ("dims", C.POINTER(C.c_int64))]
+    _fields_ = [
+        ("struct_size", C.c_size_t),
+        ("extension_start", C.c_void_p),
+        ("dtype", C.c_int),
+        ("data", C.c_void_p),
+        ("rank", C.c_int64),
+        ("dims", C.POINTER(C.c_int64)),
+    ]
 
 
 def _array(buffer_address: int, ctype) -> np.ndarray:
@@ -112,8 +143,9 @@ def _registered():
     new_capsule = C.pythonapi.PyCapsule_New
     new_capsule.restype = C.py_object
     new_capsule.argtypes = (C.c_void_p, C.c_char_p, C.c_void_p)
-    jax.ffi.register_ffi_target(TARGET, new_capsule(C.cast(fn, C.c_void_p).value, None, None),
-                                platform="cpu")
+    jax.ffi.register_ffi_target(
+        TARGET, new_capsule(C.cast(fn, C.c_void_p).value, None, None), platform="cpu"
+    )
     return fn
 
 
@@ -122,6 +154,10 @@ def free_numeric(handle, valid):
     (bool, (...)) holds; an int32 zero of ``valid``'s shape, to order later work after it."""
     _registered()
     valid = jnp.asarray(valid, dtype=jnp.bool_)
-    call = jax.ffi.ffi_call(TARGET, jax.ShapeDtypeStruct(valid.shape, jnp.int32),
-                            has_side_effect=True, vmap_method="broadcast_all")
+    call = jax.ffi.ffi_call(
+        TARGET,
+        jax.ShapeDtypeStruct(valid.shape, jnp.int32),
+        has_side_effect=True,
+        vmap_method="broadcast_all",
+    )
     return call(jnp.asarray(handle, dtype=jnp.uint64), valid)

@@ -154,8 +154,9 @@ class LinearSolver:
         if self.backend == "sparse" and symbolic is not None:
             import klujax
 
-            return klujax.tsolve_with_symbol(rows.astype(jnp.int32), cols.astype(jnp.int32),
-                                             vals, b, symbolic)
+            return klujax.tsolve_with_symbol(
+                rows.astype(jnp.int32), cols.astype(jnp.int32), vals, b, symbolic
+            )
         return self.solve(cols, rows, vals, b, n)
 
     # -- a factorization kept across solves (modified Newton); dense and sparse only --
@@ -165,26 +166,38 @@ class LinearSolver:
             lu, piv = jnp.zeros((n, n), dtype), jnp.zeros(n, jnp.int32)
         else:
             lu, piv = jnp.zeros(1, jnp.uint64), jnp.zeros(0, jnp.int32)
-        return Factorization(lu=lu, piv=piv, valid=jnp.asarray(False),
-                             count=jnp.asarray(0, jnp.int32))
+        return Factorization(
+            lu=lu, piv=piv, valid=jnp.asarray(False), count=jnp.asarray(0, jnp.int32)
+        )
 
     def refactor(self, rows, cols, vals, n: int, symbolic, old: Factorization) -> Factorization:
         """A new factorization of the matrix; the sparse one replaced is freed."""
         if self.backend == "dense":
             lu, piv = jax.scipy.linalg.lu_factor(_dense(rows, cols, vals, n))
-            return Factorization(lu=lu, piv=piv.astype(jnp.int32), valid=jnp.asarray(True),
-                                 count=old.count + 1)
+            return Factorization(
+                lu=lu, piv=piv.astype(jnp.int32), valid=jnp.asarray(True), count=old.count + 1
+            )
         import klujax
 
         if symbolic is None:
-            raise ValueError("a kept sparse factorization needs the pattern's KLU analysis "
-                             "(Indices.lu_symbolic = jaxform.linear.klu_symbolic(rows, cols, "
-                             "n); build_scene sets it for the sparse backend)")
+            raise ValueError(
+                "a kept sparse factorization needs the pattern's KLU analysis "
+                "(Indices.lu_symbolic = jaxform.linear.klu_symbolic(rows, cols, "
+                "n); build_scene sets it for the sparse backend)"
+            )
         token = self.release(old)
-        handle = klujax.factor(rows.astype(jnp.int32), cols.astype(jnp.int32), vals,
-                               symbolic + token.astype(jnp.uint64))  # after the free
-        return Factorization(lu=handle.astype(jnp.uint64).reshape(1), piv=old.piv,
-                             valid=jnp.asarray(True), count=old.count + 1)
+        handle = klujax.factor(
+            rows.astype(jnp.int32),
+            cols.astype(jnp.int32),
+            vals,
+            symbolic + token.astype(jnp.uint64),
+        )  # after the free
+        return Factorization(
+            lu=handle.astype(jnp.uint64).reshape(1),
+            piv=old.piv,
+            valid=jnp.asarray(True),
+            count=old.count + 1,
+        )
 
     def solve_factored(self, fac: Factorization, b, symbolic, transpose: bool = False):
         """The triangular solves with a kept factorization of A: A y = b, or A^T y = b."""
@@ -220,8 +233,9 @@ class LinearSolver:
         if self.backend != "sparse" or fac is None:
             return
         handles = np.asarray(fac.lu).reshape(-1)
-        valid = np.broadcast_to(np.asarray(fac.valid)[..., None],
-                                np.asarray(fac.lu).shape).reshape(-1)
+        valid = np.broadcast_to(np.asarray(fac.valid)[..., None], np.asarray(fac.lu).shape).reshape(
+            -1
+        )
         for h in handles[valid]:
             _free_numeric(h, True)
 
@@ -252,8 +266,10 @@ def _klu_fill_estimate(symbolic_address: int) -> tuple[float, float]:
 
     lnz, unz = (ctypes.c_double.from_address(symbolic_address + 8 * k).value for k in (2, 3))
     if not (np.isfinite(lnz) and np.isfinite(unz) and lnz > 0 and unz > 0):
-        raise RuntimeError(f"KLU fill estimate unreadable (lnz = {lnz}, unz = {unz}): the "
-                           f"installed klujax lays out its analysis differently")
+        raise RuntimeError(
+            f"KLU fill estimate unreadable (lnz = {lnz}, unz = {unz}): the "
+            f"installed klujax lays out its analysis differently"
+        )
     return lnz, unz
 
 
@@ -261,7 +277,7 @@ class LinearBackendWarning(UserWarning):
     """The linear backend asked for does not run on this platform; another was chosen."""
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _warn_once(message: str) -> None:
     warnings.warn(message, LinearBackendWarning, stacklevel=3)
 
@@ -282,8 +298,9 @@ class JaxSparseSolver:
 
     def solve(self, rows, cols, vals, b, n: int, symbolic=None):
         indptr = jnp.searchsorted(rows, jnp.arange(n + 1, dtype=rows.dtype), side="left")
-        return _spsolve_sequential(vals, cols.astype(jnp.int32), indptr.astype(jnp.int32), b,
-                                   self.tol, self.reorder)
+        return _spsolve_sequential(
+            vals, cols.astype(jnp.int32), indptr.astype(jnp.int32), b, self.tol, self.reorder
+        )
 
     def solve_transpose(self, rows, cols, vals, b, n: int, symbolic=None):
         rows_t, cols_t, vals_t = jax.lax.sort((cols, rows, vals), num_keys=2)
@@ -324,18 +341,27 @@ def choose_backend(name: str, n_unknowns: int, platform: str | None = None):
     elif name == "auto":
         name = "dense" if n_unknowns < GPU_DENSE_LIMIT or not sparse_gpu else "jax-sparse"
         if name == "dense" and n_unknowns >= GPU_DENSE_LIMIT:
-            _warn_once(f"solver.linear = 'auto' on {kind}: dense LU for {n_unknowns} unknowns "
-                       f"(no sparse direct solver lowers on {kind})")
+            _warn_once(
+                f"solver.linear = 'auto' on {kind}: dense LU for {n_unknowns} unknowns "
+                f"(no sparse direct solver lowers on {kind})"
+            )
     elif name == "sparse":
         name = "jax-sparse" if sparse_gpu else "dense"
-        why = ("cuSolver sparse QR via jax.experimental.sparse.linalg.spsolve" if sparse_gpu
-               else f"dense LU: no sparse direct solver lowers on {kind}")
-        _warn_once(f"solver.linear = 'sparse' on {kind}: klujax is CPU-only (importing it "
-                   f"would move JAX to the CPU), using '{name}' ({why})")
+        why = (
+            "cuSolver sparse QR via jax.experimental.sparse.linalg.spsolve"
+            if sparse_gpu
+            else f"dense LU: no sparse direct solver lowers on {kind}"
+        )
+        _warn_once(
+            f"solver.linear = 'sparse' on {kind}: klujax is CPU-only (importing it "
+            f"would move JAX to the CPU), using '{name}' ({why})"
+        )
     elif name == "jax-sparse" and not sparse_gpu:
         name = "dense"
-        _warn_once(f"solver.linear = 'jax-sparse' on {kind}: spsolve lowers only on CPU and "
-                   f"CUDA, using 'dense' (dense LU)")
+        _warn_once(
+            f"solver.linear = 'jax-sparse' on {kind}: spsolve lowers only on CPU and "
+            f"CUDA, using 'dense' (dense LU)"
+        )
     if name == "jax-sparse":
         return JaxSparseSolver()
     return LinearSolver(name)

@@ -33,8 +33,9 @@ class FacetLoad:
         return jnp.clip(t / self.ramp_end_s, 0.0, 1.0)
 
 
-def external_forces(load: FacetLoad, t, coords, facets, axisymmetric: bool, n_fields: int,
-                    n_dofs: int):
+def external_forces(
+    load: FacetLoad, t, coords, facets, axisymmetric: bool, n_fields: int, n_dofs: int
+):
     """Global external force vector (n_dofs,) of the load at time t.
 
     coords: (n_nodes, 2) reference coordinates; facets: (n_f, 2) node ids of the loaded

@@ -120,8 +120,16 @@ def uniaxial_compression(
         f = jnp.diag(jnp.stack([jnp.exp(x), jnp.exp(x), fz]))
         _, new, ok_m = law.update(step_kinematics(f, alpha), state, params, dt)
         lam_r_new = lam_r * jnp.exp(x)
-        out = (t_new, -jnp.log(lam_z_new), -new.stress[2, 2], new.s, new.eqps, iters, ok & ok_m,
-               lam_r_new)
+        out = (
+            t_new,
+            -jnp.log(lam_z_new),
+            -new.stress[2, 2],
+            new.s,
+            new.eqps,
+            iters,
+            ok & ok_m,
+            lam_r_new,
+        )
         return (new, lam_z_new, lam_r_new), out
 
     one = jnp.asarray(1.0)

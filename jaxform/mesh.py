@@ -16,9 +16,9 @@ from __future__ import annotations
 
 import contextlib
 import io
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -63,7 +63,8 @@ def _grid_sets(nx: int, ny: int):
 
 
 def rectangle(width: float, height: float, nx: int, ny: int, origin=(0.0, 0.0)) -> Mesh:
-    """Structured nx x ny mesh of [x0, x0+width] x [y0, y0+height] with sets left/right/bottom/top."""
+    """Structured nx x ny mesh of [x0, x0+width] x [y0, y0+height] with sets left, right,
+    bottom, top."""
     if nx < 1 or ny < 1:
         raise MeshError(f"mesh size {nx} x {ny}: both counts must be >= 1")
     if width <= 0 or height <= 0:
@@ -105,7 +106,7 @@ def mapped_quad(corners, nx: int, ny: int) -> Mesh:
         raise MeshError("quadrilateral corners: must be convex and counter-clockwise")
     s, t = np.meshgrid(np.linspace(0.0, 1.0, nx + 1), np.linspace(0.0, 1.0, ny + 1))
     s, t = s[..., None], t[..., None]
-    pts = ((1 - s) * (1 - t) * c[0] + s * (1 - t) * c[1] + s * t * c[2] + (1 - s) * t * c[3])
+    pts = (1 - s) * (1 - t) * c[0] + s * (1 - t) * c[1] + s * t * c[2] + (1 - s) * t * c[3]
     coords, elements = _structured(pts[..., 0], pts[..., 1])
     nodes, facets = _grid_sets(nx, ny)
     return Mesh(coords, elements, nodes, facets)
@@ -118,8 +119,9 @@ def graded_nodes(length: float, fine_length: float, n_fine: int, growth: float) 
     The ratio is adjusted so that the last node lands on ``length`` exactly and the first
     coarse element is no smaller than the fine ones."""
     if not (0 < fine_length <= length) or n_fine < 1:
-        raise MeshError(f"graded nodes: need 0 < fine length {fine_length} <= length {length} "
-                        f"and n_fine >= 1")
+        raise MeshError(
+            f"graded nodes: need 0 < fine length {fine_length} <= length {length} and n_fine >= 1"
+        )
     fine = np.linspace(0.0, fine_length, n_fine + 1)
     rest = length - fine_length
     h = fine_length / n_fine
@@ -146,8 +148,15 @@ def graded_nodes(length: float, fine_length: float, n_fine: int, growth: float) 
     return np.concatenate([fine, fine_length + np.cumsum(sizes)])
 
 
-def block(width: float, depth: float, fine_width: float, fine_depth: float, nx: int, ny: int,
-          growth: float) -> Mesh:
+def block(
+    width: float,
+    depth: float,
+    fine_width: float,
+    fine_depth: float,
+    nx: int,
+    ny: int,
+    growth: float,
+) -> Mesh:
     """Plane-strain block [0, width] x [0, depth] for indentation from the top, symmetric
     about x = 0: nx x ny equal elements in the corner zone [0, fine_width] x
     [depth - fine_depth, depth] under the punch, growing geometrically outside it.
@@ -158,8 +167,13 @@ def block(width: float, depth: float, fine_width: float, fine_depth: float, nx: 
     y = depth - graded_nodes(depth, fine_depth, ny, growth)[::-1]
     mesh = tensor_grid(x, y)
     n, f = mesh.node_sets, mesh.facet_sets
-    nodes = {"axis": n["left"], "base": n["bottom"], "top": n["top"], "side": n["right"],
-             "free_surface": np.union1d(n["top"], n["right"])}
+    nodes = {
+        "axis": n["left"],
+        "base": n["bottom"],
+        "top": n["top"],
+        "side": n["right"],
+        "free_surface": np.union1d(n["top"], n["right"]),
+    }
     facets = {"axis": f["left"], "base": f["bottom"], "top": f["top"], "side": f["right"]}
     return Mesh(mesh.coords, mesh.elements, nodes, facets)
 
@@ -286,8 +300,7 @@ def write_mesh(path: str | Path, mesh: Mesh) -> None:
     import meshio
 
     lines = {k: np.asarray(v, dtype=np.int64) for k, v in mesh.facet_sets.items()}
-    points = {k: np.asarray(v, dtype=np.int64) for k, v in mesh.node_sets.items()
-              if k not in lines}
+    points = {k: np.asarray(v, dtype=np.int64) for k, v in mesh.node_sets.items() if k not in lines}
     cells, tags, field_data = [], [], {}
     for tag, (name, data) in enumerate([*lines.items(), *points.items()], start=1):
         kind, dim = ("line", 1) if name in lines else ("vertex", 0)
@@ -299,7 +312,14 @@ def write_mesh(path: str | Path, mesh: Mesh) -> None:
     tags.append(np.full(len(mesh.elements), tag))
     field_data["domain"] = np.array([tag, 2])
     pts = np.column_stack([mesh.coords, np.zeros(len(mesh.coords))])
-    meshio.write(str(path), meshio.Mesh(pts, cells, field_data=field_data,
-                                        cell_data={"gmsh:physical": tags,
-                                                   "gmsh:geometrical": tags}),
-                 file_format="gmsh22", binary=False)
+    meshio.write(
+        str(path),
+        meshio.Mesh(
+            pts,
+            cells,
+            field_data=field_data,
+            cell_data={"gmsh:physical": tags, "gmsh:geometrical": tags},
+        ),
+        file_format="gmsh22",
+        binary=False,
+    )

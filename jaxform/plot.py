@@ -36,8 +36,9 @@ def stress_strain(curves: dict[str, tuple[np.ndarray, np.ndarray]], path: Path, 
     fig, ax = _figure(figsize=(6, 4.2))
     for label, (eps, sig) in curves.items():
         ax.plot(eps, sig, label=label)
-    return _finish_curve(fig, ax, path, title, "true strain [-]",
-                         "true stress [MPa] (compression positive)")
+    return _finish_curve(
+        fig, ax, path, title, "true strain [-]", "true stress [MPa] (compression positive)"
+    )
 
 
 def _finish_curve(fig, ax, path, title, xlabel, ylabel):
@@ -60,8 +61,7 @@ def force_stroke(stroke_mm, force_n, path: Path, title: str, reference=None):
 def load_displacement(u_mm, load_n, path: Path, title: str):
     fig, ax = _figure(figsize=(6, 4.2))
     ax.plot(u_mm, load_n, "o-", ms=3, label="jaxform")
-    return _finish_curve(fig, ax, path, title, "tip displacement u_y [mm]",
-                         "load [N per mm depth]")
+    return _finish_curve(fig, ax, path, title, "tip displacement u_y [mm]", "load [N per mm depth]")
 
 
 def _quads(coords, elements):
@@ -70,12 +70,13 @@ def _quads(coords, elements):
     return PolyCollection(coords[elements], closed=True)
 
 
-def deformed_mesh(coords0, coords1, elements, path: Path, title: str,
-                  axes=("r [mm]", "z [mm]")):
+def deformed_mesh(coords0, coords1, elements, path: Path, title: str, axes=("r [mm]", "z [mm]")):
     """Deformed mesh (blue) over the initial mesh (grey), as thesis Fig. 6.4."""
     fig, ax = _figure(figsize=(6, 5))
-    for c, style in ((coords0, dict(edgecolor="0.6", facecolor="none", lw=0.8)),
-                     (coords1, dict(edgecolor="tab:blue", facecolor="none", lw=1.0))):
+    for c, style in (
+        (coords0, dict(edgecolor="0.6", facecolor="none", lw=0.8)),
+        (coords1, dict(edgecolor="tab:blue", facecolor="none", lw=1.0)),
+    ):
         pc = _quads(c, elements)
         pc.set(**style)
         ax.add_collection(pc)
@@ -89,8 +90,9 @@ def deformed_mesh(coords0, coords1, elements, path: Path, title: str,
     return _save(fig, path)
 
 
-def cell_contours(coords, elements, values, path: Path, title: str, label: str,
-                  axes=("r [mm]", "z [mm]")) -> Figure:
+def cell_contours(
+    coords, elements, values, path: Path, title: str, label: str, axes=("r [mm]", "z [mm]")
+) -> Figure:
     """Cell values (e.g. equivalent plastic strain) on the deformed mesh, as thesis Fig. 6.6.
 
     A field uniform to round-off (spread <= UNIFORM_RTOL x magnitude) is drawn in one
@@ -125,8 +127,13 @@ def cell_contours(coords, elements, values, path: Path, title: str, label: str,
     else:
         half = 0.05 * abs(uniform) or 1.0
         pc.set_clim(uniform - half, uniform + half)
-        fig.colorbar(pc, ax=ax, label=f"{label}, uniform", ticks=[uniform],
-                     format=FuncFormatter(lambda x, _: f"{x:.9g}"))
+        fig.colorbar(
+            pc,
+            ax=ax,
+            label=f"{label}, uniform",
+            ticks=[uniform],
+            format=FuncFormatter(lambda x, _: f"{x:.9g}"),
+        )
     return _save(fig, path)
 
 
@@ -149,12 +156,18 @@ def contact_profiles(profiles: dict, path: Path):
         on = p["status"] > 0
         order = np.argsort(p["r_mm"][on])
         r = p["r_mm"][on][order]
-        line, = ax1.plot(r, p["pressure_MPa"][on][order], "-", label=f"stroke {stroke:.2f} mm")
+        (line,) = ax1.plot(r, p["pressure_MPa"][on][order], "-", label=f"stroke {stroke:.2f} mm")
         ax2.plot(r, p["shear_MPa"][on][order], "-", color=line.get_color())
         slip = p["status"][on][order] == 2
         ax2.plot(r[slip], p["shear_MPa"][on][order][slip], "o", ms=3, color=line.get_color())
-        ax2.plot(r[~slip], p["shear_MPa"][on][order][~slip], "o", ms=4, mfc="none",
-                 color=line.get_color())
+        ax2.plot(
+            r[~slip],
+            p["shear_MPa"][on][order][~slip],
+            "o",
+            ms=4,
+            mfc="none",
+            color=line.get_color(),
+        )
     ax1.set_ylabel("contact pressure [MPa]")
     ax2.set_ylabel("shear traction [MPa]")
     ax2.set_xlabel("r [mm] (filled: slip, open: stick)")
@@ -171,8 +184,14 @@ def calibration_chart(curves: dict, path: Path):
     for m, (red, did) in curves.items():
         ax.plot(red, did, "-", label=f"m = {m:g}")
     ax.axhline(0.0, color="k", lw=0.6)
-    return _finish_curve(fig, ax, path, "6:3:2 ring: friction calibration",
-                         "height reduction [%]", "change of inner diameter [%]")
+    return _finish_curve(
+        fig,
+        ax,
+        path,
+        "6:3:2 ring: friction calibration",
+        "height reduction [%]",
+        "change of inner diameter [%]",
+    )
 
 
 def design_objective(objective, path: Path, title: str, unit: str):
@@ -201,8 +220,7 @@ def design_shapes(shapes: dict, elements, path: Path, title: str):
     for (label, pos), style in zip(shapes.items(), styles):
         pos = np.asarray(pos)
         for k, (a, b) in enumerate(_outline(pos, elements)):
-            ax.plot(pos[[a, b], 0], pos[[a, b], 1], style, lw=1.2,
-                    label=label if k == 0 else None)
+            ax.plot(pos[[a, b], 0], pos[[a, b], 1], style, lw=1.2, label=label if k == 0 else None)
     ax.set_aspect("equal")
     ax.set_xlabel("r [mm]")
     ax.set_ylabel("z [mm]")

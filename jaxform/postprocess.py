@@ -27,11 +27,12 @@ def positions(scene, x) -> np.ndarray:
 
 
 def nodal_fields(scene, x: np.ndarray):
-    """Split an unknown vector into displacement (n, 2), nodal pressure (n,) or None, multipliers."""
+    """Split an unknown vector into displacement (n, 2), nodal pressure (n,) or None, and
+    the multipliers."""
     lay = scene.model.layout
     nodal = lay.nodal(np.asarray(x))
     pressure = nodal[:, 2] if lay.n_fields == 3 else None
-    return nodal[:, :2], pressure, np.asarray(x[lay.n_node_dofs:])
+    return nodal[:, :2], pressure, np.asarray(x[lay.n_node_dofs :])
 
 
 def _mid_height_node(scene, name: str) -> int:
@@ -95,14 +96,19 @@ def _inside(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     crosses = (a[None, :, 1] > py) != (b[None, :, 1] > py)
     with np.errstate(divide="ignore", invalid="ignore"):
         xc = a[None, :, 0] + (py - a[None, :, 1]) * (b[None, :, 0] - a[None, :, 0]) / (
-            b[None, :, 1] - a[None, :, 1])
+            b[None, :, 1] - a[None, :, 1]
+        )
     return np.sum(crosses & (px < xc), axis=1) % 2 == 1
 
 
 def _distance_to(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     d = b - a
-    s = np.clip(np.einsum("pmi,mi->pm", points[:, None, :] - a[None], d)
-                / np.maximum(np.sum(d * d, axis=1), 1e-300), 0.0, 1.0)
+    s = np.clip(
+        np.einsum("pmi,mi->pm", points[:, None, :] - a[None], d)
+        / np.maximum(np.sum(d * d, axis=1), 1e-300),
+        0.0,
+        1.0,
+    )
     q = a[None] + s[..., None] * d[None]
     return np.min(np.linalg.norm(points[:, None, :] - q, axis=2), axis=1)
 
@@ -157,8 +163,9 @@ def filled_volume(scene, pos: np.ndarray, t: float) -> float:
     m0, m1 = pos[edges[:, 0]], pos[edges[:, 1]]
     c0, c1 = cav, np.roll(cav, -1, axis=0)
     tol = 1e-9 * max(float(np.ptp(cav, axis=0).max()), 1.0)
-    total = (_clipped_boundary_integral(m0, m1, c0, c1, True, tol, axi)
-             + _clipped_boundary_integral(c0, c1, m0, m1, False, tol, axi))
+    total = _clipped_boundary_integral(m0, m1, c0, c1, True, tol, axi) + _clipped_boundary_integral(
+        c0, c1, m0, m1, False, tol, axi
+    )
     return abs(2.0 * np.pi * total) if axi else abs(total)
 
 
@@ -174,9 +181,12 @@ def extra_history(scene, xs: np.ndarray, times: np.ndarray) -> dict[str, np.ndar
         out["inner_diameter_mm"] = np.array([2.0 * p[ki, 0] for p in pos])
         out["outer_diameter_mm"] = np.array([2.0 * p[ko, 0] for p in pos])
     if "die" in scene.config and scene.config["die"]["closed"]:
-        out["die_fill"] = np.array([
-            filled_volume(scene, positions(scene, x), t) / max(cavity_volume(scene, t), 1e-300)
-            for x, t in zip(xs, times)])
+        out["die_fill"] = np.array(
+            [
+                filled_volume(scene, positions(scene, x), t) / max(cavity_volume(scene, t), 1e-300)
+                for x, t in zip(xs, times)
+            ]
+        )
     return out
 
 
@@ -190,19 +200,26 @@ def contact_profile(scene, x: np.ndarray, slip_mm: np.ndarray, status: np.ndarra
     idx = scene.idx
     pos = positions(scene, x)[np.asarray(idx.contact_nodes)]
     lay = scene.model.layout
-    lam = np.asarray(x[lay.n_node_dofs:]).reshape(-1, 2)
+    lam = np.asarray(x[lay.n_node_dofs :]).reshape(-1, 2)
     # the contact area of a node: its shape function integrated over the facets in
     # contact (both ends touching); a facet of the free side below an edge node carries
     # no traction, and counting it made a uniform pressure read low at the edge
     facets = np.asarray(idx.contact_facets)
     touching = np.asarray(status) > 0
     facets = facets[touching[facets].all(axis=1)] if len(facets) else facets
-    area = np.asarray(tributary_areas(jnp.asarray(pos), jnp.asarray(facets),
-                                      scene.model.formulation.axisymmetric))
+    area = np.asarray(
+        tributary_areas(jnp.asarray(pos), jnp.asarray(facets), scene.model.formulation.axisymmetric)
+    )
     safe = np.where(area > 0, area, 1.0)
-    return dict(r_mm=pos[:, 0], z_mm=pos[:, 1], pressure_MPa=lam[:, 0] / safe,
-                shear_MPa=lam[:, 1] / safe, status=np.asarray(status),
-                slip_mm=np.asarray(slip_mm), area_mm2=area)
+    return dict(
+        r_mm=pos[:, 0],
+        z_mm=pos[:, 1],
+        pressure_MPa=lam[:, 0] / safe,
+        shear_MPa=lam[:, 1] / safe,
+        status=np.asarray(status),
+        slip_mm=np.asarray(slip_mm),
+        area_mm2=area,
+    )
 
 
 def patch_average(values: np.ndarray, elements: np.ndarray) -> np.ndarray:

@@ -96,8 +96,9 @@ def _grid_elements(ids: np.ndarray) -> np.ndarray:
 def _chain_points(chain: np.ndarray, s_target: np.ndarray) -> np.ndarray:
     seg = np.linalg.norm(np.diff(chain, axis=0), axis=1)
     s = np.concatenate([[0.0], np.cumsum(seg)])
-    return np.column_stack([np.interp(s_target, s, chain[:, 0]),
-                            np.interp(s_target, s, chain[:, 1])])
+    return np.column_stack(
+        [np.interp(s_target, s, chain[:, 0]), np.interp(s_target, s, chain[:, 1])]
+    )
 
 
 @dataclass(frozen=True)
@@ -117,8 +118,15 @@ class Smoothing:
     die_volume_free: bool = True
 
 
-def smooth(pos: np.ndarray, nr: int, nz: int, gap_fn, axisymmetric: bool = True,
-           pinned=(), settings: Smoothing = Smoothing()) -> np.ndarray:
+def smooth(
+    pos: np.ndarray,
+    nr: int,
+    nz: int,
+    gap_fn,
+    axisymmetric: bool = True,
+    pinned=(),
+    settings: Smoothing = Smoothing(),
+) -> np.ndarray:
     """Quality-driven ("smart") smoothing of a structured grid.
 
     Each node in turn is offered: the centre of its neighbours (interior: the mean of the
@@ -155,9 +163,15 @@ def smooth(pos: np.ndarray, nr: int, nz: int, gap_fn, axisymmetric: bool = True,
     side_id = np.concatenate([np.full(nr, 0), np.full(nz, 3), np.full(nr, 1), np.full(nz, 2)])
     touch = np.asarray(settings.touching)[side_id]  # of each loop node's side (corners: the first)
     corner_mask = np.isin(loop, [ids[0, 0], ids[0, -1], ids[-1, 0], ids[-1, -1]])
-    nb = {int(a): (int(loop[m - 1]), int(loop[(m + 1) % len(loop)]),
-                   bool(touch[m] and touch[m - 1]), bool(corner_mask[m]))
-          for m, a in enumerate(loop)}
+    nb = {
+        int(a): (
+            int(loop[m - 1]),
+            int(loop[(m + 1) % len(loop)]),
+            bool(touch[m] and touch[m - 1]),
+            bool(corner_mask[m]),
+        )
+        for m, a in enumerate(loop)
+    }
     v_start = {a: polygon_measure(x[patch[a]], axisymmetric).sum() for a in nb}
     dirs = np.array([[np.cos(a), np.sin(a)] for a in np.linspace(0, 2 * np.pi, 8, endpoint=False)])
     steps = np.array([0.25, 0.0625])
@@ -176,20 +190,30 @@ def smooth(pos: np.ndarray, nr: int, nz: int, gap_fn, axisymmetric: bool = True,
                     on_die = bool(np.all(np.abs(gap_fn(chain)[0]) <= contact_tol))
                 if is_corner and a in pinned:
                     continue
-                s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(chain, axis=0),
-                                                                    axis=1))])
-                s_try = np.concatenate([s[1] + fractions * (0.5 * s[2] - s[1]),
-                                        s[1] + np.outer([-1.0, 1.0], steps * h_loc).ravel()])
+                s = np.concatenate(
+                    [[0.0], np.cumsum(np.linalg.norm(np.diff(chain, axis=0), axis=1))]
+                )
+                s_try = np.concatenate(
+                    [
+                        s[1] + fractions * (0.5 * s[2] - s[1]),
+                        s[1] + np.outer([-1.0, 1.0], steps * h_loc).ravel(),
+                    ]
+                )
                 cand = _chain_points(chain, s_try[(s_try > 0.0) & (s_try < s[2])])
                 if may_touch and len(cand):
                     g, n = gap_fn(cand)
                     cand = cand - (g if on_die else np.minimum(g, 0.0))[:, None] * n
             else:
                 j, i = divmod(a, nr + 1)
-                centre = 0.25 * (x[ids[j, i - 1]] + x[ids[j, i + 1]] + x[ids[j - 1, i]]
-                                 + x[ids[j + 1, i]])
-                cand = np.vstack([x[a] + fractions[:, None] * (centre - x[a]),
-                                  x[a] + (steps[:, None, None] * h_loc * dirs).reshape(-1, 2)])
+                centre = 0.25 * (
+                    x[ids[j, i - 1]] + x[ids[j, i + 1]] + x[ids[j - 1, i]] + x[ids[j + 1, i]]
+                )
+                cand = np.vstack(
+                    [
+                        x[a] + fractions[:, None] * (centre - x[a]),
+                        x[a] + (steps[:, None, None] * h_loc * dirs).reshape(-1, 2),
+                    ]
+                )
             if not len(cand):
                 continue
             pts = np.vstack([x[a][None], cand])  # row 0: where the node is now
@@ -202,7 +226,8 @@ def smooth(pos: np.ndarray, nr: int, nz: int, gap_fn, axisymmetric: bool = True,
             if on_side and not (on_die and settings.die_volume_free):
                 v = polygon_measure(corners_xy, axisymmetric).sum(axis=1)
                 ok &= (np.abs(v - v[0]) <= volume_tol * abs(v[0])) & (
-                    np.abs(v - v_start[a]) <= volume_tol * abs(v_start[a]))
+                    np.abs(v - v_start[a]) <= volume_tol * abs(v_start[a])
+                )
             if not ok.any():
                 continue
             best = int(np.argmax(np.where(ok, q, -np.inf)))
@@ -213,8 +238,9 @@ def smooth(pos: np.ndarray, nr: int, nz: int, gap_fn, axisymmetric: bool = True,
     return x
 
 
-def rezoned_positions(pos: np.ndarray, nr: int, nz: int, die, t: float,
-                      axisymmetric: bool = True, pinned=()) -> np.ndarray:
+def rezoned_positions(
+    pos: np.ndarray, nr: int, nz: int, die, t: float, axisymmetric: bool = True, pinned=()
+) -> np.ndarray:
     """New nodal positions (n, 2) for the current positions ``pos`` of the grid."""
     t = jnp.asarray(t)
 
@@ -223,8 +249,9 @@ def rezoned_positions(pos: np.ndarray, nr: int, nz: int, die, t: float,
         m = len(points)
         pad = np.broadcast_to(points[:1], (-m % _BATCH + m, 2)).copy()
         pad[:m] = points
-        out = [_gaps_at(die, jnp.asarray(pad[k:k + _BATCH]), t)
-               for k in range(0, len(pad), _BATCH)]
+        out = [
+            _gaps_at(die, jnp.asarray(pad[k : k + _BATCH]), t) for k in range(0, len(pad), _BATCH)
+        ]
         g, n = (np.concatenate([np.asarray(o[i]) for o in out]) for i in (0, 1))
         return g[:m], n[:m]
 
@@ -247,13 +274,21 @@ def _boundary_loop(nr: int, nz: int) -> np.ndarray:
     return np.concatenate([ids[0, :-1], ids[:-1, -1], ids[-1, :0:-1], ids[:0:-1, 0]])
 
 
-def restore_volume(pos: np.ndarray, nr: int, nz: int, v_target: float, gap_fn,
-                   axisymmetric: bool = True, pinned=(),
-                   contact_tol: float = 1e-6) -> np.ndarray:
+def restore_volume(
+    pos: np.ndarray,
+    nr: int,
+    nz: int,
+    v_target: float,
+    gap_fn,
+    axisymmetric: bool = True,
+    pinned=(),
+    contact_tol: float = 1e-6,
+) -> np.ndarray:
     """Positions with the material volume (area) brought back to ``v_target``: the free
     boundary nodes (neither pinned by a Dirichlet condition nor on the die) move along
     their outward normals by one common distance d, solved by Newton on the volume (a
-    polynomial of degree <= 3 in d, to 1e-12 of it).  Smoothing moves side nodes along chords of a curved
+    polynomial of degree <= 3 in d, to 1e-12 of it).  Smoothing moves side nodes along
+    chords of a curved
     boundary and slides nodes along a curved die, which cuts or adds thin slivers; this
     puts the lost volume back where the boundary is free.  A node that the offset would
     push into the die is left out and d solved again.  Without free nodes the positions
@@ -314,7 +349,7 @@ def _locate(points: np.ndarray, pos: np.ndarray, elements: np.ndarray):
     best_xi = np.zeros((len(points), 2))
     best_out = np.full(len(points), np.inf)
     for e0 in range(0, len(elements), 256):
-        x = xe[e0:e0 + 256]  # (m, 4, 2)
+        x = xe[e0 : e0 + 256]  # (m, 4, 2)
         xi = np.zeros((len(points), len(x), 2))
         for _ in range(12):
             a, b = corners[:, 0], corners[:, 1]
@@ -322,8 +357,10 @@ def _locate(points: np.ndarray, pos: np.ndarray, elements: np.ndarray):
             dn_dxi = 0.25 * a * (1 + b * xi[..., 1:])
             dn_deta = 0.25 * b * (1 + a * xi[..., :1])
             r = np.einsum("pma,mai->pmi", n, x) - points[:, None, :]
-            j = np.stack([np.einsum("pma,mai->pmi", dn_dxi, x),
-                          np.einsum("pma,mai->pmi", dn_deta, x)], axis=-1)  # (p,m,i,k)
+            j = np.stack(
+                [np.einsum("pma,mai->pmi", dn_dxi, x), np.einsum("pma,mai->pmi", dn_deta, x)],
+                axis=-1,
+            )  # (p,m,i,k)
             det = j[..., 0, 0] * j[..., 1, 1] - j[..., 0, 1] * j[..., 1, 0]
             det = np.where(np.abs(det) > 1e-300, det, 1e-300)
             d0 = (j[..., 1, 1] * r[..., 0] - j[..., 0, 1] * r[..., 1]) / det
@@ -394,8 +431,9 @@ def rezone(scene, state, inputs):
     pos = ref + nodal[:, :2]
     t = float(state.t)
     pinned = np.unique(np.asarray(scene.idx.fixed) // nf)
-    new_pos = rezoned_positions(pos, nr, nz, inputs.die, t,
-                                scene.model.formulation.axisymmetric, pinned)
+    new_pos = rezoned_positions(
+        pos, nr, nz, inputs.die, t, scene.model.formulation.axisymmetric, pinned
+    )
     q_old = float(min_quality(pos, elements))
     q_new = float(min_quality(new_pos, elements))
     if not q_new > q_old:  # nothing to gain: the caller goes on with the mesh as it is
@@ -420,8 +458,8 @@ def rezone(scene, state, inputs):
     new_nodal = np.zeros_like(nodal)
     if nf == 3:  # q1q1 nodal pressure
         new_nodal[:, 2] = _interpolate(nodal[:, 2], elements, e_nd, xi_nd)
-    x_new = np.concatenate([new_nodal.ravel(), x[lay.n_node_dofs:]])
-    rate_new = np.concatenate([new_rate_nodal.ravel(), rate[lay.n_node_dofs:]])
+    x_new = np.concatenate([new_nodal.ravel(), x[lay.n_node_dofs :]])
+    rate_new = np.concatenate([new_rate_nodal.ravel(), rate[lay.n_node_dofs :]])
     new_state = replace(state, x=jnp.asarray(x_new), gauss=gauss, x_rate=jnp.asarray(rate_new))
     new_inputs = replace(inputs, coords=jnp.asarray(new_pos))
     v0 = material_volume(scene, pos)

@@ -65,8 +65,12 @@ def membrane_mesh(cfg: dict) -> meshing.Mesh:
     tip = np.asarray(mb["tip_mm"]) if mb["tip_mm"] else corners[2]
     tip_node = int(np.argmin(np.sum((mesh.coords - tip) ** 2, axis=1)))
     edge = cfg["load"]["edge"]
-    nodes = dict(mesh.node_sets, clamped=mesh.node_sets[mb["clamped_edge"]],
-                 loaded=mesh.node_sets[edge], tip=np.array([tip_node]))
+    nodes = dict(
+        mesh.node_sets,
+        clamped=mesh.node_sets[mb["clamped_edge"]],
+        loaded=mesh.node_sets[edge],
+        tip=np.array([tip_node]),
+    )
     facets = dict(mesh.facet_sets, loaded=mesh.facet_sets[edge])
     return meshing.Mesh(mesh.coords, mesh.elements, nodes, facets)
 
@@ -79,8 +83,15 @@ def workpiece_mesh(cfg: dict) -> tuple[meshing.Mesh, str]:
     if kind == "block":
         b = cfg["block"]
         try:
-            return meshing.block(b["width_mm"], b["depth_mm"], b["fine_width_mm"],
-                                 b["fine_depth_mm"], m["nr"], m["nz"], b["growth"]), kind
+            return meshing.block(
+                b["width_mm"],
+                b["depth_mm"],
+                b["fine_width_mm"],
+                b["fine_depth_mm"],
+                m["nr"],
+                m["nz"],
+                b["growth"],
+            ), kind
         except meshing.MeshError as err:
             raise ConfigError(f"block: {err}") from err
     if m["file"]:
@@ -90,20 +101,26 @@ def workpiece_mesh(cfg: dict) -> tuple[meshing.Mesh, str]:
             raise ConfigError(f"mesh.file = {m['file']!r}: {err}") from err
         for name in ("symmetry", "top"):
             if name not in mesh.node_sets:
-                raise ConfigError(f"mesh.file = {m['file']!r}: needs a physical group {name!r} "
-                                  f"(line cells); found {sorted(mesh.node_sets)}")
+                raise ConfigError(
+                    f"mesh.file = {m['file']!r}: needs a physical group {name!r} "
+                    f"(line cells); found {sorted(mesh.node_sets)}"
+                )
         return mesh, kind
     if kind == "billet":
         b = cfg["billet"]
-        return meshing.billet_quarter(0.5 * b["diameter_mm"], 0.5 * b["height_mm"],
-                                      m["nr"], m["nz"]), kind
+        return meshing.billet_quarter(
+            0.5 * b["diameter_mm"], 0.5 * b["height_mm"], m["nr"], m["nz"]
+        ), kind
     r = cfg["ring"]
     ri, ro = 0.5 * r["inner_diameter_mm"], 0.5 * r["outer_diameter_mm"]
     rect = meshing.rectangle(ro - ri, 0.5 * r["height_mm"], m["nr"], m["nz"], origin=(ri, 0.0))
     rename = {"left": "inner", "right": "outer", "bottom": "symmetry", "top": "top"}
-    return meshing.Mesh(rect.coords, rect.elements,
-                        {rename[k]: v for k, v in rect.node_sets.items()},
-                        {rename[k]: v for k, v in rect.facet_sets.items()}), kind
+    return meshing.Mesh(
+        rect.coords,
+        rect.elements,
+        {rename[k]: v for k, v in rect.node_sets.items()},
+        {rename[k]: v for k, v in rect.facet_sets.items()},
+    ), kind
 
 
 def die_profile(cfg: dict, top_z: float) -> np.ndarray:
@@ -117,8 +134,10 @@ def die_profile(cfg: dict, top_z: float) -> np.ndarray:
     except DieError as err:
         raise ConfigError(str(err)) from err
     if d["closed"] and abs(pts[0, 0]) > 1e-9:
-        raise ConfigError(f"die.closed = true: die.profile_mm must start on the axis (r = 0), "
-                          f"got r = {pts[0, 0]:g} mm")
+        raise ConfigError(
+            f"die.closed = true: die.profile_mm must start on the axis (r = 0), "
+            f"got r = {pts[0, 0]:g} mm"
+        )
     return pts
 
 
@@ -145,8 +164,9 @@ def membrane_load(cfg: dict, mesh: meshing.Mesh) -> FacetLoad:
     """The traction (per unit initial edge length) whose resultant is load.force_*_N."""
     ld = cfg["load"]
     facets = mesh.facet_sets["loaded"]
-    length = float(np.sum(np.linalg.norm(mesh.coords[facets[:, 1]] - mesh.coords[facets[:, 0]],
-                                         axis=1)))
+    length = float(
+        np.sum(np.linalg.norm(mesh.coords[facets[:, 1]] - mesh.coords[facets[:, 0]], axis=1))
+    )
     traction = np.array([ld["force_x_N"], ld["force_y_N"]]) / length
     return FacetLoad(traction=jnp.asarray(traction), ramp_end_s=jnp.asarray(ld["ramp_time_s"]))
 
@@ -168,11 +188,16 @@ def build_scene(cfg: dict) -> Scene:
     axi = m["geometry"] == "axisymmetric"
     mesh, kind = workpiece_mesh(cfg)
     law, params = load_material(cfg["material"]["preset"])
-    form = Formulation(kind=m["element"], axisymmetric=axi, theta=m["stabilization"],
-                       alpha=tm["alpha"])
+    form = Formulation(
+        kind=m["element"], axisymmetric=axi, theta=m["stabilization"], alpha=tm["alpha"]
+    )
     nf = form.n_fields
-    fixed = [mesh.node_sets[s] * nf + k for s, comps in FIXED_COMPONENTS.items()
-             if s in mesh.node_sets for k in comps]
+    fixed = [
+        mesh.node_sets[s] * nf + k
+        for s, comps in FIXED_COMPONENTS.items()
+        if s in mesh.node_sets
+        for k in comps
+    ]
     reaction = next(mesh.node_sets[s] * nf + 1 for s in REACTION_SETS if s in mesh.node_sets)
     if kind == "membrane":
         contact = np.zeros(0, dtype=np.int64)
@@ -181,15 +206,22 @@ def build_scene(cfg: dict) -> Scene:
         present = ["top"] if kind == "block" else [s for s in FREE_SETS if s in mesh.node_sets]
         contact = np.unique(np.concatenate([mesh.node_sets[s] for s in present])).astype(np.int64)
         facets = np.concatenate([mesh.facet_sets[s] for s in present if s in mesh.facet_sets])
-    layout, idx = build_indices(mesh, nf, np.concatenate(fixed), contact,
-                                reaction_dofs=reaction, contact_facets=facets,
-                                load_facets=mesh.facet_sets.get("loaded"))
+    layout, idx = build_indices(
+        mesh,
+        nf,
+        np.concatenate(fixed),
+        contact,
+        reaction_dofs=reaction,
+        contact_facets=facets,
+        load_facets=mesh.facet_sets.get("loaded"),
+    )
     fr = cfg.get("friction", {"model": "none", "mu": 0.0, "m": 0.0})
     model = Model(form, law, layout, ContactLaw(fr["model"]))
     areas = meshing.element_areas(mesh.coords, mesh.elements)
     if np.any(areas <= 0):
-        raise ConfigError("mesh: an element has non-positive area (check mesh.file or the "
-                          "billet profile)")
+        raise ConfigError(
+            "mesh: an element has non-positive area (check mesh.file or the billet profile)"
+        )
     h = float(np.sqrt(areas.min()))
     r_out = float(mesh.coords[:, 0].max())
     c = float(law.shear_modulus(params)) * h * (2.0 * np.pi * r_out if axi else 1.0)
@@ -198,13 +230,21 @@ def build_scene(cfg: dict) -> Scene:
     else:
         top_z = float(mesh.coords[mesh.node_sets["top"], 1].max())
         times, travel, t_end = die_path(cfg, top_z)
-        die = make_die(die_profile(cfg, top_z), times, travel, mu=fr["mu"], m=fr["m"],
-                       corner_radius=cfg["die"]["corner_radius_mm"])
+        die = make_die(
+            die_profile(cfg, top_z),
+            times,
+            travel,
+            mu=fr["mu"],
+            m=fr["m"],
+            corner_radius=cfg["die"]["corner_radius_mm"],
+        )
         load = None
     structured = kind in ("billet", "ring") and not m["file"]
     if m["rezone_quality"] > 0.0 and not structured:
-        raise ConfigError(f"mesh.rezone_quality > 0 needs a billet or ring scene on its "
-                          f"structured mesh (this scene: {kind})")
+        raise ConfigError(
+            f"mesh.rezone_quality > 0 needs a billet or ring scene on its "
+            f"structured mesh (this scene: {kind})"
+        )
     linear = choose_backend(so["linear"], layout.n_dofs)
     try:
         method = choose_method(so["newton"], linear.backend, layout.n_dofs)
@@ -218,10 +258,19 @@ def build_scene(cfg: dict) -> Scene:
         model=model,
         idx=idx,
         linear=linear,
-        newton=NewtonSettings(max_iterations=so["max_newton_iterations"], rtol=so["rtol"],
-                              line_search=so["line_search"], method=method),
-        inputs=Inputs(coords=jnp.asarray(mesh.coords), params=params, die=die,
-                      c_contact=jnp.asarray(c), load=load),
+        newton=NewtonSettings(
+            max_iterations=so["max_newton_iterations"],
+            rtol=so["rtol"],
+            line_search=so["line_search"],
+            method=method,
+        ),
+        inputs=Inputs(
+            coords=jnp.asarray(mesh.coords),
+            params=params,
+            die=die,
+            c_contact=jnp.asarray(c),
+            load=load,
+        ),
         dt=tm["dt_s"],
         t_end=t_end,
         max_cutbacks=so["max_cutbacks"],

@@ -16,10 +16,13 @@ def det2(a):
 
 def inv2(a):
     d = det2(a)
-    adj = jnp.stack([
-        jnp.stack([a[..., 1, 1], -a[..., 0, 1]], axis=-1),
-        jnp.stack([-a[..., 1, 0], a[..., 0, 0]], axis=-1),
-    ], axis=-2)
+    adj = jnp.stack(
+        [
+            jnp.stack([a[..., 1, 1], -a[..., 0, 1]], axis=-1),
+            jnp.stack([-a[..., 1, 0], a[..., 0, 0]], axis=-1),
+        ],
+        axis=-2,
+    )
     return adj / d[..., None, None]
 
 
@@ -33,11 +36,14 @@ def _cofactors3(a):
     c20 = a[..., 0, 1] * a[..., 1, 2] - a[..., 0, 2] * a[..., 1, 1]
     c21 = a[..., 0, 2] * a[..., 1, 0] - a[..., 0, 0] * a[..., 1, 2]
     c22 = a[..., 0, 0] * a[..., 1, 1] - a[..., 0, 1] * a[..., 1, 0]
-    return jnp.stack([
-        jnp.stack([c00, c01, c02], axis=-1),
-        jnp.stack([c10, c11, c12], axis=-1),
-        jnp.stack([c20, c21, c22], axis=-1),
-    ], axis=-2)
+    return jnp.stack(
+        [
+            jnp.stack([c00, c01, c02], axis=-1),
+            jnp.stack([c10, c11, c12], axis=-1),
+            jnp.stack([c20, c21, c22], axis=-1),
+        ],
+        axis=-2,
+    )
 
 
 def det3(a):

@@ -50,7 +50,6 @@ import numpy as np
 
 from jaxform.status import NEWTON_NOT_CONVERGED, OK
 
-
 METHODS = ("newton", "modified")
 STALE_PER_ITERATION = 3  # modified Newton: iterations with a kept factorization allowed
 # per iteration with a new one, on top of it
@@ -61,12 +60,15 @@ def choose_method(name: str, backend: str, n_unknowns: int) -> str:
     """The Newton method for ``solver.newton = name`` with the chosen linear ``backend``:
     'modified' needs a factorization that can be kept (dense LU or klujax)."""
     if name == "auto":
-        return "modified" if backend == "sparse" and n_unknowns >= MODIFIED_MIN_UNKNOWNS \
-            else "newton"
+        return (
+            "modified" if backend == "sparse" and n_unknowns >= MODIFIED_MIN_UNKNOWNS else "newton"
+        )
     if name == "modified" and backend not in ("dense", "sparse"):
-        raise ValueError(f"solver.newton = 'modified' keeps a factorization, which the "
-                         f"'{backend}' linear backend cannot: use solver.linear = 'dense' or "
-                         f"'sparse' (klujax, CPU), or solver.newton = 'newton'")
+        raise ValueError(
+            f"solver.newton = 'modified' keeps a factorization, which the "
+            f"'{backend}' linear backend cannot: use solver.linear = 'dense' or "
+            f"'sparse' (klujax, CPU), or solver.newton = 'newton'"
+        )
     if name not in METHODS:
         raise ValueError(f"solver.newton = {name!r}: must be one of auto, newton, modified")
     return name
@@ -101,8 +103,9 @@ def _start(residual, x0, x_fallback):
     if x_fallback is None:
         r0, aux0, code0, scale0 = residual(x0)
         return x0, r0, aux0, code0, scale0
-    blank = jax.tree_util.tree_map(lambda a: jnp.zeros(a.shape, a.dtype),
-                                   jax.eval_shape(residual, x0))
+    blank = jax.tree_util.tree_map(
+        lambda a: jnp.zeros(a.shape, a.dtype), jax.eval_shape(residual, x0)
+    )
 
     def start_cond(c):
         k, _, out = c
@@ -114,12 +117,22 @@ def _start(residual, x0, x_fallback):
         return k + 1, xk, tuple(residual(xk))
 
     _, x0, (r0, aux0, code0, scale0) = jax.lax.while_loop(
-        start_cond, start_body, (jnp.asarray(0), x0, tuple(blank)))
+        start_cond, start_body, (jnp.asarray(0), x0, tuple(blank))
+    )
     return x0, r0, aux0, code0, scale0
 
 
-def newton(residual, residual_and_jacobian, linear_solve, x0, settings: NewtonSettings,
-           x_fallback=None, factor=None, solve_factored=None, fac0=None):
+def newton(
+    residual,
+    residual_and_jacobian,
+    linear_solve,
+    x0,
+    settings: NewtonSettings,
+    x_fallback=None,
+    factor=None,
+    solve_factored=None,
+    fac0=None,
+):
     """Solve R(x) = 0 from x0 (or from x_fallback if x0 is not a valid state, e.g. a
     predictor that inverts an element).
 
@@ -159,6 +172,7 @@ def newton(residual, residual_and_jacobian, linear_solve, x0, settings: NewtonSe
             return xt, rt, auxt, codet, scalet
 
         if s.line_search:  # alpha = 1, 1/2, 1/4, ... while the decrease is insufficient
+
             def ls_cond(lc):
                 return ~lc[2]
 
@@ -169,8 +183,16 @@ def newton(residual, residual_and_jacobian, linear_solve, x0, settings: NewtonSe
                 done = ~(bad & (k < s.max_backtracks))  # k backtracks done before this trial
                 return (k + 1, 0.5 * alpha, done, xt, rt, auxt, codet, scalet)
 
-            lc0 = (jnp.asarray(0), jnp.asarray(1.0, x.dtype), jnp.asarray(False),
-                   x, r, aux, code_j, scale)
+            lc0 = (
+                jnp.asarray(0),
+                jnp.asarray(1.0, x.dtype),
+                jnp.asarray(False),
+                x,
+                r,
+                aux,
+                code_j,
+                scale,
+            )
             _, _, _, xt, rt, auxt, codet, scalet = jax.lax.while_loop(ls_cond, ls_body, lc0)
         else:  # full steps: the backtracking loop is not compiled at all
             xt, rt, auxt, codet, scalet = trial(jnp.asarray(1.0, x.dtype))
@@ -186,8 +208,16 @@ def newton(residual, residual_and_jacobian, linear_solve, x0, settings: NewtonSe
     return x, aux, it, code, hist, fac
 
 
-def modified_newton(residual, residual_and_jacobian, factor, solve_factored, x0, fac0,
-                    settings: NewtonSettings, x_fallback=None):
+def modified_newton(
+    residual,
+    residual_and_jacobian,
+    factor,
+    solve_factored,
+    x0,
+    fac0,
+    settings: NewtonSettings,
+    x_fallback=None,
+):
     """Modified Newton: solve R(x) = 0 with a factorization kept from earlier iterations
     (of this solve or of earlier load steps), refreshed only when it stops working.
 
@@ -215,8 +245,12 @@ def modified_newton(residual, residual_and_jacobian, factor, solve_factored, x0,
     max_bt = s.max_backtracks if s.line_search else 0
 
     def cond(c):
-        return ((~c["conv"]) & (c["code"] == OK) & (c["it"] < s.max_total_iterations)
-                & ((c["fac"].count - count0 < s.max_iterations) | ~c["refresh"]))
+        return (
+            (~c["conv"])
+            & (c["code"] == OK)
+            & (c["it"] < s.max_total_iterations)
+            & ((c["fac"].count - count0 < s.max_iterations) | ~c["refresh"])
+        )
 
     def body(c):
         x, fac = c["x"], c["fac"]
@@ -232,8 +266,9 @@ def modified_newton(residual, residual_and_jacobian, factor, solve_factored, x0,
 
         r, aux, code_j, scale, fac = jax.lax.cond(fresh, refreshed, kept, None)
         rnorm = jnp.linalg.norm(r)
-        dx = jax.lax.cond(fac.valid, lambda: solve_factored(fac, -r),
-                          lambda: jnp.full_like(r, jnp.nan))  # never solve with no factors
+        dx = jax.lax.cond(
+            fac.valid, lambda: solve_factored(fac, -r), lambda: jnp.full_like(r, jnp.nan)
+        )  # never solve with no factors
         finite = jnp.isfinite(dx).all()
 
         def ls_cond(lc):
@@ -247,8 +282,7 @@ def modified_newton(residual, residual_and_jacobian, factor, solve_factored, x0,
             done = ~(bad & fresh & (k < max_bt))
             return (k + 1, 0.5 * alpha, done, xt, rt, auxt, codet, scalet)
 
-        lc0 = (jnp.asarray(0), jnp.asarray(1.0, x.dtype), code_j != OK,
-               x, r, aux, code_j, scale)
+        lc0 = (jnp.asarray(0), jnp.asarray(1.0, x.dtype), code_j != OK, x, r, aux, code_j, scale)
         _, _, _, xt, rt, auxt, codet, scalet = jax.lax.while_loop(ls_cond, ls_body, lc0)
         rtn = jnp.linalg.norm(rt)
         ratio = rtn / rnorm
@@ -256,23 +290,43 @@ def modified_newton(residual, residual_and_jacobian, factor, solve_factored, x0,
         # a refreshed one is taken as in newton()
         reject = (~fresh) & ((codet != OK) | ~finite | ~(ratio <= s.accept_ratio))
         take = ~reject & (code_j == OK)
-        code = jnp.where(code_j != OK, code_j,
-                         jnp.where(reject, OK, jnp.where(finite, codet, jnp.maximum(codet, 4))))
+        code = jnp.where(
+            code_j != OK,
+            code_j,
+            jnp.where(reject, OK, jnp.where(finite, codet, jnp.maximum(codet, 4))),
+        )
         conv = take & (codet == OK) & (rtn <= s.rtol * scalet)
         it = c["it"] + 1
         new = dict(
-            x=jnp.where(take, xt, x), r=jnp.where(take, rt, r),
+            x=jnp.where(take, xt, x),
+            r=jnp.where(take, rt, r),
             aux=jax.tree_util.tree_map(lambda u, v: jnp.where(take, u, v), auxt, aux),
-            scale=jnp.where(take, scalet, scale), it=it, code=code, conv=conv,
+            scale=jnp.where(take, scalet, scale),
+            it=it,
+            code=code,
+            conv=conv,
             hist=c["hist"].at[it].set(jnp.where(take, rtn / scalet, rnorm / scale)),
-            fac=fac, refresh=reject | (ratio > s.refresh_ratio))
+            fac=fac,
+            refresh=reject | (ratio > s.refresh_ratio),
+        )
         return new
 
-    init = dict(x=x0, r=r0, aux=aux0, scale=scale0, it=jnp.asarray(0), code=code0,
-                conv=conv0, hist=hist0, fac=fac0, refresh=jnp.asarray(False))
+    init = dict(
+        x=x0,
+        r=r0,
+        aux=aux0,
+        scale=scale0,
+        it=jnp.asarray(0),
+        code=code0,
+        conv=conv0,
+        hist=hist0,
+        fac=fac0,
+        refresh=jnp.asarray(False),
+    )
     out = jax.lax.while_loop(cond, body, init)
-    code = jnp.where(out["conv"], OK, jnp.where(out["code"] == OK, NEWTON_NOT_CONVERGED,
-                                                   out["code"]))
+    code = jnp.where(
+        out["conv"], OK, jnp.where(out["code"] == OK, NEWTON_NOT_CONVERGED, out["code"])
+    )
     return out["x"], out["aux"], out["it"], code, out["hist"], out["fac"]
 
 
@@ -281,8 +335,15 @@ REFINE_TARGET = 4.0 * np.finfo(np.float64).eps  # refinement goes on to this bac
 REFINE_TOL = 1e-14  # ... or until it stalls, and is accepted if it reached this
 
 
-def refined_solve(solve_near, matvec, abs_matvec, b, max_steps: int = REFINE_MAX_STEPS,
-                  target: float = REFINE_TARGET, tol: float = REFINE_TOL):
+def refined_solve(
+    solve_near,
+    matvec,
+    abs_matvec,
+    b,
+    max_steps: int = REFINE_MAX_STEPS,
+    target: float = REFINE_TARGET,
+    tol: float = REFINE_TOL,
+):
     """Solve A y = b by iterative refinement, y <- y + M(b - A y), where M = ``solve_near``
     applies the inverse of a nearby matrix (a factorization of it), ``matvec`` applies A
     and ``abs_matvec`` |A| (entrywise absolute values).
@@ -295,6 +356,7 @@ def refined_solve(solve_near, matvec, abs_matvec, b, max_steps: int = REFINE_MAX
     while each step at least halves it (each contracts the error by about ||I - M A||: a
     factorization that is not of a nearby matrix stalls at once).  Converged: at most
     ``tol``.  Returns (y, steps, converged)."""
+
     def backward_error(y, r):
         den = abs_matvec(jnp.abs(y)) + jnp.abs(b)
         ratio = jnp.abs(r) / jnp.where(den > 0, den, 1.0)
@@ -320,6 +382,7 @@ def adjoint_solve(linear, vals, b, args, fac=None, use=None):
     """y with J^T y = b, J given by ``vals``: by :func:`refined_solve` with the kept
     factorization ``fac`` of a nearby Jacobian where ``use`` (a traced bool), else, or
     where refinement does not reach the tolerance, by a fresh transposed solve."""
+
     def fresh():
         return linear(vals, b, args, True)
 
@@ -327,9 +390,12 @@ def adjoint_solve(linear, vals, b, args, fac=None, use=None):
         return fresh()
 
     def refined():
-        return refined_solve(lambda r: linear.solve_factored(fac, r, args, True),
-                             lambda y: linear.matvec(vals, y, args, True),
-                             lambda y: linear.matvec(jnp.abs(vals), y, args, True), b)
+        return refined_solve(
+            lambda r: linear.solve_factored(fac, r, args, True),
+            lambda y: linear.matvec(vals, y, args, True),
+            lambda y: linear.matvec(jnp.abs(vals), y, args, True),
+            b,
+        )
 
     def skipped():
         return jnp.zeros_like(b), jnp.asarray(0), jnp.asarray(False)
@@ -339,8 +405,18 @@ def adjoint_solve(linear, vals, b, args, fac=None, use=None):
 
 
 @partial(jax.custom_vjp, nondiff_argnums=(0, 1, 2, 3, 4))
-def solve_implicit(fn, fn_jac, fn_adj, linear, settings: NewtonSettings, x0, x_fallback, args,
-                   fac=None, adjoint_fac=None):
+def solve_implicit(
+    fn,
+    fn_jac,
+    fn_adj,
+    linear,
+    settings: NewtonSettings,
+    x0,
+    x_fallback,
+    args,
+    fac=None,
+    adjoint_fac=None,
+):
     """Newton from x0 (x_fallback if x0 is invalid) on fn(., args) = 0, differentiable in
     ``args`` by the implicit function theorem (x0, x_fallback and the factorizations get no
     derivative).
@@ -368,22 +444,42 @@ def solve_implicit(fn, fn_jac, fn_adj, linear, settings: NewtonSettings, x0, x_f
     factorization).
     """
     if settings.method == "modified":
-        return modified_newton(lambda x: fn(x, args), lambda x: fn_jac(x, args),
-                               lambda vals, old: linear.factor(vals, args, old),
-                               lambda f, b: linear.solve_factored(f, b, args), x0, fac,
-                               settings, x_fallback=x_fallback)
-    kept = {} if fac is None else dict(
-        factor=lambda vals, old: linear.factor(vals, args, old),
-        solve_factored=lambda f, b: linear.solve_factored(f, b, args), fac0=fac)
-    return newton(lambda x: fn(x, args), lambda x: fn_jac(x, args),
-                  lambda vals, b: linear(vals, b, args, False), x0, settings,
-                  x_fallback=x_fallback, **kept)
+        return modified_newton(
+            lambda x: fn(x, args),
+            lambda x: fn_jac(x, args),
+            lambda vals, old: linear.factor(vals, args, old),
+            lambda f, b: linear.solve_factored(f, b, args),
+            x0,
+            fac,
+            settings,
+            x_fallback=x_fallback,
+        )
+    kept = (
+        {}
+        if fac is None
+        else dict(
+            factor=lambda vals, old: linear.factor(vals, args, old),
+            solve_factored=lambda f, b: linear.solve_factored(f, b, args),
+            fac0=fac,
+        )
+    )
+    return newton(
+        lambda x: fn(x, args),
+        lambda x: fn_jac(x, args),
+        lambda vals, b: linear(vals, b, args, False),
+        x0,
+        settings,
+        x_fallback=x_fallback,
+        **kept,
+    )
 
 
-def _solve_implicit_fwd(fn, fn_jac, fn_adj, linear, settings, x0, x_fallback, args, fac=None,
-                        adjoint_fac=None):
-    out = solve_implicit(fn, fn_jac, fn_adj, linear, settings, x0, x_fallback, args, fac,
-                         adjoint_fac)
+def _solve_implicit_fwd(
+    fn, fn_jac, fn_adj, linear, settings, x0, x_fallback, args, fac=None, adjoint_fac=None
+):
+    out = solve_implicit(
+        fn, fn_jac, fn_adj, linear, settings, x0, x_fallback, args, fac, adjoint_fac
+    )
     return out, (out[0], out[2], args, fac, adjoint_fac)
 
 
@@ -408,12 +504,18 @@ def _solve_implicit_bwd(fn, fn_jac, fn_adj, linear, settings, res, cot):
 
     _, vjp = jax.vjp(r_and_aux, args)
     (a_bar,) = vjp((-y, aux_bar))
-    return (jnp.zeros_like(x), jnp.zeros_like(x), a_bar, _zero_cotangent(fac),
-            _zero_cotangent(adjoint_fac))
+    return (
+        jnp.zeros_like(x),
+        jnp.zeros_like(x),
+        a_bar,
+        _zero_cotangent(fac),
+        _zero_cotangent(adjoint_fac),
+    )
 
 
 def _zero_cotangent(tree):
     """Zero cotangents for a non-differentiated input (float0 for integer leaves)."""
+
     def zero(a):
         if jnp.issubdtype(a.dtype, jnp.inexact):
             return jnp.zeros_like(a)

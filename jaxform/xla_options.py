@@ -30,8 +30,7 @@ CPU_OPTIONS = {"xla_cpu_experimental_ynn_fusion_type": ""}
 @functools.cache
 def _cpu_options_supported() -> bool:
     try:
-        jax.jit(lambda a: a + 1.0, compiler_options=CPU_OPTIONS).lower(
-            jnp.zeros(2)).compile()
+        jax.jit(lambda a: a + 1.0, compiler_options=CPU_OPTIONS).lower(jnp.zeros(2)).compile()
     except Exception:  # an older jaxlib: unknown option
         return False
     return True
@@ -65,8 +64,9 @@ class _Jitted:
         self._fun, self._kwargs, self._built = fun, jit_kwargs, {}
 
     def _for(self, args, kwargs):
-        traced = any(isinstance(a, jax.core.Tracer)
-                     for a in jax.tree_util.tree_leaves((args, kwargs)))
+        traced = any(
+            isinstance(a, jax.core.Tracer) for a in jax.tree_util.tree_leaves((args, kwargs))
+        )
         key = "traced" if traced else jax.default_backend()
         f = self._built.get(key)
         if f is None:

@@ -31,19 +31,20 @@ def problem():
 
     path = Path(tempfile.mkdtemp()) / "elastic_test.toml"
     path.write_text(MATERIAL)
-    cfg = load_config({
-        "billet": {"diameter_mm": 5.0, "height_mm": 7.5},
-        "mesh": {"nr": 3, "nz": 3, "element": "q4"},
-        "material": {"preset": str(path)},
-        "die": {"speed_mm_s": 0.075, "reduction": 0.1},
-        "friction": {"model": "coulomb", "mu": 0.3},
-        "time": {"dt_s": 1.0},
-        "solver": {"line_search": False},
-        "output": {"fields": False, "plots": False},
-    })
+    cfg = load_config(
+        {
+            "billet": {"diameter_mm": 5.0, "height_mm": 7.5},
+            "mesh": {"nr": 3, "nz": 3, "element": "q4"},
+            "material": {"preset": str(path)},
+            "die": {"speed_mm_s": 0.075, "reduction": 0.1},
+            "friction": {"model": "coulomb", "mu": 0.3},
+            "time": {"dt_s": 1.0},
+            "solver": {"line_search": False},
+            "output": {"fields": False, "plots": False},
+        }
+    )
     sc = build_scene(cfg)
-    return build_problem(sc, groups=("friction",), objective=ForgingWork(),
-                         times=sc.step_targets())
+    return build_problem(sc, groups=("friction",), objective=ForgingWork(), times=sc.step_targets())
 
 
 def designs(mus=MUS):
@@ -64,9 +65,14 @@ def sharded_main(out: str) -> None:
     d = designs(MUS[:3])  # 3 designs on 2 devices: padded to 4, trimmed back
     placed, _ = batch._place(d)
     val, traj = batch.value(d)  # the forward program: half the compile time of the gradient
-    np.savez(out, devices=len(jax.devices()),
-             placed_devices=len(placed["friction"].sharding.device_set),
-             value=np.asarray(val), force=np.asarray(traj.force_N), x=np.asarray(traj.x))
+    np.savez(
+        out,
+        devices=len(jax.devices()),
+        placed_devices=len(placed["friction"].sharding.device_set),
+        value=np.asarray(val),
+        force=np.asarray(traj.force_N),
+        x=np.asarray(traj.x),
+    )
 
 
 if __name__ == "__main__":

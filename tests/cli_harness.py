@@ -25,10 +25,12 @@ def _stop(*args, **kwargs):
 @contextlib.contextmanager
 def no_compilation():
     """Every path from the CLI into a compiled program raises Reached."""
-    with mock.patch.object(jaxform.driver, "simulate", _stop), \
-            mock.patch.object(jaxform.design.problem, "schedule", _stop), \
-            mock.patch.object(jaxform.materialpoint, "uniaxial_compression", _stop), \
-            mock.patch.object(jaxform.xla_options, "jit", _stop):
+    with (
+        mock.patch.object(jaxform.driver, "simulate", _stop),
+        mock.patch.object(jaxform.design.problem, "schedule", _stop),
+        mock.patch.object(jaxform.materialpoint, "uniaxial_compression", _stop),
+        mock.patch.object(jaxform.xla_options, "jit", _stop),
+    ):
         yield
 
 
@@ -36,8 +38,11 @@ def run_cli(argv: list[str]) -> tuple[int, list[str]]:
     """(exit status, non-empty stderr lines) of the CLI run in-process; Reached and any
     other exception propagate (a traceback fails the test)."""
     err = io.StringIO()
-    with no_compilation(), contextlib.redirect_stderr(err), \
-            contextlib.redirect_stdout(io.StringIO()):
+    with (
+        no_compilation(),
+        contextlib.redirect_stderr(err),
+        contextlib.redirect_stdout(io.StringIO()),
+    ):
         try:
             code = main(argv)
         except SystemExit as exc:

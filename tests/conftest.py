@@ -24,8 +24,11 @@ def pytest_configure(config):
         return  # JAX reads it itself
     if os.environ.get(ENV_VAR, "auto").strip().lower() in OFF:
         return
-    root = (Path(os.environ[ENV_VAR]).expanduser() if os.environ.get(ENV_VAR)
-            else config.rootpath / ".pytest_cache" / "jax-compilation-cache")
+    root = (
+        Path(os.environ[ENV_VAR]).expanduser()
+        if os.environ.get(ENV_VAR)
+        else config.rootpath / ".pytest_cache" / "jax-compilation-cache"
+    )
     path = root / version_tag()
     path.mkdir(parents=True, exist_ok=True)
     os.environ[ENV_VAR] = str(root)  # jaxform processes the tests start use it too

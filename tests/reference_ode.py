@@ -13,8 +13,16 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 AL1100 = dict(
-    A=4.75e-7, xi=7.0, m=0.23348, s0=29.7, h0=1115.6, s_hat=18.92, n=0.07049, a=1.3,
-    G=20200.0, K=66000.0,
+    A=4.75e-7,
+    xi=7.0,
+    m=0.23348,
+    s0=29.7,
+    h0=1115.6,
+    s_hat=18.92,
+    n=0.07049,
+    a=1.3,
+    G=20200.0,
+    K=66000.0,
 )
 
 
@@ -50,8 +58,14 @@ def anand_uniaxial_reference(rate, strains, p=AL1100, rtol=1e-10, speed_over_hei
         t_eval = -np.expm1(-np.asarray(strains)) / speed_over_height
         rate = speed_over_height
     sol = solve_ivp(
-        rhs, (0.0, t_eval[-1]), [0.0, p["s0"], 0.0], method="Radau", t_eval=t_eval,
-        rtol=rtol, atol=[1e-12, 1e-12, 1e-14], first_step=1e-9 / rate,
+        rhs,
+        (0.0, t_eval[-1]),
+        [0.0, p["s0"], 0.0],
+        method="Radau",
+        t_eval=t_eval,
+        rtol=rtol,
+        atol=[1e-12, 1e-12, 1e-14],
+        first_step=1e-9 / rate,
     )
     assert sol.success, sol.message
     return sol.y

@@ -28,8 +28,11 @@ def _matrix(seed=0):
     """A non-symmetric sparse matrix (tridiagonal, diagonally dominant, plus a few far
     entries), its pattern in row-major order."""
     rng = np.random.default_rng(seed)
-    a = np.diag(4.0 + rng.random(N)) + np.diag(rng.random(N - 1) - 0.5, 1) \
+    a = (
+        np.diag(4.0 + rng.random(N))
+        + np.diag(rng.random(N - 1) - 0.5, 1)
         + np.diag(rng.random(N - 1) - 0.5, -1)
+    )
     a[0, N - 1], a[N - 3, 2], a[5, 30] = 0.7, -0.4, 1.1
     rows, cols = np.nonzero(a)
     return a, jnp.asarray(rows, jnp.int32), jnp.asarray(cols, jnp.int32), rng
@@ -72,14 +75,20 @@ def test_refined_with_a_nearby_factorization_equals_the_fresh_transposed_solve(b
     near = vals * (1.0 + 1e-5 * rng.standard_normal(vals.shape))  # J one Newton step away
     far = jnp.asarray(np.where(r_ == c_, 12.0, -3.0) * a[r_, c_])  # not a nearby matrix
     b = jnp.asarray(rng.standard_normal(N))
-    factor = jax.jit(lambda v: lin.solver.refactor(rows, cols, v, N, sym,
-                                                   lin.solver.empty_factorization(N, v.dtype)))
+    factor = jax.jit(
+        lambda v: lin.solver.refactor(
+            rows, cols, v, N, sym, lin.solver.empty_factorization(N, v.dtype)
+        )
+    )
     f_near, f_far = factor(near), factor(far)
 
     def refine(fac, v, b):
-        return refined_solve(lambda r: lin.solve_factored(fac, r, None, True),
-                             lambda y: lin.matvec(v, y, None, True),
-                             lambda y: lin.matvec(jnp.abs(v), y, None, True), b)
+        return refined_solve(
+            lambda r: lin.solve_factored(fac, r, None, True),
+            lambda y: lin.matvec(v, y, None, True),
+            lambda y: lin.matvec(jnp.abs(v), y, None, True),
+            b,
+        )
 
     y, steps, ok = jax.jit(refine)(f_near, vals, b)
     fresh = np.linalg.solve(a.T, np.asarray(b))
@@ -97,13 +106,15 @@ def test_refined_with_a_nearby_factorization_equals_the_fresh_transposed_solve(b
     # a zero right-hand side (a step no output depends on): y = 0 at once
     y0, steps0, ok0 = jax.jit(refine)(f_near, vals, jnp.zeros(N))
     assert bool(ok0) and int(steps0) == 0 and not np.any(np.asarray(y0))
-    lin.solver.release_now(jax.tree_util.tree_map(lambda u, v: jnp.stack([u, v]),
-                                                  f_near, f_far))
+    lin.solver.release_now(jax.tree_util.tree_map(lambda u, v: jnp.stack([u, v]), f_near, f_far))
 
 
 def _scene(*over):
-    return build_scene(load_config("configs/upsetting_seed.toml",
-                                   ["output.fields=false", "output.plots=false", *over]))
+    return build_scene(
+        load_config(
+            "configs/upsetting_seed.toml", ["output.fields=false", "output.plots=false", *over]
+        )
+    )
 
 
 def test_memory_budget_sets_the_kept_steps():
@@ -113,8 +124,9 @@ def test_memory_budget_sets_the_kept_steps():
     # KLU's fill estimate: between the matrix itself and a dense one
     assert 12.0 * nnz < size < 8.0 * n * n
     budget = 10.5 * size / 2**20
-    sc = _scene("mesh.nr=12", "mesh.nz=12", "solver.linear=sparse",
-                f"solver.adjoint_memory_mb={budget}")
+    sc = _scene(
+        "mesh.nr=12", "mesh.nz=12", "solver.linear=sparse", f"solver.adjoint_memory_mb={budget}"
+    )
     assert kept_steps(sc, 57) == 10 and kept_steps(sc, 4) == 4
     assert kept_steps(_scene("solver.adjoint_memory_mb=0"), 57) == 0
     dense = _scene("mesh.nr=2", "mesh.nz=2")
@@ -127,8 +139,12 @@ def test_kept_factorizations_are_refused_under_vmap():
     sc = _scene("mesh.nr=2", "mesh.nz=2", "solver.linear=sparse")
 
     def run(mu):
-        inputs = sc.inputs.__class__(coords=sc.inputs.coords * mu, params=sc.inputs.params,
-                                     die=sc.inputs.die, c_contact=sc.inputs.c_contact)
+        inputs = sc.inputs.__class__(
+            coords=sc.inputs.coords * mu,
+            params=sc.inputs.params,
+            die=sc.inputs.die,
+            c_contact=sc.inputs.c_contact,
+        )
         return trajectory(sc, inputs, reuse_factorizations=True).force_N
 
     with pytest.raises(ValueError, match="reuse_factorizations=True.*vmap"):

@@ -20,8 +20,17 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def test_every_exported_name_resolves_and_is_documented():
     """Reference: the docstring convention of the entry points (Arguments and Returns)."""
-    assert {"run", "load_config", "build_scene", "simulate", "trajectory", "build_problem",
-            "optimize", "taylor_test", "enable_x64"} <= set(jaxform.__all__)
+    assert {
+        "run",
+        "load_config",
+        "build_scene",
+        "simulate",
+        "trajectory",
+        "build_problem",
+        "optimize",
+        "taylor_test",
+        "enable_x64",
+    } <= set(jaxform.__all__)
     for name in jaxform.__all__:
         obj = getattr(jaxform, name)
         assert callable(obj), name
@@ -37,11 +46,14 @@ def test_every_exported_name_resolves_and_is_documented():
 def test_import_is_inert():
     """``import jaxform`` loads neither JAX nor matplotlib and sets nothing; the first use
     of an entry point loads its module."""
-    script = ("import sys, jaxform; print(sorted(m for m in ('jax', 'matplotlib', "
-              "'jaxform.driver') if m in sys.modules)); jaxform.load_config; "
-              "print('jaxform.config' in sys.modules, 'jax' in sys.modules)")
-    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
-                         timeout=120, check=False)
+    script = (
+        "import sys, jaxform; print(sorted(m for m in ('jax', 'matplotlib', "
+        "'jaxform.driver') if m in sys.modules)); jaxform.load_config; "
+        "print('jaxform.config' in sys.modules, 'jax' in sys.modules)"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, timeout=120, check=False
+    )
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.split("\n")[:2] == ["[]", "True False"]
 

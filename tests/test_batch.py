@@ -12,13 +12,13 @@ started before the first compile here so that it compiles on the other core mean
 import os
 import subprocess
 import sys
-from functools import lru_cache
+from functools import cache
 from pathlib import Path
 
 import numpy as np
 import pytest
-
 from batch_case import MUS, designs, problem
+
 from jaxform.batch import BatchProblem
 from jaxform.gradients import GradientRunError
 
@@ -29,21 +29,29 @@ HERE = Path(__file__).parent
 def sharded(tmp_path_factory):
     """The sharded run in a subprocess: started now, collected by the test that needs it."""
     out = tmp_path_factory.mktemp("sharded") / "sharded.npz"
-    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2",
-               PYTHONPATH=os.pathsep.join([str(HERE.parent), os.environ.get("PYTHONPATH", "")]))
-    proc = subprocess.Popen([sys.executable, str(HERE / "batch_case.py"), str(out)], env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    env = dict(
+        os.environ,
+        XLA_FLAGS="--xla_force_host_platform_device_count=2",
+        PYTHONPATH=os.pathsep.join([str(HERE.parent), os.environ.get("PYTHONPATH", "")]),
+    )
+    proc = subprocess.Popen(
+        [sys.executable, str(HERE / "batch_case.py"), str(out)],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
     yield proc, out
     if proc.poll() is None:
         proc.kill()
 
 
-@lru_cache(maxsize=None)
+@cache
 def case():
     return problem()
 
 
-@lru_cache(maxsize=None)
+@cache
 def batched():
     val, grad, traj = BatchProblem(case()).value_and_grad(designs())
     return np.asarray(val), np.asarray(grad["friction"]), traj
@@ -91,7 +99,6 @@ def test_failed_design_is_named():
     val, grad, traj = batched()
     codes = np.zeros_like(np.asarray(traj.codes))
     codes[2, 4] = 1
-    bad = Trajectory(**{**{k: getattr(traj, k) for k in traj.__dataclass_fields__},
-                        "codes": codes})
+    bad = Trajectory(**{**{k: getattr(traj, k) for k in traj.__dataclass_fields__}, "codes": codes})
     with pytest.raises(GradientRunError, match="design 2, step 5"):
         check_batch(bad)

@@ -18,10 +18,24 @@ from jaxform.cache import ENV_VAR, default_cache_root, resolve_cache_dir, versio
 
 ROOT = Path(__file__).resolve().parents[1]
 # klujax with modified Newton: custom calls, and factorizations freed inside the program
-TINY = ["--set", "mesh.nr=3", "--set", "mesh.nz=3", "--set", "time.dt_s=20.0",
-        "--set", "die.reduction=0.3", "--set", "output.fields=false",
-        "--set", "output.plots=false", "--set", "solver.linear=sparse",
-        "--set", "solver.newton=modified"]
+TINY = [
+    "--set",
+    "mesh.nr=3",
+    "--set",
+    "mesh.nz=3",
+    "--set",
+    "time.dt_s=20.0",
+    "--set",
+    "die.reduction=0.3",
+    "--set",
+    "output.fields=false",
+    "--set",
+    "output.plots=false",
+    "--set",
+    "solver.linear=sparse",
+    "--set",
+    "solver.newton=modified",
+]
 
 # runs `jaxform.cli.main(argv)` and prints the cache events of the process as JSON
 PROBE = """
@@ -43,20 +57,35 @@ print("PROBE " + json.dumps(dict(counts, code=code,
 
 
 def _env(**set_vars):
-    env = {k: v for k, v in os.environ.items()
-           if k not in (ENV_VAR, "JAX_COMPILATION_CACHE_DIR",
-                        "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "XDG_CACHE_HOME")}
+    env = {
+        k: v
+        for k, v in os.environ.items()
+        if k
+        not in (
+            ENV_VAR,
+            "JAX_COMPILATION_CACHE_DIR",
+            "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS",
+            "XDG_CACHE_HOME",
+        )
+    }
     env["PYTHONPATH"] = os.pathsep.join([str(ROOT), env.get("PYTHONPATH", "")])
     env.update(set_vars)
     return env
 
 
 def _probe(argv, env):
-    proc = subprocess.run([sys.executable, "-c", PROBE, *argv], env=env, cwd=ROOT, check=False,
-                          capture_output=True, text=True, timeout=900)
+    proc = subprocess.run(
+        [sys.executable, "-c", PROBE, *argv],
+        env=env,
+        cwd=ROOT,
+        check=False,
+        capture_output=True,
+        text=True,
+        timeout=900,
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     line = [s for s in proc.stdout.splitlines() if s.startswith("PROBE ")][-1]
-    return json.loads(line[len("PROBE "):])
+    return json.loads(line[len("PROBE ") :])
 
 
 def _files(path: Path) -> set:
@@ -66,7 +95,8 @@ def _files(path: Path) -> set:
 def test_second_process_loads_every_program_from_the_cache(tmp_path):
     """Reference: a run of the 3 x 3 seed scene (klujax, modified Newton: its chunk frees
     the factorizations it replaces from inside the program, through an FFI call since a
-    host callback kept the program out of the cache) writes each of its programs (minimum compile time 0 s here), one file per cache miss, and a second
+    host callback kept the program out of the cache) writes each of its programs (minimum
+    compile time 0 s here), one file per cache miss, and a second
     identical process compiles none: every compile request a hit, no new file.  The config key
     then moves the cache: with JAXFORM_CACHE_DIR=off and [solver] compilation_cache_dir
     pointing at the same directory, the run loads every program from there."""
@@ -110,12 +140,18 @@ print("ENABLE " + json.dumps(out))
 
 
 def _enable(tmp_path, **set_vars):
-    proc = subprocess.run([sys.executable, "-c", ENABLE, str(tmp_path / "moved")], check=False,
-                          env=_env(**set_vars), cwd=ROOT, capture_output=True, text=True,
-                          timeout=300)
+    proc = subprocess.run(
+        [sys.executable, "-c", ENABLE, str(tmp_path / "moved")],
+        check=False,
+        env=_env(**set_vars),
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     line = [s for s in proc.stdout.splitlines() if s.startswith("ENABLE ")][-1]
-    return json.loads(line[len("ENABLE "):])
+    return json.loads(line[len("ENABLE ") :])
 
 
 def test_environment_variable_and_argument_move_and_disable_the_cache(tmp_path):
@@ -143,11 +179,20 @@ def test_environment_variable_and_argument_move_and_disable_the_cache(tmp_path):
     assert out["initial"] == out["auto"] == out["auto_jax"] == str(tmp_path / "jax")
 
 
-@pytest.mark.parametrize("env_value, argument, expected", [
-    (None, None, "xdg"), (None, "auto", "xdg"), ("", None, None), ("off", None, None),
-    ("OFF", "auto", None), ("/some/where", None, "/some/where"),
-    ("/some/where", "/else", "/else"), ("/some/where", "off", None), (None, "none", None),
-])
+@pytest.mark.parametrize(
+    "env_value, argument, expected",
+    [
+        (None, None, "xdg"),
+        (None, "auto", "xdg"),
+        ("", None, None),
+        ("off", None, None),
+        ("OFF", "auto", None),
+        ("/some/where", None, "/some/where"),
+        ("/some/where", "/else", "/else"),
+        ("/some/where", "off", None),
+        (None, "none", None),
+    ],
+)
 def test_resolve_cache_dir(monkeypatch, tmp_path, env_value, argument, expected):
     """Reference: the precedence list of jaxform.cache (argument, then JAXFORM_CACHE_DIR,
     then $XDG_CACHE_HOME/jaxform), each directory with the version sub-directory."""
@@ -172,8 +217,7 @@ def test_config_key_has_a_default_that_defers_to_the_environment():
 
     cfg = load_config(ROOT / "configs/upsetting_seed.toml")
     assert cfg["solver"]["compilation_cache_dir"] == "auto"
-    cfg = load_config(ROOT / "configs/upsetting_seed.toml",
-                      ["solver.compilation_cache_dir=/tmp/x"])
+    cfg = load_config(ROOT / "configs/upsetting_seed.toml", ["solver.compilation_cache_dir=/tmp/x"])
     assert cfg["solver"]["compilation_cache_dir"] == "/tmp/x"
 
 
@@ -188,8 +232,15 @@ after = dict(jax.config.values)
 changed = sorted(k for k in set(before) | set(after) if before.get(k) != after.get(k))
 print("CHANGED", changed, len(before))
 """
-    proc = subprocess.run([sys.executable, "-c", code], env=_env(), cwd=ROOT, check=False,
-                          capture_output=True, text=True, timeout=300)
+    proc = subprocess.run(
+        [sys.executable, "-c", code],
+        env=_env(),
+        cwd=ROOT,
+        check=False,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     line = [s for s in proc.stdout.splitlines() if s.startswith("CHANGED")][-1]
     assert line.startswith("CHANGED [] ") and int(line.split()[-1]) > 50
@@ -231,8 +282,7 @@ def test_free_in_program_frees_exactly_the_valid_factorizations(monkeypatch):
         a = lin.refactor(rows, cols, vals, 3, sym, empty)
         b = lin.refactor(rows, cols, 2.0 * vals, 3, sym, empty)
         both = jax.tree_util.tree_map(lambda u, v: jnp.stack([u, v]), a, b)
-        token = lin.release(Factorization(lu=both.lu, piv=both.piv, valid=flags,
-                                          count=both.count))
+        token = lin.release(Factorization(lu=both.lu, piv=both.piv, valid=flags, count=both.count))
         return both.lu, token
 
     lu, token = two_factorizations(jnp.array([2.0, 3.0, 4.0, 1.0]), jnp.array([True, False]))

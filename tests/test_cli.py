@@ -11,8 +11,23 @@ SEED = "configs/upsetting_seed.toml"
 
 
 def test_material_point_cli_writes_csv_and_png(tmp_path):
-    assert main(["material-point", "--rates", "0.01", "0.1", "--steps", "50",
-                 "--strain", "0.5", "--out", str(tmp_path)]) == 0
+    assert (
+        main(
+            [
+                "material-point",
+                "--rates",
+                "0.01",
+                "0.1",
+                "--steps",
+                "50",
+                "--strain",
+                "0.5",
+                "--out",
+                str(tmp_path),
+            ]
+        )
+        == 0
+    )
     table = read_csv(tmp_path / "uniaxial_rate_0.01_1_s.csv")
     assert set(table) == {"time_s", "strain", "stress_MPa", "s_MPa", "eqps"}
     assert len(table["strain"]) == 51 and abs(table["strain"][-1] - 0.5) < 1e-12
@@ -23,21 +38,24 @@ def test_material_point_cli_writes_csv_and_png(tmp_path):
     assert (tmp_path / "stress_strain.png").stat().st_size > 10_000
 
 
-@pytest.mark.parametrize("flags, needle", [
-    (["--rates", "-1"], "--rates"),
-    (["--rates", "nan"], "--rates"),
-    (["--rates", "0.1", "inf"], "--rates"),
-    (["--rates", "1e300"], "--rates"),
-    (["--strain", "0"], "--strain"),
-    (["--strain", "nan"], "--strain"),
-    (["--strain", "inf"], "--strain"),
-    (["--steps", "0"], "--steps"),
-    (["--steps", "1000000000000"], "--steps"),
-    (["--ram-speeds-mm-s", "nan"], "--ram-speeds-mm-s"),
-    (["--ram-speeds-mm-s", "1", "--height-mm", "inf"], "--height-mm"),
-    (["--ram-speeds-mm-s", "1", "--height-mm", "-7.5"], "--height-mm"),
-    (["--steps", "abc"], "--steps"),
-])
+@pytest.mark.parametrize(
+    "flags, needle",
+    [
+        (["--rates", "-1"], "--rates"),
+        (["--rates", "nan"], "--rates"),
+        (["--rates", "0.1", "inf"], "--rates"),
+        (["--rates", "1e300"], "--rates"),
+        (["--strain", "0"], "--strain"),
+        (["--strain", "nan"], "--strain"),
+        (["--strain", "inf"], "--strain"),
+        (["--steps", "0"], "--steps"),
+        (["--steps", "1000000000000"], "--steps"),
+        (["--ram-speeds-mm-s", "nan"], "--ram-speeds-mm-s"),
+        (["--ram-speeds-mm-s", "1", "--height-mm", "inf"], "--height-mm"),
+        (["--ram-speeds-mm-s", "1", "--height-mm", "-7.5"], "--height-mm"),
+        (["--steps", "abc"], "--steps"),
+    ],
+)
 def test_material_point_cli_rejects_bad_values(flags, needle, tmp_path):
     """Each bad flag: exit 2, one line naming it, before the program is compiled (NaN and
     inf passed the old `<= 0` checks)."""
@@ -73,32 +91,50 @@ def test_bad_out_is_refused_before_the_run(command, where, tmp_path):
     assert_refused([command, *config, "--out", str(out)], "--out")
 
 
-@pytest.mark.parametrize("h", [["0"], ["0", "-1"], ["1", "0"], ["-1", "-0.5"], ["nan", "0.5"],
-                               ["inf", "1"], ["1"], ["0.5", "1"], ["1", "1"]])
+@pytest.mark.parametrize(
+    "h",
+    [
+        ["0"],
+        ["0", "-1"],
+        ["1", "0"],
+        ["-1", "-0.5"],
+        ["nan", "0.5"],
+        ["inf", "1"],
+        ["1"],
+        ["0.5", "1"],
+        ["1", "1"],
+    ],
+)
 def test_taylor_steps_checked_before_compiling(h):
     """--h: at least 2 finite steps > 0, strictly decreasing (0 used to divide by zero in
     the rates after a long compile)."""
     assert_refused(["taylor-test", SEED, "--h", *h], "--h")
 
 
-@pytest.mark.parametrize("config, groups, needle", [
-    (SEED, ["bogus"], "'bogus' is not a design group"),
-    (SEED, ["friction"], "friction.model = 'coulomb' or 'shear'"),
-    ("configs/cooks_membrane.toml", ["speed"], "a [membrane] scene has none"),
-    ("configs/ring_compression.toml", ["preform"], "'preform' needs a [billet]"),
-])
+@pytest.mark.parametrize(
+    "config, groups, needle",
+    [
+        (SEED, ["bogus"], "'bogus' is not a design group"),
+        (SEED, ["friction"], "friction.model = 'coulomb' or 'shear'"),
+        ("configs/cooks_membrane.toml", ["speed"], "a [membrane] scene has none"),
+        ("configs/ring_compression.toml", ["preform"], "'preform' needs a [billet]"),
+    ],
+)
 def test_taylor_groups_checked_before_compiling(config, groups, needle):
     line = assert_refused(["taylor-test", config, "--groups", *groups], "--groups")
     assert needle in line
 
 
 @pytest.mark.parametrize("command", ["design", "taylor-test"])
-@pytest.mark.parametrize("sets, needle", [
-    (["mesh.rezone_quality=0.3"], "mesh.rezone_quality"),
-    (["design.objective=die_fill"], "die.closed"),
-    (["design.objective=force_misfit"], "design.target_csv"),
-    (["design.objective=shape_target", "design.target_csv=no/such.csv"], "design.target_csv"),
-])
+@pytest.mark.parametrize(
+    "sets, needle",
+    [
+        (["mesh.rezone_quality=0.3"], "mesh.rezone_quality"),
+        (["design.objective=die_fill"], "die.closed"),
+        (["design.objective=force_misfit"], "design.target_csv"),
+        (["design.objective=shape_target", "design.target_csv=no/such.csv"], "design.target_csv"),
+    ],
+)
 def test_gradient_scene_checked_before_compiling(command, sets, needle, tmp_path):
     """Rezoning (schedule() raised ValueError), or an objective whose inputs are missing."""
     out = ["--out", str(tmp_path)] if command == "design" else []
@@ -107,38 +143,55 @@ def test_gradient_scene_checked_before_compiling(command, sets, needle, tmp_path
 
 
 def test_design_without_variables_is_refused(tmp_path):
-    assert_refused(["design", "configs/preform_design.toml", "--set", "design.variables=[]",
-                    "--out", str(tmp_path)], "design.variables")
+    assert_refused(
+        [
+            "design",
+            "configs/preform_design.toml",
+            "--set",
+            "design.variables=[]",
+            "--out",
+            str(tmp_path),
+        ],
+        "design.variables",
+    )
 
 
-@pytest.mark.parametrize("profile, needle", [
-    ("[[0.0, 5.0], [3.0, 5.0], [3.0, 3.0], [1.0, 6.0]]", "crosses"),  # self-intersecting
-    ("[[5.0, 4.0], [0.0, 4.0]]", "reverse their order"),  # walked inward: billet on the left
-    ("[[6.5, 3], [6.5, 4.5], [6, 5], [2.9, 5], [2.1, 6], [0, 6.6]]", "reverse their order"),
-    # the seed billet's top is z = 3.75 mm, its radius 2.5 mm
-    ("[[0.0, 3.0], [5.0, 3.0]]", "(0, 3.75) mm lies 0.75 mm inside the die"),
-    ("[[0.0, 4.0], [2.0, 4.0], [2.0, 0.0]]", "(2.5, 3.75) mm lies 0.5 mm inside the die"),
-])
+@pytest.mark.parametrize(
+    "profile, needle",
+    [
+        ("[[0.0, 5.0], [3.0, 5.0], [3.0, 3.0], [1.0, 6.0]]", "crosses"),  # self-intersecting
+        ("[[5.0, 4.0], [0.0, 4.0]]", "reverse their order"),  # walked inward: billet on the left
+        ("[[6.5, 3], [6.5, 4.5], [6, 5], [2.9, 5], [2.1, 6], [0, 6.6]]", "reverse their order"),
+        # the seed billet's top is z = 3.75 mm, its radius 2.5 mm
+        ("[[0.0, 3.0], [5.0, 3.0]]", "(0, 3.75) mm lies 0.75 mm inside the die"),
+        ("[[0.0, 4.0], [2.0, 4.0], [2.0, 0.0]]", "(2.5, 3.75) mm lies 0.5 mm inside the die"),
+    ],
+)
 def test_bad_die_profile_is_refused(profile, needle, tmp_path):
     """A reversed or self-intersecting profile used to run (or stop with 'Newton did not
     converge') without a word about it."""
-    line = assert_refused(["run", SEED, "--set", f"die.profile_mm={profile}", "--out",
-                           str(tmp_path)], "die.profile_mm")
+    line = assert_refused(
+        ["run", SEED, "--set", f"die.profile_mm={profile}", "--out", str(tmp_path)],
+        "die.profile_mm",
+    )
     assert needle in line
 
 
-@pytest.mark.parametrize("override, needle", [
-    ("billet.height_mm=inf", "billet.height_mm"),
-    ("billet.diameter_mm=inf", "billet.diameter_mm"),
-    ("time.dt_s=inf", "time.dt_s"),
-    ("time.dt_s=1e300", "time.dt_s"),  # 0 steps: used to exit 0 having run nothing
-    ("die.speed_mm_s=inf", "die.speed_mm_s"),
-    ("die.corner_radius_mm=inf", "die.corner_radius_mm"),
-    ("billet.height_mm=nan", "billet.height_mm"),
-    ("time.dt_s=1e-12", "time.dt_s"),  # 5.6e13 steps: overflowed the schedule
-    ("die.speed_mm_s=1e-300", "die.speed_mm_s"),
-    ("mesh.nr=2000", "mesh.nr"),
-])
+@pytest.mark.parametrize(
+    "override, needle",
+    [
+        ("billet.height_mm=inf", "billet.height_mm"),
+        ("billet.diameter_mm=inf", "billet.diameter_mm"),
+        ("time.dt_s=inf", "time.dt_s"),
+        ("time.dt_s=1e300", "time.dt_s"),  # 0 steps: used to exit 0 having run nothing
+        ("die.speed_mm_s=inf", "die.speed_mm_s"),
+        ("die.corner_radius_mm=inf", "die.corner_radius_mm"),
+        ("billet.height_mm=nan", "billet.height_mm"),
+        ("time.dt_s=1e-12", "time.dt_s"),  # 5.6e13 steps: overflowed the schedule
+        ("die.speed_mm_s=1e-300", "die.speed_mm_s"),
+        ("mesh.nr=2000", "mesh.nr"),
+    ],
+)
 def test_meaningless_run_is_refused(override, needle, tmp_path):
     argv = ["run", SEED, "--set", override, "--out", str(tmp_path)]
     if override.startswith("mesh.nr"):
@@ -155,8 +208,16 @@ def test_bad_flag_is_one_line():
 def test_die_clear_of_the_workpiece_reaches_the_run(tmp_path):
     """A cup (wall at r = 4 mm around the 2.5 mm billet, roof on its top face) is valid."""
     with pytest.raises(Reached):
-        run_cli(["run", SEED, "--set", "die.profile_mm=[[0.0, 3.75], [4.0, 3.75], [4.0, 0.0]]",
-                 "--out", str(tmp_path)])
+        run_cli(
+            [
+                "run",
+                SEED,
+                "--set",
+                "die.profile_mm=[[0.0, 3.75], [4.0, 3.75], [4.0, 0.0]]",
+                "--out",
+                str(tmp_path),
+            ]
+        )
 
 
 @pytest.mark.parametrize("command", ["run", "design", "taylor-test"])

@@ -55,8 +55,11 @@ def bad_values(section: str, key: str):
         if f.low is not None and f.low >= 0:
             options.append(st.floats(-1e300, -1e-300))
         if f.high is not None:
-            options.append(st.floats(f.high * 2 + 1, 1e300) if f.kind == "float"
-                           else st.integers(f.high + 1, 10**15))
+            options.append(
+                st.floats(f.high * 2 + 1, 1e300)
+                if f.kind == "float"
+                else st.integers(f.high + 1, 10**15)
+            )
         if f.kind == "int":
             options.append(st.floats(0.1, 0.9).map(lambda x: 2 + x))  # a non-integer
         return st.one_of(options)
@@ -90,16 +93,20 @@ def bad_override(draw):
     sections = sorted(load_config(path))  # the sections that apply to this scene
     section = draw(st.sampled_from(sections))
     if draw(st.integers(0, 9)) == 0:  # an unknown key
-        key = draw(st.text(alphabet="abcdefgh_", min_size=1, max_size=8)
-                   .filter(lambda k: k not in SCHEMA[section]))
+        key = draw(
+            st.text(alphabet="abcdefgh_", min_size=1, max_size=8).filter(
+                lambda k: k not in SCHEMA[section]
+            )
+        )
         return path, command, f"{section}.{key}=1", f"{section}.{key}"
     key = draw(st.sampled_from(sorted(SCHEMA[section])))
     value = draw(bad_values(section, key))
     return path, command, f"{section}.{key}={_toml(value)}", f"{section}.{key}"
 
 
-@settings(max_examples=300, deadline=None, derandomize=True,
-          suppress_health_check=[HealthCheck.too_slow])
+@settings(
+    max_examples=300, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow]
+)
 @given(case=bad_override())
 def test_bad_config_value_is_refused_before_compiling(case, tmp_path_factory):
     path, command, override, key = case
@@ -115,8 +122,12 @@ def bad_file(draw):
     return kind, command, payload
 
 
-@settings(max_examples=60, deadline=None, derandomize=True,
-          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(
+    max_examples=60,
+    deadline=None,
+    derandomize=True,
+    suppress_health_check=[HealthCheck.function_scoped_fixture],
+)
 @given(case=bad_file())
 def test_bad_config_file_is_refused(case, tmp_path):
     kind, command, payload = case
@@ -127,8 +138,9 @@ def test_bad_config_file_is_refused(case, tmp_path):
         path.write_bytes(b"")
     elif kind == "broken":
         path.write_text("[billet\n")
-    argv = [command, str(path)] + (["--out", str(tmp_path / "o")] if command != "taylor-test"
-                                   else [])
+    argv = [command, str(path)] + (
+        ["--out", str(tmp_path / "o")] if command != "taylor-test" else []
+    )
     assert_refused(argv, str(path))
 
 

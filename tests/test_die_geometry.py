@@ -35,7 +35,8 @@ def test_rounded_corner_is_the_tangent_circle():
     flat = np.column_stack([rng.uniform(-1.0, 0.7, 20), rng.uniform(0.5, 1.2, 20)])
     assert np.max(np.abs(np.asarray(_gap(CORNER, 0.2, flat)[0]) - (1.0 - flat[:, 1]))) <= 1e-12
     grad = jax.vmap(jax.grad(lambda p: closest_point_gap(jnp.asarray(CORNER), 0.2, p)[0]))(
-        jnp.asarray(x))
+        jnp.asarray(x)
+    )
     assert np.max(np.abs(np.asarray(grad) - n)) <= 1e-12
 
 
@@ -64,26 +65,43 @@ def test_a_zero_corner_radius_is_rejected():
     with pytest.raises(ValueError, match="corner radius"):
         make_die(CORNER, [0.0, 1.0], [0.0, 1.0], corner_radius=0.0)
     with pytest.raises(ValueError, match="die.corner_radius_mm"):
-        load_config({"billet": {"diameter_mm": 4.0, "height_mm": 2.0}, "time": {"dt_s": 1.0},
-                     "die": {"speed_mm_s": 0.1, "reduction": 0.1, "corner_radius_mm": 0.0}})
+        load_config(
+            {
+                "billet": {"diameter_mm": 4.0, "height_mm": 2.0},
+                "time": {"dt_s": 1.0},
+                "die": {"speed_mm_s": 0.1, "reduction": 0.1, "corner_radius_mm": 0.0},
+            }
+        )
 
 
 def _cylinder_cavity_scene(nr=4, nz=3):
     """Closed flat die at z = 2 over r in [0, 3] (cavity: cylinder r < 3, z < 2), billet
     r < 2, z < 1 (only the geometry is used)."""
-    return build_scene(load_config({
-        "billet": {"diameter_mm": 4.0, "height_mm": 2.0},
-        "mesh": {"nr": nr, "nz": nz},
-        "die": {"speed_mm_s": 0.1, "reduction": 0.1, "closed": True,
-                "profile_mm": [[0.0, 2.0], [3.0, 2.0], [3.0, 0.0]]},
-        "time": {"dt_s": 1.0}}))
+    return build_scene(
+        load_config(
+            {
+                "billet": {"diameter_mm": 4.0, "height_mm": 2.0},
+                "mesh": {"nr": nr, "nz": nz},
+                "die": {
+                    "speed_mm_s": 0.1,
+                    "reduction": 0.1,
+                    "closed": True,
+                    "profile_mm": [[0.0, 2.0], [3.0, 2.0], [3.0, 0.0]],
+                },
+                "time": {"dt_s": 1.0},
+            }
+        )
+    )
 
 
-@pytest.mark.parametrize("width, height, expected", [
-    (2.0, 1.0, np.pi * 4.0 * 1.0),  # inside: all of it
-    (2.0, 2.5, np.pi * 4.0 * 2.0),  # taller: cut at the die face, z = 2
-    (3.5, 2.5, None),  # wider and taller: fills the cylinder up to the rounded corner
-])
+@pytest.mark.parametrize(
+    "width, height, expected",
+    [
+        (2.0, 1.0, np.pi * 4.0 * 1.0),  # inside: all of it
+        (2.0, 2.5, np.pi * 4.0 * 2.0),  # taller: cut at the die face, z = 2
+        (3.5, 2.5, None),  # wider and taller: fills the cylinder up to the rounded corner
+    ],
+)
 def test_filled_volume_is_the_material_inside_the_cavity(width, height, expected):
     """Billet section scaled to width x height: the filled volume is the Pappus volume of
     its intersection with the cavity (1e-12 relative); a rectangle covering the whole

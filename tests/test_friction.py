@@ -7,7 +7,7 @@ Avitzur 1968): p_avg / sigma_f = 1 + m D / (3 sqrt(3) h); the sticking limit of 
 friction; central finite differences of the global residual.
 """
 
-from functools import lru_cache
+from functools import cache
 
 import jax.numpy as jnp
 import numpy as np
@@ -33,7 +33,7 @@ def run(base, *overrides):
     return sc, simulate(sc)
 
 
-@lru_cache(maxsize=None)
+@cache
 def billet(*overrides):
     return run(BILLET, *overrides)
 
@@ -42,8 +42,15 @@ def test_frictionless_ring_scales_homogeneously():
     """Frictionless 6:3:2 ring to 50 %: every node at (lam r, z H/H0) with lam = sqrt(H0/H)
     (volume constancy; elastic volume change ~ sigma/K = 4e-4), within 0.5 %; all radii
     scale alike to 1e-6."""
-    sc, res = run("configs/ring_compression.toml", "friction.model=none", "mesh.nr=4",
-                  "mesh.nz=2", "time.dt_s=5.0", "output.fields=false", "output.plots=false")
+    sc, res = run(
+        "configs/ring_compression.toml",
+        "friction.model=none",
+        "mesh.nr=4",
+        "mesh.nz=2",
+        "time.dt_s=5.0",
+        "output.fields=false",
+        "output.plots=false",
+    )
     h = res.history
     ratio_h = 1.0 - h["stroke_mm"][-1] / 6.0
     lam = np.sqrt(1.0 / ratio_h)
@@ -61,7 +68,8 @@ def test_coulomb_mu_zero_is_frictionless_and_large_mu_sticks():
     _, free = billet("friction.model=none")
     _, mu0 = billet("friction.model=coulomb", "friction.mu=0.0")
     assert np.max(np.abs(mu0.history["force_N"] - free.history["force_N"])) <= (
-        1e-10 * free.history["force_N"].max())
+        1e-10 * free.history["force_N"].max()
+    )
     _, stick = billet("friction.model=sticking")
     _, mu5 = billet("friction.model=coulomb", "friction.mu=5.0")
     _, mu03 = billet("friction.model=coulomb", "friction.mu=0.3")
@@ -92,13 +100,17 @@ def test_thin_disc_shear_friction_against_slab_formula():
     """D/h = 10 disc of a J2 perfectly plastic solid (100 MPa), m = 0.3, 6 % reduction:
     mean die pressure / sigma_f vs 1 + m D/(3 sqrt 3 h) with the current D and h, 5 %."""
     m = 0.3
-    sc, res = run({"billet": {"diameter_mm": 10.0, "height_mm": 1.0},
-                   "mesh": {"nr": 20, "nz": 2, "element": "q1p0"},
-                   "material": {"preset": "j2_perfect_100MPa"},
-                   "die": {"speed_mm_s": 0.01, "reduction": 0.06},
-                   "friction": {"model": "shear", "m": m},
-                   "time": {"dt_s": 0.5},
-                   "output": {"fields": False, "plots": False}})
+    sc, res = run(
+        {
+            "billet": {"diameter_mm": 10.0, "height_mm": 1.0},
+            "mesh": {"nr": 20, "nz": 2, "element": "q1p0"},
+            "material": {"preset": "j2_perfect_100MPa"},
+            "die": {"speed_mm_s": 0.01, "reduction": 0.06},
+            "friction": {"model": "shear", "m": m},
+            "time": {"dt_s": 0.5},
+            "output": {"fields": False, "plots": False},
+        }
+    )
     pos = positions(sc, res.fields["x"][-1])
     top = sc.mesh.node_sets["top"]
     r_contact = pos[top, 0].max()
@@ -137,16 +149,22 @@ def _slides_across(profile, kind, r_cross):
     pts = np.asarray(profile, dtype=float)
     if kind == "polyline":
         pts = _pad_collinear(pts, 65)
-    sc, res = run(BILLET, "mesh.nr=6", "mesh.nz=3", "mesh.element=q1p0", "time.dt_s=2.0",
-                  f"die.profile_kind={kind}",
-                  "die.profile_mm=" + str([[float(a), float(b)] for a, b in pts]))
+    sc, res = run(
+        BILLET,
+        "mesh.nr=6",
+        "mesh.nz=3",
+        "mesh.element=q1p0",
+        "time.dt_s=2.0",
+        f"die.profile_kind={kind}",
+        "die.profile_mm=" + str([[float(a), float(b)] for a, b in pts]),
+    )
     assert sc.inputs.die.points.shape == (65, 2)
     crossed = False
     r_first = None
     for k in range(1, len(res.history["time_s"])):
         g, pos = _gaps(sc, res, k)
         assert g.min() >= -1e-8, (k, g.min())
-        lam = np.asarray(res.fields["x"][k][sc.model.layout.n_node_dofs:]).reshape(-1, 2)[:, 0]
+        lam = np.asarray(res.fields["x"][k][sc.model.layout.n_node_dofs :]).reshape(-1, 2)[:, 0]
         in_contact = lam > 0
         r_first = pos[:, 0].copy() if r_first is None else r_first
         crossed |= bool(np.any(in_contact & (r_first < r_cross) & (pos[:, 0] > r_cross)))
@@ -178,13 +196,13 @@ def test_nodes_slide_from_one_spline_segment_to_the_next():
     contact slide across the knot at r = 1 mm (and over every sampled segment in between);
     penetration <= 1e-8 mm and quadratic Newton tails (see _slides_across)."""
     _, _, crossed = _slides_across(
-        [[0.0, 3.75], [1.0, 3.76], [2.0, 3.8], [3.0, 3.87], [5.0, 4.05]], "spline", 1.0)
+        [[0.0, 3.75], [1.0, 3.76], [2.0, 3.8], [3.0, 3.87], [5.0, 4.05]], "spline", 1.0
+    )
     assert crossed
 
 
 def closed_die(*overrides):
-    return run("configs/closed_die.toml", "output.fields=false", "output.plots=false",
-               *overrides)
+    return run("configs/closed_die.toml", "output.fields=false", "output.plots=false", *overrides)
 
 
 def _check_closed_die(sc, res, min_fill, force_jump):
@@ -208,9 +226,14 @@ def test_closed_die_scene_fills_without_penetration():
     at the end >= 4 x that at 90 % fill (measured 15.9 kN / 2.2 kN), one rezoning."""
     cfg = load_config("configs/closed_die.toml")
     profile = _pad_collinear(np.asarray(cfg["die"]["profile_mm"]), 65)
-    sc, res = closed_die("mesh.nr=6", "mesh.nz=3", "time.dt_s=2.0", "die.reduction=0.44",
-                         "friction.model=none",
-                         "die.profile_mm=" + str([[float(a), float(b)] for a, b in profile]))
+    sc, res = closed_die(
+        "mesh.nr=6",
+        "mesh.nz=3",
+        "time.dt_s=2.0",
+        "die.reduction=0.44",
+        "friction.model=none",
+        "die.profile_mm=" + str([[float(a), float(b)] for a, b in profile]),
+    )
     _check_closed_die(sc, res, 0.98, 4.0)
 
 

@@ -19,8 +19,7 @@ def test_areas_and_volumes_of_revolution_in_closed_form():
         assert abs(polygon_measure(poly, True) - volume) <= 1e-14
         assert abs(polygon_measure(poly[::-1], True) + volume) <= 1e-14
     batch = np.stack([square, square + [1.0, 0.0]])
-    np.testing.assert_allclose(polygon_measure(batch, True), [3.0 * np.pi, 5.0 * np.pi],
-                               rtol=1e-14)
+    np.testing.assert_allclose(polygon_measure(batch, True), [3.0 * np.pi, 5.0 * np.pi], rtol=1e-14)
 
 
 def test_jax_arrays_trace_and_differentiate():

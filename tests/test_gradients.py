@@ -14,7 +14,7 @@ forward pass kept (jaxform.solver.adjoint_solve), which the FD check then covers
 
 from contextlib import contextmanager
 from dataclasses import replace
-from functools import lru_cache
+from functools import cache
 
 import jax
 import jax.numpy as jnp
@@ -37,7 +37,6 @@ BASE = {
     "die": {"speed_mm_s": 0.075, "reduction": 0.3},
     "friction": {"model": "coulomb", "mu": 0.3},
     "time": {"dt_s": 3.0},
-
     "output": {"fields": False, "plots": False},
 }
 
@@ -75,17 +74,18 @@ def recording_refinements():
         solver.refined_solve = original
 
 
-@lru_cache(maxsize=None)
+@cache
 def friction_problem():
     sc = build_scene(load_config(dict(BASE, solver={"linear": "sparse"})))
-    pb = build_problem(sc, groups=available_groups(sc), objective=BulgeAndWork(sc),
-                       single_program=True)
+    pb = build_problem(
+        sc, groups=available_groups(sc), objective=BulgeAndWork(sc), single_program=True
+    )
     with recording_refinements():  # the one program every test here runs is compiled now
         pb.value_and_grad(pb.start)
     return pb
 
 
-@lru_cache(maxsize=None)
+@cache
 def start_gradient():
     pb = friction_problem()
     val, grad, _ = pb.value_and_grad(pb.start)
@@ -108,8 +108,14 @@ def test_reverse_pass_refines_with_the_forward_factorizations():
 
 def test_every_group_is_available_on_the_friction_scene():
     pb = friction_problem()
-    assert [g.name for g in pb.groups] == ["material", "friction", "speed", "preform", "nodes",
-                                           "die"]
+    assert [g.name for g in pb.groups] == [
+        "material",
+        "friction",
+        "speed",
+        "preform",
+        "nodes",
+        "die",
+    ]
     assert np.all(np.diff(pb.times) > 0)
 
 
@@ -166,9 +172,13 @@ def test_homogeneous_force_gradient_is_the_material_point_derivative():
     one material point driven with the same steps; d F_end / d s0 of the FE run (implicit
     adjoint through the steps) equals the derivative of the material-point solution
     (central differences) to 1e-6 relative (measured 3e-7)."""
-    cfg = dict(BASE, friction={"model": "none"}, time={"dt_s": 1.0},
-               die={"speed_mm_s": 0.075, "reduction": 0.2},
-               mesh={"nr": 2, "nz": 2, "element": "q1p0"})
+    cfg = dict(
+        BASE,
+        friction={"model": "none"},
+        time={"dt_s": 1.0},
+        die={"speed_mm_s": 0.075, "reduction": 0.2},
+        mesh={"nr": 2, "nz": 2, "element": "q1p0"},
+    )
     sc = build_scene(load_config(cfg))
     times = jnp.asarray(sc.step_targets())
     law = sc.model.law
@@ -180,8 +190,15 @@ def test_homogeneous_force_gradient_is_the_material_point_derivative():
 
     def mp(s0):
         params = replace(sc.inputs.params, s0_MPa=s0)
-        r = uniaxial_compression(law, params, final_strain=1.0, n_steps=1, ram_speed_mm_s=0.075,
-                                 height_mm=7.5, times_s=times)
+        r = uniaxial_compression(
+            law,
+            params,
+            final_strain=1.0,
+            n_steps=1,
+            ram_speed_mm_s=0.075,
+            height_mm=7.5,
+            times_s=times,
+        )
         return r["stress_MPa"][-1] * jnp.pi * (2.5 * r["lateral_stretch"][-1]) ** 2
 
     s0 = sc.inputs.params.s0_MPa
@@ -227,13 +244,22 @@ def test_taylor_test_cli_on_the_friction_scene(capsys):
     groups (measured rates 1.98-2.05), and from h = 0.005 for friction (at 0.01 its first
     rate is 1.67: a stick/slip switch between 0.01 and 0.005).  With the default
     h = 1 .. 1/8 the remainders of the groups that move contact onsets or stick/slip
-    switches (friction, preform, nodes, die) do not converge: ~40 contact nodes over 57 steps put kinks of the piecewise-smooth
+    switches (friction, preform, nodes, die) do not converge: ~40 contact nodes over 57
+    steps put kinks of the piecewise-smooth
     objective inside that range (min rate 0.52).  The die group has no clean window on this
     scene (at h = 0.01 its second-order remainder, 1.3e-6 against a first-order 0.10, is
     already at the Newton tolerance's noise floor); it passes on the 3 x 3 scene above."""
     for h0, groups in ((0.01, ["material", "speed", "preform", "nodes"]), (0.005, ["friction"])):
-        code = main(["taylor-test", "configs/upsetting_friction.toml",
-                     "--h", *(str(h0 / 2**k) for k in range(4)), "--groups", *groups])
+        code = main(
+            [
+                "taylor-test",
+                "configs/upsetting_friction.toml",
+                "--h",
+                *(str(h0 / 2**k) for k in range(4)),
+                "--groups",
+                *groups,
+            ]
+        )
         out = capsys.readouterr().out
         assert code == 0, out
         assert float(out.strip().splitlines()[-1].split("=")[1]) >= 1.9, out
@@ -241,8 +267,16 @@ def test_taylor_test_cli_on_the_friction_scene(capsys):
 
 @pytest.mark.slow
 def test_design_cli_writes_history_and_plots(tmp_path):
-    code = main(["design", "configs/preform_design.toml", "--out", str(tmp_path),
-                 "--set", "design.iterations=3"])
+    code = main(
+        [
+            "design",
+            "configs/preform_design.toml",
+            "--out",
+            str(tmp_path),
+            "--set",
+            "design.iterations=3",
+        ]
+    )
     assert code == 0
     for name in ("design_history.csv", "objective.png", "shapes.png", "config.toml"):
         assert (tmp_path / name).exists()

@@ -72,8 +72,11 @@ def test_unknown_backend_names_the_field_and_the_choices():
 def _system(n=40, seed=0):
     """A non-symmetric sparse matrix (tridiagonal plus a few far entries), row-major pattern."""
     rng = np.random.default_rng(seed)
-    a = np.diag(4.0 + rng.random(n)) + np.diag(rng.random(n - 1) - 0.5, 1) \
+    a = (
+        np.diag(4.0 + rng.random(n))
+        + np.diag(rng.random(n - 1) - 0.5, 1)
         + np.diag(rng.random(n - 1) - 0.5, -1)
+    )
     a[0, n - 1], a[n - 3, 2], a[5, 30] = 0.7, -0.4, 1.1
     rows, cols = np.nonzero(a)  # row-major order, as the assembly builds it
     return a, jnp.asarray(rows, jnp.int32), jnp.asarray(cols, jnp.int32), rng

@@ -18,6 +18,7 @@ ANAND = (ROOT / "jaxform" / "materials" / "data" / "al1100_673K.toml").read_text
 
 def _bad_inputs(tmp: Path) -> dict[str, tuple[str, str]]:
     """name -> (value of material.preset, a phrase the message must contain)."""
+
     def write(name, text):
         (tmp / name).write_bytes(text if isinstance(text, bytes) else text.encode())
         return str(tmp / name)
@@ -29,17 +30,27 @@ def _bad_inputs(tmp: Path) -> dict[str, tuple[str, str]]:
         "directory": (str(tmp / "folder.toml"), "is a directory"),
         "not TOML": (write("prose.toml", "this is not = = TOML\n"), "invalid TOML"),
         "binary": (write("binary.toml", bytes(range(128, 256))), "not a text (UTF-8) file"),
-        "unknown law": (write("law.toml", ANAND.replace('"anand"', '"hookean"')),
-                        "law = 'hookean': must be one of ['anand', 'elastic', 'j2']"),
+        "unknown law": (
+            write("law.toml", ANAND.replace('"anand"', '"hookean"')),
+            "law = 'hookean': must be one of ['anand', 'elastic', 'j2']",
+        ),
         "no params": (write("noparams.toml", 'law = "j2"\n'), "needs a [params] table"),
-        "missing parameter": (write("missing.toml", ANAND.replace("xi = 7.0\n", "")),
-                              "missing key(s) ['xi']"),
-        "unknown parameter": (write("extra.toml", ANAND + "foo_MPa = 1.0\n"),
-                              "unknown key(s) ['foo_MPa']"),
-        "bad parameter": (write("negative.toml", ANAND.replace("s0_MPa = 29.7", "s0_MPa = -1")),
-                          "params.s0_MPa = -1.0: must lie in (0, inf)"),
-        "non-number parameter": (write("text.toml", ANAND.replace("m = 0.23348", 'm = "x"')),
-                                 "params.m = 'x': must be a number in (0, 1)"),
+        "missing parameter": (
+            write("missing.toml", ANAND.replace("xi = 7.0\n", "")),
+            "missing key(s) ['xi']",
+        ),
+        "unknown parameter": (
+            write("extra.toml", ANAND + "foo_MPa = 1.0\n"),
+            "unknown key(s) ['foo_MPa']",
+        ),
+        "bad parameter": (
+            write("negative.toml", ANAND.replace("s0_MPa = 29.7", "s0_MPa = -1")),
+            "params.s0_MPa = -1.0: must lie in (0, inf)",
+        ),
+        "non-number parameter": (
+            write("text.toml", ANAND.replace("m = 0.23348", 'm = "x"')),
+            "params.m = 'x': must be a number in (0, 1)",
+        ),
     }
 
 
@@ -50,8 +61,9 @@ def test_every_bad_material_is_one_config_error_line(tmp_path, capsys):
         with pytest.raises(ConfigError, match="^material.preset = ") as info:
             load_material(value)
         assert phrase in str(info.value), (name, str(info.value))
-        code = main(["run", str(SEED), "--set", f"material.preset={value}",
-                     "--out", str(tmp_path / "out")])
+        code = main(
+            ["run", str(SEED), "--set", f"material.preset={value}", "--out", str(tmp_path / "out")]
+        )
         err = capsys.readouterr().err
         assert code == 2, name
         assert err.count("\n") == 1 and "Traceback" not in err, (name, err)

@@ -4,12 +4,13 @@ Each test states its reference and tolerance.  Compiled functions are shared thr
 module-level caches so the suite compiles each driver once.
 """
 
-from functools import lru_cache, partial
+from functools import cache, partial
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from reference_ode import anand_uniaxial_reference
 
 from jaxform.kinematics import step_kinematics
 from jaxform.materialpoint import uniaxial_compression
@@ -21,7 +22,6 @@ from jaxform.materials import (
     load_material,
 )
 from jaxform.materials.presets import MaterialError, material_from_table
-from reference_ode import anand_uniaxial_reference
 
 RATES = np.array([1e-3, 1e-2, 1e-1, 1.0])
 LAW, PARAMS = load_material("al1100_673K")
@@ -38,7 +38,7 @@ def STRESS_JACOBIAN(f, state, params, dt):
     return jax.jacfwd(lambda g: UPDATE(g, state, params, dt)[0])(f)
 
 
-@lru_cache(maxsize=None)
+@cache
 def _driver(n_steps):
     def fn(params, rate):
         return uniaxial_compression(
@@ -53,7 +53,7 @@ def _run(n_steps):
     return {k: np.asarray(v) for k, v in out.items()}
 
 
-@lru_cache(maxsize=None)
+@cache
 def _errors(n_steps):
     """Max relative stress error beyond strain 0.05, per rate, against Radau (rtol 1e-10)."""
     out = _run(n_steps)
@@ -120,7 +120,8 @@ def _fd_jacobian(fun, x, h):
 
 @pytest.mark.parametrize("dt", [1e-3, 1.0, 100.0])
 def test_consistent_tangent_against_finite_differences(dt):
-    """jax.jacfwd of the update w.r.t. f against central differences (h = 1e-7): rel. err <= 1e-6."""
+    """jax.jacfwd of the update w.r.t. f against central differences (h = 1e-7):
+    rel. err <= 1e-6."""
     state = LAW.initial_state(PARAMS)
     f_prev = jnp.diag(jnp.array([1.01, 1.01, 0.98]))
     _, state, _ = UPDATE(f_prev, state, PARAMS, 1.0)
@@ -136,7 +137,8 @@ def test_consistent_tangent_against_finite_differences(dt):
 
 
 def test_parameter_gradients_against_finite_differences():
-    """d(stress)/d(every Anand parameter) via implicit differentiation vs central FD: rel <= 1e-6."""
+    """d(stress)/d(every Anand parameter) via implicit differentiation vs central FD:
+    rel <= 1e-6."""
     state = LAW.initial_state(PARAMS)
     f = jnp.diag(jnp.array([1.004, 1.004, 0.992]))
 
@@ -243,7 +245,7 @@ def test_large_steps_and_no_nan_grid():
     assert bool(jnp.all(ok))
     assert bool(jnp.all(jnp.isfinite(stress))) and bool(jnp.all(jnp.isfinite(s)))
 
-    rate, dt = 0.01, 100.0
+    rate = 0.01
     s_star = 18.92 * (rate / 4.75e-7) ** 0.07049
     sigma_ss = s_star / 7.0 * np.arcsinh((rate / 4.75e-7) ** 0.23348)
     out = uniaxial_compression(LAW, PARAMS, final_strain=1.0, n_steps=1, strain_rate_1_s=rate)
@@ -314,9 +316,18 @@ def test_material_table_errors_name_the_key():
 
 def _anand_table():
     return {
-        "A_1_s": 4.75e-7, "Q_over_R_K": 0.0, "temperature_K": 673.0, "xi": 7.0,
-        "m": 0.23348, "s0_MPa": 29.7, "h0_MPa": 1115.6, "s_hat_MPa": 18.92, "n": 0.07049,
-        "a": 1.3, "G_MPa": 20200.0, "K_MPa": 66000.0,
+        "A_1_s": 4.75e-7,
+        "Q_over_R_K": 0.0,
+        "temperature_K": 673.0,
+        "xi": 7.0,
+        "m": 0.23348,
+        "s0_MPa": 29.7,
+        "h0_MPa": 1115.6,
+        "s_hat_MPa": 18.92,
+        "n": 0.07049,
+        "a": 1.3,
+        "G_MPa": 20200.0,
+        "K_MPa": 66000.0,
     }
 
 

@@ -26,8 +26,13 @@ def quarter_section(n=3, radius=2.5, half_height=3.75):
     def nid(i, j):
         return j * (n + 1) + i
 
-    quads = np.array([[nid(i, j), nid(i, j + 1), nid(i + 1, j + 1), nid(i + 1, j)]
-                      for j in range(n) for i in range(n)])
+    quads = np.array(
+        [
+            [nid(i, j), nid(i, j + 1), nid(i + 1, j + 1), nid(i + 1, j)]
+            for j in range(n)
+            for i in range(n)
+        ]
+    )
     lines = {
         "axis": [(nid(0, j), nid(0, j + 1)) for j in range(n)],
         "symmetry": [(nid(i, 0), nid(i + 1, 0)) for i in range(n)],
@@ -63,9 +68,15 @@ def write_meshio_gmsh(path, coords, quads, lines):
     phys = [np.full(len(lines[k]), t) for t, k in enumerate(names, start=1)]
     phys.append(np.full(len(quads), len(names) + 1))
     pts = np.column_stack([coords, np.zeros(len(coords))])
-    m = meshio.Mesh(pts, cells, cell_data={"gmsh:physical": phys, "gmsh:geometrical": phys},
-                    field_data={**{k: np.array([t, 1]) for t, k in enumerate(names, start=1)},
-                                "billet": np.array([len(names) + 1, 2])})
+    m = meshio.Mesh(
+        pts,
+        cells,
+        cell_data={"gmsh:physical": phys, "gmsh:geometrical": phys},
+        field_data={
+            **{k: np.array([t, 1]) for t, k in enumerate(names, start=1)},
+            "billet": np.array([len(names) + 1, 2]),
+        },
+    )
     meshio.write(str(path), m, file_format="gmsh22", binary=False)
 
 
@@ -92,10 +103,17 @@ def test_write_then_read_keeps_line_and_point_groups(tmp_path):
     r = rectangle(5.0, 3.75, 4, 3, origin=(-2.5, 0.0))
     centre = np.flatnonzero(np.hypot(r.coords[:, 0], r.coords[:, 1]) < 1e-12)
     side = np.concatenate([r.facet_sets["left"], r.facet_sets["right"]])
-    mesh = Mesh(r.coords, r.elements,
-                {"symmetry": r.node_sets["bottom"], "top": r.node_sets["top"],
-                 "side": np.unique(side), "axis": centre},
-                {"symmetry": r.facet_sets["bottom"], "top": r.facet_sets["top"], "side": side})
+    mesh = Mesh(
+        r.coords,
+        r.elements,
+        {
+            "symmetry": r.node_sets["bottom"],
+            "top": r.node_sets["top"],
+            "side": np.unique(side),
+            "axis": centre,
+        },
+        {"symmetry": r.facet_sets["bottom"], "top": r.facet_sets["top"], "side": side},
+    )
     write_mesh(tmp_path / "full.msh", mesh)
     back = read_mesh(tmp_path / "full.msh")
     assert sorted(back.facet_sets) == ["side", "symmetry", "top"]
@@ -109,13 +127,16 @@ def test_write_then_read_keeps_line_and_point_groups(tmp_path):
 def test_read_mesh_errors_name_the_problem(tmp_path):
     coords, quads, lines = quarter_section()
     bad = tmp_path / "tri.vtu"
-    meshio.write(str(bad), meshio.Mesh(np.column_stack([coords, np.zeros(len(coords))]),
-                                       [("triangle", quads[:, :3])]))
+    meshio.write(
+        str(bad),
+        meshio.Mesh(np.column_stack([coords, np.zeros(len(coords))]), [("triangle", quads[:, :3])]),
+    )
     with pytest.raises(MeshError, match="no 'quad' cells"):
         read_mesh(bad)
     lifted = tmp_path / "lifted.vtu"
-    meshio.write(str(lifted), meshio.Mesh(np.column_stack([coords, np.ones(len(coords))]),
-                                          [("quad", quads)]))
+    meshio.write(
+        str(lifted), meshio.Mesh(np.column_stack([coords, np.ones(len(coords))]), [("quad", quads)])
+    )
     with pytest.raises(MeshError, match="nonzero z"):
         read_mesh(lifted)
     nosym = tmp_path / "nosym.msh"
@@ -140,10 +161,12 @@ def test_upsetting_on_a_read_mesh_equals_the_structured_mesh(tmp_path):
     path = tmp_path / "billet.msh"
     write_msh22(path, coords, quads, lines)
     common = ["die.reduction=0.1", "time.dt_s=2.0", "output.fields=false", "output.plots=false"]
-    read = simulate(build_scene(load_config("configs/upsetting_seed.toml",
-                                            common + [f"mesh.file={path}"])))
-    built = simulate(build_scene(load_config("configs/upsetting_seed.toml",
-                                             common + ["mesh.nr=3", "mesh.nz=3"])))
+    read = simulate(
+        build_scene(load_config("configs/upsetting_seed.toml", common + [f"mesh.file={path}"]))
+    )
+    built = simulate(
+        build_scene(load_config("configs/upsetting_seed.toml", common + ["mesh.nr=3", "mesh.nz=3"]))
+    )
     f_read, f_built = read.history["force_N"][1:], built.history["force_N"][1:]
     assert len(f_read) == len(f_built) == 5
     assert np.max(np.abs(f_read - f_built) / f_built) <= 1e-8

@@ -12,17 +12,18 @@ import pytest
 from test_upsetting import scene, seed_run
 
 from jaxform.config import ConfigError
-from jaxform.status import OK
 from jaxform.linear import LinearSolver
 from jaxform.simulate import simulate
 from jaxform.solver import NewtonSettings, choose_method, modified_newton, newton
+from jaxform.status import OK
 
 N = 6
 RNG = np.random.default_rng(7)
 A = jnp.asarray(np.eye(N) * 4.0 + RNG.uniform(-1.0, 1.0, (N, N)))  # not symmetric
 B = jnp.asarray(RNG.uniform(-2.0, 2.0, N))
-ROWS, COLS = (jnp.asarray(a.ravel()) for a in np.meshgrid(np.arange(N), np.arange(N),
-                                                           indexing="ij"))
+ROWS, COLS = (
+    jnp.asarray(a.ravel()) for a in np.meshgrid(np.arange(N), np.arange(N), indexing="ij")
+)
 
 
 def residual(x):  # R(x) = A x + x^3 - b: one root near A^-1 b, Jacobian A + 3 diag(x^2)
@@ -51,22 +52,38 @@ def test_modified_newton_finds_the_newton_root_with_fewer_factorizations(backend
     @jax.jit
     def solve(x0, fac):
         return modified_newton(
-            residual, residual_and_jacobian,
+            residual,
+            residual_and_jacobian,
             lambda vals, old: lin.refactor(ROWS, COLS, vals, N, symbolic, old),
-            lambda f, b: lin.solve_factored(f, b, symbolic), x0, fac, settings)
+            lambda f, b: lin.solve_factored(f, b, symbolic),
+            x0,
+            fac,
+            settings,
+        )
 
     x, aux, its, code, hist, fac = solve(jnp.zeros(N), lin.empty_factorization(N, B.dtype))
     x_ref, _, its_ref, code_ref, hist_ref, none = newton(
-        residual, residual_and_jacobian, lambda v, b: lin.solve(ROWS, COLS, v, b, N), jnp.zeros(N),
-        NewtonSettings(rtol=1e-14))
+        residual,
+        residual_and_jacobian,
+        lambda v, b: lin.solve(ROWS, COLS, v, b, N),
+        jnp.zeros(N),
+        NewtonSettings(rtol=1e-14),
+    )
     assert none is None
     # full Newton that factors, solves with the factors and hands back the last
     # factorization (what a gradient run keeps for its reverse pass): the same iterates
-    x_k, _, its_k, code_k, hist_k, fac_k = jax.jit(lambda x0, fac: newton(
-        residual, residual_and_jacobian, None, x0, NewtonSettings(rtol=1e-14),
-        factor=lambda vals, old: lin.refactor(ROWS, COLS, vals, N, symbolic, old),
-        solve_factored=lambda f, b: lin.solve_factored(f, b, symbolic), fac0=fac))(
-            jnp.zeros(N), lin.empty_factorization(N, B.dtype))
+    x_k, _, its_k, code_k, hist_k, fac_k = jax.jit(
+        lambda x0, fac: newton(
+            residual,
+            residual_and_jacobian,
+            None,
+            x0,
+            NewtonSettings(rtol=1e-14),
+            factor=lambda vals, old: lin.refactor(ROWS, COLS, vals, N, symbolic, old),
+            solve_factored=lambda f, b: lin.solve_factored(f, b, symbolic),
+            fac0=fac,
+        )
+    )(jnp.zeros(N), lin.empty_factorization(N, B.dtype))
     assert int(code_k) == OK and int(its_k) == int(its_ref)
     np.testing.assert_allclose(np.asarray(hist_k), np.asarray(hist_ref), rtol=1e-12)
     assert float(jnp.max(jnp.abs(x_k - x_ref))) <= 1e-15
@@ -104,9 +121,16 @@ def test_modified_newton_cuts_back_and_completes():
     """dt = 10 s with 2 new Jacobians (and 6 more iterations) allowed: steps fail with a
     kept factorization, are halved, the factorization survives the failure (klujax: no
     double free, no use after free), the run completes (11 cutbacks measured)."""
-    sc = scene("mesh.nr=3", "mesh.nz=3", "time.dt_s=10.0", "solver.max_newton_iterations=2",
-               "solver.chunk_steps=4", "die.reduction=0.3", "solver.linear=sparse",
-               "solver.newton=modified")
+    sc = scene(
+        "mesh.nr=3",
+        "mesh.nz=3",
+        "time.dt_s=10.0",
+        "solver.max_newton_iterations=2",
+        "solver.chunk_steps=4",
+        "die.reduction=0.3",
+        "solver.linear=sparse",
+        "solver.newton=modified",
+    )
     res = simulate(sc)
     assert res.history["cutbacks"].sum() > 0
     assert abs(res.history["stroke_mm"][-1] - 0.3 * 7.5) <= 1e-12

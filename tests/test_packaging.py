@@ -47,14 +47,20 @@ def _copy_source(tmp: Path) -> Path:
     src.mkdir()
     for name in ("pyproject.toml", "README.md"):
         shutil.copy(ROOT / name, src / name)
-    shutil.copytree(ROOT / "jaxform", src / "jaxform",
-                    ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copytree(ROOT / "jaxform", src / "jaxform", ignore=shutil.ignore_patterns("__pycache__"))
     return src
 
 
 def _validate(python: str, cwd: Path, env: dict) -> list[str]:
-    out = subprocess.run([python, "-c", VALIDATE, *CONFIGS], cwd=cwd, env=env,
-                         capture_output=True, text=True, timeout=300, check=False)
+    out = subprocess.run(
+        [python, "-c", VALIDATE, *CONFIGS],
+        cwd=cwd,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
     assert out.returncode == 0, out.stderr[-2000:]
     return out.stdout.split()
 
@@ -65,9 +71,22 @@ def test_presets_are_package_data_and_load_without_the_source_tree(tmp_path):
     folder it cannot see) must load every config's material."""
     src = _copy_source(tmp_path)
     lib = tmp_path / "lib"
-    build = subprocess.run([sys.executable, "-c", "import setuptools; setuptools.setup()",
-                            "-q", "build_py", "--build-lib", str(lib)], cwd=src,
-                           capture_output=True, text=True, timeout=120, check=False)
+    build = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            "import setuptools; setuptools.setup()",
+            "-q",
+            "build_py",
+            "--build-lib",
+            str(lib),
+        ],
+        cwd=src,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
     assert build.returncode == 0, build.stderr[-2000:]
     shipped = sorted(p.stem for p in (lib / "jaxform").rglob("*.toml"))
     assert PRESETS and shipped == PRESETS
@@ -86,23 +105,46 @@ def test_installed_wheel_runs_from_another_directory(tmp_path):
     config from another directory and names the shipped presets in its error line."""
     env = _env_without_source_tree()
     pip = [sys.executable, "-m", "pip"]
-    subprocess.run([*pip, "wheel", "--no-deps", "-q", "-w", str(tmp_path / "dist"),
-                    str(_copy_source(tmp_path))],
-                   check=True, env=env, cwd=tmp_path, timeout=600)
+    subprocess.run(
+        [
+            *pip,
+            "wheel",
+            "--no-deps",
+            "-q",
+            "-w",
+            str(tmp_path / "dist"),
+            str(_copy_source(tmp_path)),
+        ],
+        check=True,
+        env=env,
+        cwd=tmp_path,
+        timeout=600,
+    )
     wheel = next((tmp_path / "dist").glob("jaxform-*.whl"))
     names = zipfile.ZipFile(wheel).namelist()
     assert sorted(Path(n).stem for n in names if n.endswith(".toml")) == PRESETS
     venv = tmp_path / "venv"
-    subprocess.run([sys.executable, "-m", "venv", "--system-site-packages", str(venv)],
-                   check=True, timeout=300)
+    subprocess.run(
+        [sys.executable, "-m", "venv", "--system-site-packages", str(venv)], check=True, timeout=300
+    )
     python = str(venv / "bin" / "python")
-    subprocess.run([python, "-m", "pip", "install", "--no-deps", "-q", str(wheel)],
-                   check=True, env=env, timeout=300)
+    subprocess.run(
+        [python, "-m", "pip", "install", "--no-deps", "-q", str(wheel)],
+        check=True,
+        env=env,
+        timeout=300,
+    )
     presets, where = _validate(python, tmp_path, env)
     assert presets.split(",") == PRESETS
     assert Path(where).resolve().is_relative_to(venv.resolve())
-    bad = subprocess.run([str(venv / "bin" / "jaxform"), "run", CONFIGS[0], "--set",
-                          "material.preset=steel"], cwd=tmp_path, env=env,
-                         capture_output=True, text=True, timeout=300, check=False)
+    bad = subprocess.run(
+        [str(venv / "bin" / "jaxform"), "run", CONFIGS[0], "--set", "material.preset=steel"],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
     assert bad.returncode == 2 and bad.stderr.count("\n") == 1, bad.stderr
     assert all(p in bad.stderr for p in PRESETS), bad.stderr

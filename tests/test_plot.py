@@ -65,8 +65,9 @@ import matplotlib.pyplot as plt
 p.force_stroke(np.arange(3.0), np.arange(3.0), {str(tmp_path / "f.png")!r}, "t")
 print(matplotlib.get_backend(), len(plt.get_fignums()))
 """
-    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
-                         timeout=120, check=False)
+    out = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, timeout=120, check=False
+    )
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.split() == ["svg", "0"]
     assert (tmp_path / "f.png").stat().st_size > 5_000

@@ -12,8 +12,15 @@ import pytest
 from jaxform import element as el
 from jaxform.geometry import polygon_measure
 from jaxform.mesh import rectangle
-from jaxform.rezone import (_interpolate, _locate, corner_qualities, gauss_to_nodes,
-                            min_quality, restore_volume, smooth)
+from jaxform.rezone import (
+    _interpolate,
+    _locate,
+    corner_qualities,
+    gauss_to_nodes,
+    min_quality,
+    restore_volume,
+    smooth,
+)
 
 
 def _distorted_grid(nr=6, nz=5, seed=3):
@@ -41,10 +48,15 @@ def test_smoothing_raises_the_quality_and_keeps_the_volume():
     for axi in (True, False):
         new = smooth(pos, 6, 5, far, axisymmetric=axi)
         assert min_quality(new, elements) > 0.8
-        for side, col, val in ((ids[0], 1, 0.0), (ids[-1], 1, 2.0), (ids[:, 0], 0, 0.0),
-                               (ids[:, -1], 0, 3.0)):
+        for side, col, val in (
+            (ids[0], 1, 0.0),
+            (ids[-1], 1, 2.0),
+            (ids[:, 0], 0, 0.0),
+            (ids[:, -1], 0, 3.0),
+        ):
             assert np.max(np.abs(new[side, col] - val)) <= 1e-12
-        v0, v1 = polygon_measure(pos[elements], axi).sum(), polygon_measure(new[elements], axi).sum()
+        v0 = polygon_measure(pos[elements], axi).sum()
+        v1 = polygon_measure(new[elements], axi).sum()
         assert abs(v1 / v0 - 1.0) <= 1e-12
 
 
@@ -115,8 +127,9 @@ def test_corner_quality_values():
     square = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
     rect = square * np.array([4.0, 1.0])
     s = np.sin(np.pi / 6)
-    rhombus = np.array([[0.0, 0.0], [1.0, 0.0], [1.0 + np.cos(np.pi / 6), s],
-                        [np.cos(np.pi / 6), s]])
+    rhombus = np.array(
+        [[0.0, 0.0], [1.0, 0.0], [1.0 + np.cos(np.pi / 6), s], [np.cos(np.pi / 6), s]]
+    )
     for shape, q in ((square, 1.0), (rect, 8.0 / 17.0), (rhombus, 0.5)):
         assert np.max(np.abs(corner_qualities(shape, elements) - q)) <= 1e-12
 
@@ -124,9 +137,12 @@ def test_corner_quality_values():
 def test_rezoning_needs_a_structured_mesh():
     from jaxform.config import ConfigError, load_config
 
-    cfg = {"billet": {"diameter_mm": 4.0, "height_mm": 2.0}, "time": {"dt_s": 1.0},
-           "die": {"speed_mm_s": 0.1, "reduction": 0.1},
-           "mesh": {"file": "some.msh", "rezone_quality": 0.3}}
+    cfg = {
+        "billet": {"diameter_mm": 4.0, "height_mm": 2.0},
+        "time": {"dt_s": 1.0},
+        "die": {"speed_mm_s": 0.1, "reduction": 0.1},
+        "mesh": {"file": "some.msh", "rezone_quality": 0.3},
+    }
     with pytest.raises(ConfigError, match="mesh.rezone_quality"):
         load_config(cfg)
     with pytest.raises(ConfigError, match="mesh.rezone_quality"):

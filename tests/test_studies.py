@@ -33,8 +33,10 @@ speed = _experiment("speed_accuracy")
 @pytest.fixture(scope="module")
 def studies(tmp_path_factory):
     out = tmp_path_factory.mktemp("studies")
-    return out, {"stability": stability.main(["--quick", "--out", str(out)]),
-                 "speed": speed.main(["--quick", "--out", str(out)])}
+    return out, {
+        "stability": stability.main(["--quick", "--out", str(out)]),
+        "speed": speed.main(["--quick", "--out", str(out)]),
+    }
 
 
 def _csv_rows(path: Path) -> list[dict]:
@@ -59,8 +61,12 @@ def test_richardson_recovers_a_power_law():
 
 
 def test_pareto_front_drops_dominated_runs():
-    rows = [dict(wall_s=1.0, e=0.1), dict(wall_s=2.0, e=0.2), dict(wall_s=3.0, e=0.01),
-            dict(wall_s=0.5, e=0.5)]
+    rows = [
+        dict(wall_s=1.0, e=0.1),
+        dict(wall_s=2.0, e=0.2),
+        dict(wall_s=3.0, e=0.01),
+        dict(wall_s=0.5, e=0.5),
+    ]
     assert [r["wall_s"] for r in speed.pareto(rows, "e")] == [0.5, 1.0, 3.0]
 
 
@@ -89,8 +95,7 @@ def test_stability_quick_writes_map(studies):
     assert done, rows
     for r in done:
         assert r["failure"] == ""
-        assert float(r["reached_stroke_mm"]) == pytest.approx(float(r["end_stroke_mm"]),
-                                                              rel=1e-9)
+        assert float(r["reached_stroke_mm"]) == pytest.approx(float(r["end_stroke_mm"]), rel=1e-9)
         assert float(r["mean_newton_per_step"]) >= 1.0
     for r in rows:
         if r["status"] == "failed":

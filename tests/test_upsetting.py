@@ -7,24 +7,24 @@ must reproduce a homogeneous deformation exactly).
 """
 
 from dataclasses import replace
-from functools import lru_cache
+from functools import cache
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 from fd_check import jacobian_fd_error
+from reference_ode import anand_uniaxial_reference
 
 from jaxform.assembly import internal_forces
 from jaxform.cli import main
 from jaxform.config import load_config
 from jaxform.io import read_csv
-from jaxform.postprocess import contact_profile, nodal_fields
 from jaxform.materialpoint import uniaxial_compression
+from jaxform.postprocess import contact_profile, nodal_fields
 from jaxform.scenes import build_scene
 from jaxform.simulate import SimulationError, simulate, step_context
 from jaxform.status import OK
-from reference_ode import anand_uniaxial_reference
 
 BASE = {
     "billet": {"diameter_mm": 5.0, "height_mm": 7.5},
@@ -38,7 +38,7 @@ def scene(*overrides):
     return build_scene(load_config(BASE, list(overrides)))
 
 
-@lru_cache(maxsize=None)
+@cache
 def homogeneous_run(element, geometry="axisymmetric"):
     sc = scene(f"mesh.element={element}", "mesh.nr=3", "mesh.nz=3", f"mesh.geometry={geometry}")
     return sc, simulate(sc)
@@ -57,9 +57,11 @@ def test_frictionless_upsetting_is_the_material_point(element):
     sc, res = homogeneous_run(element)
     h = res.history
     law, params = sc.model.law, sc.inputs.params
-    mp = jax.jit(lambda t: uniaxial_compression(
-        law, params, final_strain=1.0, n_steps=1, ram_speed_mm_s=0.075, height_mm=7.5,
-        times_s=t))(jnp.asarray(h["time_s"][1:]))
+    mp = jax.jit(
+        lambda t: uniaxial_compression(
+            law, params, final_strain=1.0, n_steps=1, ram_speed_mm_s=0.075, height_mm=7.5, times_s=t
+        )
+    )(jnp.asarray(h["time_s"][1:]))
     area = np.pi * (2.5 * np.asarray(mp["lateral_stretch"])) ** 2
     force_mp = np.asarray(mp["stress_MPa"]) * area
     rel = np.abs(h["force_N"][1:] - force_mp[1:]) / force_mp[1:]
@@ -82,14 +84,19 @@ def test_die_force_equals_reaction_and_no_penetration():
     st = res.final_state
     # reaction from the converged stresses (state at t_n = converged: dt = 0 step is identity)
     x = st.x
-    f_int = internal_forces(sc.model, x, st.gauss, sc.inputs.coords, 1e-30, sc.inputs.params,
-                            sc.idx)
+    f_int = internal_forces(
+        sc.model, x, st.gauss, sc.inputs.coords, 1e-30, sc.inputs.params, sc.idx
+    )
     reaction = float(jnp.sum(f_int[sc.idx.bottom_reaction_dofs]))  # symmetry plane pushes up
     force = res.history["force_N"][-1]
     assert abs(reaction - force) <= 1e-8 * force
     pos = positions(sc, res)
-    gaps = np.array([float(sc.inputs.die.gap(jnp.asarray(p), st.t)[0])
-                     for p in pos[np.asarray(sc.idx.contact_nodes)]])
+    gaps = np.array(
+        [
+            float(sc.inputs.die.gap(jnp.asarray(p), st.t)[0])
+            for p in pos[np.asarray(sc.idx.contact_nodes)]
+        ]
+    )
     assert gaps.min() >= -1e-8
 
 
@@ -102,8 +109,9 @@ def test_contact_pressure_of_homogeneous_upsetting_is_the_uniform_stress(geometr
     sc, res = homogeneous_run("q1p0", geometry)
     rows = list(range(1, len(res.history["time_s"]), 4)) + [len(res.history["time_s"]) - 1]
     for k in rows:
-        cp = contact_profile(sc, res.fields["x"][k], res.fields["slip_mm"][k],
-                             res.fields["contact_status"][k])
+        cp = contact_profile(
+            sc, res.fields["x"][k], res.fields["slip_mm"][k], res.fields["contact_status"][k]
+        )
         szz = res.fields["stress"][k][..., 1, 1]
         assert np.ptp(szz) <= 1e-9 * np.abs(szz).max()  # the field is uniform
         touching = cp["status"] > 0
@@ -136,14 +144,20 @@ def test_chunked_element_jacobians_equal_one_vmap():
     sc, res = homogeneous_run("q1q1")
     st = res.final_state
     ctx = step_context(sc.model, st, sc.inputs, sc.idx, st.t + 0.5, 0.5)
-    outs = [jax.jit(replace(sc.model, jacobian_chunk=c).residual_and_jacobian)(st.x, ctx)
-            for c in (0, 4)]
+    outs = [
+        jax.jit(replace(sc.model, jacobian_chunk=c).residual_and_jacobian)(st.x, ctx)
+        for c in (0, 4)
+    ]
     (r0, v0, g0, ok0, f0), (r1, v1, g1, ok1, f1) = outs
     assert int(ok0) == int(ok1) and abs(float(f1) / float(f0) - 1.0) <= 1e-11
-    errs = [np.max(np.abs(r1 - r0)) / float(f0),  # R ~ 0 here: relative to the forces
-            np.max(np.abs(v1 - v0)) / np.max(np.abs(v0))]
-    errs += [np.max(np.abs(b - a)) / np.max(np.abs(a))
-             for a, b in zip(jax.tree_util.tree_leaves(g0), jax.tree_util.tree_leaves(g1))]
+    errs = [
+        np.max(np.abs(r1 - r0)) / float(f0),  # R ~ 0 here: relative to the forces
+        np.max(np.abs(v1 - v0)) / np.max(np.abs(v0)),
+    ]
+    errs += [
+        np.max(np.abs(b - a)) / np.max(np.abs(a))
+        for a, b in zip(jax.tree_util.tree_leaves(g0), jax.tree_util.tree_leaves(g1))
+    ]
     print("relative differences (R, Jacobian, Gauss state):", errs)
     assert max(errs) <= 1e-11, errs
     # the two-pass assembly (residual pass solving every point, Jacobian pass at its
@@ -160,11 +174,19 @@ def test_chunked_element_jacobians_equal_one_vmap():
 def test_patch_test_distorted_mesh(element, geometry):
     """A distorted 3x3 mesh under frictionless upsetting deforms homogeneously: every node at
     (lam_r R, lam_z Z) to 1e-9 mm and every Gauss point at the same stress (1e-8 rel.)."""
-    sc = scene(f"mesh.element={element}", "mesh.nr=3", "mesh.nz=3", f"mesh.geometry={geometry}",
-               "die.reduction=0.1", "time.dt_s=2.0")
+    sc = scene(
+        f"mesh.element={element}",
+        "mesh.nr=3",
+        "mesh.nz=3",
+        f"mesh.geometry={geometry}",
+        "die.reduction=0.1",
+        "time.dt_s=2.0",
+    )
     coords = np.asarray(sc.inputs.coords).copy()
-    interior = np.setdiff1d(np.arange(len(coords)), np.concatenate(
-        [sc.mesh.node_sets[k] for k in ("axis", "symmetry", "top", "side")]))
+    interior = np.setdiff1d(
+        np.arange(len(coords)),
+        np.concatenate([sc.mesh.node_sets[k] for k in ("axis", "symmetry", "top", "side")]),
+    )
     coords[interior] += np.array([[0.21, -0.17], [-0.13, 0.19], [0.16, 0.12], [-0.2, -0.1]])
     sc = replace(sc, inputs=replace(sc.inputs, coords=jnp.asarray(coords)))
     res = simulate(sc)
@@ -177,7 +199,7 @@ def test_patch_test_distorted_mesh(element, geometry):
     assert np.max(np.abs(stress - stress[0])) <= 1e-8 * np.max(np.abs(stress[0]))
 
 
-@lru_cache(maxsize=None)
+@cache
 def seed_run():
     sc = scene()  # the seed scene: 10x10 q1q1, dt = 1 s
     return sc, simulate(sc)
@@ -229,35 +251,73 @@ def test_jax_sparse_backend_agrees_on_seed_scene():
 
 def test_cutback_completes_a_step_made_to_fail():
     """dt = 10 s with 3 Newton iterations allowed: steps fail, are halved, the run completes."""
-    sc = scene("mesh.nr=3", "mesh.nz=3", "time.dt_s=10.0", "solver.max_newton_iterations=3",
-               "solver.chunk_steps=4", "die.reduction=0.3")
+    sc = scene(
+        "mesh.nr=3",
+        "mesh.nz=3",
+        "time.dt_s=10.0",
+        "solver.max_newton_iterations=3",
+        "solver.chunk_steps=4",
+        "die.reduction=0.3",
+    )
     res = simulate(sc)
     assert res.history["cutbacks"].sum() > 0
     assert abs(res.history["stroke_mm"][-1] - 0.3 * 7.5) <= 1e-12
 
 
 def test_impossible_scene_stops_with_message_and_state(tmp_path):
-    code = main(["run", "configs/upsetting_seed.toml", "--out", str(tmp_path),
-                 "--set", "mesh.nr=3", "--set", "mesh.nz=3", "--set", "time.dt_s=20.0",
-                 "--set", "solver.max_newton_iterations=3", "--set", "solver.max_cutbacks=0",
-                 "--set", "solver.chunk_steps=4",
-                 "--set", "output.fields=false", "--set", "output.plots=false"])
+    code = main(
+        [
+            "run",
+            "configs/upsetting_seed.toml",
+            "--out",
+            str(tmp_path),
+            "--set",
+            "mesh.nr=3",
+            "--set",
+            "mesh.nz=3",
+            "--set",
+            "time.dt_s=20.0",
+            "--set",
+            "solver.max_newton_iterations=3",
+            "--set",
+            "solver.max_cutbacks=0",
+            "--set",
+            "solver.chunk_steps=4",
+            "--set",
+            "output.fields=false",
+            "--set",
+            "output.plots=false",
+        ]
+    )
     assert code == 1
     msg = (tmp_path / "FAILED.txt").read_text()
     assert "step 1" in msg and "Newton did not converge" in msg and "target time 20 s" in msg
     table = read_csv(tmp_path / "history.csv")
     assert np.atleast_1d(table["time_s"])[-1] == 0.0  # last converged state: the initial one
     with pytest.raises(SimulationError):
-        simulate(scene("mesh.nr=3", "mesh.nz=3", "time.dt_s=20.0", "solver.chunk_steps=4",
-                       "solver.max_newton_iterations=3", "solver.max_cutbacks=0"))
+        simulate(
+            scene(
+                "mesh.nr=3",
+                "mesh.nz=3",
+                "time.dt_s=20.0",
+                "solver.chunk_steps=4",
+                "solver.max_newton_iterations=3",
+                "solver.max_cutbacks=0",
+            )
+        )
 
 
 def test_bad_config_is_rejected_before_compiling(capsys, tmp_path):
-    for override, key in (("billet.height_mm=-1", "billet.height_mm"),
-                          ("die.reduction=1.0", "die.reduction"),
-                          ("mesh.nr=0", "mesh.nr"), ("mesh.foo=1", "mesh.foo")):
-        assert main(["run", "configs/upsetting_seed.toml", "--set", override,
-                     "--out", str(tmp_path)]) == 2
+    for override, key in (
+        ("billet.height_mm=-1", "billet.height_mm"),
+        ("die.reduction=1.0", "die.reduction"),
+        ("mesh.nr=0", "mesh.nr"),
+        ("mesh.foo=1", "mesh.foo"),
+    ):
+        assert (
+            main(["run", "configs/upsetting_seed.toml", "--set", override, "--out", str(tmp_path)])
+            == 2
+        )
         assert key in capsys.readouterr().err
 
 
@@ -266,9 +326,19 @@ def test_seed_scene_outputs(tmp_path):
     from jaxform.driver import write_outputs
 
     _, res = seed_run()
-    write_outputs(tmp_path, replace(res, scene=replace(res.scene, config={
-        **res.scene.config, "output": {**res.scene.config["output"], "fields": True,
-                                       "plots": True}})))
+    write_outputs(
+        tmp_path,
+        replace(
+            res,
+            scene=replace(
+                res.scene,
+                config={
+                    **res.scene.config,
+                    "output": {**res.scene.config["output"], "fields": True, "plots": True},
+                },
+            ),
+        ),
+    )
     table = read_csv(tmp_path / "history.csv")
     for col in ("time_s", "stroke_mm", "force_N", "newton_iterations"):
         assert col in table
@@ -319,18 +389,25 @@ def test_compact_point_tangent_equals_the_plain_derivatives(element, monkeypatch
             jac = jax.jacfwd(lambda dd: residual(dd, p, xr, dt)[0])(d)
             grads = jax.grad(scalar, argnums=(0, 1, 2))(p, xr, dt)
             g_p = jax.grad(lambda q: scalar(q, x_ref, 1.0))(p)  # f constant: df symbolic zero
-            return ([jac] + jax.tree_util.tree_leaves(grads) + jax.tree_util.tree_leaves(g_p),
-                    residual(d, p, xr, dt)[2])
+            return (
+                [jac] + jax.tree_util.tree_leaves(grads) + jax.tree_util.tree_leaves(g_p),
+                residual(d, p, xr, dt)[2],
+            )
 
         out, code = all_of_them(jnp.asarray(dofs).ravel(), params, x_ref, jnp.asarray(1.0))
         return out, int(code)
 
     compact, code = derivatives()
-    monkeypatch.setattr(fm, "planar_point_update",
-                        lambda lw, alpha, f, s, p, dt, sol=None: fm._point(lw, alpha, f, s, p, dt,
-                                                                          sol))
+    monkeypatch.setattr(
+        fm,
+        "planar_point_update",
+        lambda lw, alpha, f, s, p, dt, sol=None: fm._point(lw, alpha, f, s, p, dt, sol),
+    )
     plain, code_plain = derivatives()
     assert code == code_plain == OK
-    errs = [float(jnp.max(jnp.abs(a - b)) / jnp.max(jnp.abs(b))) for a, b in zip(compact, plain)
-            if float(jnp.max(jnp.abs(b))) > 0.0]
+    errs = [
+        float(jnp.max(jnp.abs(a - b)) / jnp.max(jnp.abs(b)))
+        for a, b in zip(compact, plain)
+        if float(jnp.max(jnp.abs(b))) > 0.0
+    ]
     assert len(errs) >= 8 and max(errs) <= 1e-12, errs

@@ -55,8 +55,15 @@ def runs():
         key = (kind, element, overrides)
         if key not in cache:
             path = COOK if kind == "cook" else PUNCH
-            cfg = load_config(path, [f"mesh.element={element}", "output.fields=false",
-                                     "output.plots=false", *overrides])
+            cfg = load_config(
+                path,
+                [
+                    f"mesh.element={element}",
+                    "output.fields=false",
+                    "output.plots=false",
+                    *overrides,
+                ],
+            )
             sc = build_scene(cfg)
             cache[key] = (sc, simulate(sc))
         return cache[key]
@@ -104,17 +111,35 @@ def test_cook_traction_is_consistent(runs):
     sc, res = runs("cook", "q1q1", "mesh.nr=32", "mesh.nz=32")
     assert abs(res.history["force_N"][-1] - 1.0) <= 1e-12
     lay = sc.model.layout
-    f = np.asarray(external_forces(sc.inputs.load, 1.0, sc.inputs.coords, sc.idx.load_facets,
-                                   False, lay.n_fields, lay.n_dofs))
-    fy = f[1:lay.n_node_dofs:lay.n_fields]
+    f = np.asarray(
+        external_forces(
+            sc.inputs.load,
+            1.0,
+            sc.inputs.coords,
+            sc.idx.load_facets,
+            False,
+            lay.n_fields,
+            lay.n_dofs,
+        )
+    )
+    fy = f[1 : lay.n_node_dofs : lay.n_fields]
     loaded = sc.mesh.node_sets["loaded"]
-    assert abs(fy.sum() - 1.0) <= 1e-12 and np.all(f[0::lay.n_fields] == 0.0)
+    assert abs(fy.sum() - 1.0) <= 1e-12 and np.all(f[0 :: lay.n_fields] == 0.0)
     assert np.all(np.delete(fy, loaded) == 0.0)
     ends = np.isin(loaded, [loaded.min(), loaded.max()])  # the two corners: half a facet
     np.testing.assert_allclose(fy[loaded][~ends], 1.0 / 32, rtol=1e-12)
     np.testing.assert_allclose(fy[loaded][ends], 0.5 / 32, rtol=1e-12)
-    half = np.asarray(external_forces(sc.inputs.load, 0.5, sc.inputs.coords,
-                                      sc.idx.load_facets, False, lay.n_fields, lay.n_dofs))
+    half = np.asarray(
+        external_forces(
+            sc.inputs.load,
+            0.5,
+            sc.inputs.coords,
+            sc.idx.load_facets,
+            False,
+            lay.n_fields,
+            lay.n_dofs,
+        )
+    )
     np.testing.assert_allclose(half, 0.5 * f, rtol=1e-15)
 
 
@@ -163,9 +188,9 @@ def test_oscillation_measure_sees_a_checkerboard(runs):
     sc, res = runs("cook", "q1q1", "mesh.nr=32", "mesh.nz=32")
     x = np.array(res.fields["x"][-1])
     i, j = np.meshgrid(np.arange(33), np.arange(33))
-    x[2:sc.model.layout.n_node_dofs:3] = ((-1.0) ** (i + j)).ravel()
+    x[2 : sc.model.layout.n_node_dofs : 3] = ((-1.0) ** (i + j)).ravel()
     assert abs(pressure_oscillation(sc, x) - 1.0) <= 1e-12
-    x[2:sc.model.layout.n_node_dofs:3] = 1.0 + 0.01 * np.asarray(sc.mesh.coords[:, 0])
+    x[2 : sc.model.layout.n_node_dofs : 3] = 1.0 + 0.01 * np.asarray(sc.mesh.coords[:, 0])
     assert pressure_oscillation(sc, x) < 0.05
 
 
@@ -184,8 +209,9 @@ def punch_ratio(runs, element, per_a, line_search=False):
     meshes to the same answer (1e-8; q1q1 and q1p0 with 1-2 cutbacks in the first steps) and
     the backtracking loop stays out of the compiled program (~2-5 s per program); q1p0 at
     a/h = 16.5 needs the line search (config default) in its first step."""
-    _, res = runs("punch", element, f"solver.line_search={str(line_search).lower()}",
-                  *punch_overrides(per_a))
+    _, res = runs(
+        "punch", element, f"solver.line_search={str(line_search).lower()}", *punch_overrides(per_a)
+    )
     return res.history["force_N"] / A_MM / PRANDTL_MPA
 
 
@@ -235,8 +261,9 @@ def test_punch_config_is_validated():
     with pytest.raises(ConfigError, match=r"\[load\] does not apply to a \[block\] scene"):
         load_config(PUNCH, ["load.force_y_N=1.0"])
     with pytest.raises(ConfigError, match=r"membrane.corners_mm .* convex"):
-        load_config(COOK, ["membrane.corners_mm=[[0.0, 0.0], [0.0, 44.0], [48.0, 60.0], "
-                           "[48.0, 44.0]]"])
+        load_config(
+            COOK, ["membrane.corners_mm=[[0.0, 0.0], [0.0, 44.0], [48.0, 60.0], [48.0, 44.0]]"]
+        )
     with pytest.raises(ConfigError, match=r"load.edge = 'left': must differ"):
         load_config(COOK, ["load.edge=left"])
     with pytest.raises(ConfigError, match=r"\[die\] does not apply to a \[membrane\] scene"):

@@ -13,5 +13,13 @@ from jaxform.design.optimize import DesignHistory, OptimizerSettings, optimize
 from jaxform.design.problem import DesignProblem, available_groups, build_problem
 from jaxform.design.taylor import format_table, taylor_test
 
-__all__ = ["DesignHistory", "DesignProblem", "OptimizerSettings", "available_groups",
-           "build_problem", "format_table", "optimize", "taylor_test"]
+__all__ = [
+    "DesignHistory",
+    "DesignProblem",
+    "OptimizerSettings",
+    "available_groups",
+    "build_problem",
+    "format_table",
+    "optimize",
+    "taylor_test",
+]

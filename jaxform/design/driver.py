@@ -1,8 +1,8 @@
 """Design runs from a config: what `jaxform design` and `jaxform taylor-test` do.
 
-    config --load_config/build_scene--> Scene --build_problem--> DesignProblem
-      design:      optimize -> design_history.csv, objective.png, shapes.png, config.toml
-      taylor-test: taylor_test over every design group of the scene (available_groups)
+config --load_config/build_scene--> Scene --build_problem--> DesignProblem
+  design:      optimize -> design_history.csv, objective.png, shapes.png, config.toml
+  taylor-test: taylor_test over every design group of the scene (available_groups)
 """
 
 from __future__ import annotations
@@ -33,24 +33,33 @@ def run_design(config, overrides=(), out_dir: str | Path = "out/design", progres
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     dump_config(cfg, out / "config.toml")
-    cols = {"iteration": np.arange(len(hist.objective)),
-            "objective": np.array(hist.objective), "grad_norm": np.array(hist.grad_norm)}
+    cols = {
+        "iteration": np.arange(len(hist.objective)),
+        "objective": np.array(hist.objective),
+        "grad_norm": np.array(hist.grad_norm),
+    }
     phys = [problem.physical(u) for u in hist.designs]
     for key in phys[0]:
         cols[key] = np.array([p[key] for p in phys])
     write_csv(out / "design_history.csv", cols)
     unit = getattr(problem.objective, "unit", "-")
-    design_objective(hist.objective, out / "objective.png",
-                     f"{d['objective']} ({d['optimizer']})", unit)
+    design_objective(
+        hist.objective, out / "objective.png", f"{d['objective']} ({d['optimizer']})", unit
+    )
     _, traj0 = problem.value(hist.designs[0])
     _, traj1 = problem.value(hist.designs[-1])
-    shapes = {"initial design, start": np.asarray(traj0.coords),
-              "initial design, end": np.asarray(traj0.positions),
-              "optimized, start": np.asarray(traj1.coords),
-              "optimized, end": np.asarray(traj1.positions)}
-    design_shapes(shapes, np.asarray(scene.mesh.elements), out / "shapes.png",
-                  f"shapes: {d['objective']} {hist.objective[0]:.4g} -> "
-                  f"{hist.objective[-1]:.4g} {unit}")
+    shapes = {
+        "initial design, start": np.asarray(traj0.coords),
+        "initial design, end": np.asarray(traj0.positions),
+        "optimized, start": np.asarray(traj1.coords),
+        "optimized, end": np.asarray(traj1.positions),
+    }
+    design_shapes(
+        shapes,
+        np.asarray(scene.mesh.elements),
+        out / "shapes.png",
+        f"shapes: {d['objective']} {hist.objective[0]:.4g} -> {hist.objective[-1]:.4g} {unit}",
+    )
     return problem, hist
 
 

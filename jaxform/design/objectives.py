@@ -1,7 +1,8 @@
 """Design objectives: pure functions of a differentiable run (:class:`Trajectory`).
 
 Each objective is a small immutable object holding its set-up constants (node or element
-sets, targets) with ``__call__(traj, inputs) -> scalar`` (``inputs`` = the run's inputs) (traceable, differentiable) and a
+sets, targets) with ``__call__(traj, inputs) -> scalar`` (``inputs`` = the run's inputs)
+(traceable, differentiable) and a
 ``unit``/``describe`` for reports.  Built from a scene and the config by
 :func:`jaxform.design.problem.build_objective`.
 
@@ -102,8 +103,9 @@ def cavity_volume(points, travel, axisymmetric: bool):
     clamping, exact for profiles that cross z = 0 only at their last segment)."""
     pts = points - jnp.stack([0.0, travel])[None, :]
     pts = pts.at[:, 1].set(jnp.maximum(pts[:, 1], 0.0))
-    poly = jnp.concatenate([jnp.zeros((1, 2), pts.dtype), pts,
-                            jnp.stack([pts[-1, 0], 0.0])[None, :]], axis=0)
+    poly = jnp.concatenate(
+        [jnp.zeros((1, 2), pts.dtype), pts, jnp.stack([pts[-1, 0], 0.0])[None, :]], axis=0
+    )
     return jnp.abs(polygon_measure(poly, axisymmetric))
 
 

@@ -22,8 +22,8 @@ the design.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import jax
 import jax.numpy as jnp
@@ -74,8 +74,12 @@ def _projected_grad_norm(u, g, lo, hi):
     return float(np.linalg.norm(gf[free]))
 
 
-def optimize(problem, settings: OptimizerSettings = OptimizerSettings(), design=None,
-             progress: Callable[[int, float, float, dict], None] | None = None) -> DesignHistory:
+def optimize(
+    problem,
+    settings: OptimizerSettings = OptimizerSettings(),
+    design=None,
+    progress: Callable[[int, float, float, dict], None] | None = None,
+) -> DesignHistory:
     """Minimize ``problem``'s objective within its bounds (optax, projected steps).
 
     Arguments:
@@ -115,17 +119,24 @@ def optimize(problem, settings: OptimizerSettings = OptimizerSettings(), design=
         if settings.method == "lbfgs":
             updates = jax.tree_util.tree_map(lambda d: -d, updates)
             # first / any step: no component moves by more than a quarter of its box
-            ratio = max(float(jnp.max(jnp.abs(d) / (0.25 * w)))
-                        for d, w in zip(jax.tree_util.tree_leaves(updates),
-                                        jax.tree_util.tree_leaves(width)))
+            ratio = max(
+                float(jnp.max(jnp.abs(d) / (0.25 * w)))
+                for d, w in zip(
+                    jax.tree_util.tree_leaves(updates), jax.tree_util.tree_leaves(width)
+                )
+            )
             if ratio > 1.0:
                 updates = jax.tree_util.tree_map(lambda d: d / ratio, updates)
         step, accepted = 1.0, False
         for _ in range(settings.max_backtracks + 1):
             trial = project(jax.tree_util.tree_map(lambda a, d: a + step * d, u, updates))
             move = jax.tree_util.tree_map(lambda a, b: a - b, trial, u)
-            decrease = float(sum(jnp.vdot(gi, mi) for gi, mi in zip(
-                jax.tree_util.tree_leaves(g), jax.tree_util.tree_leaves(move))))
+            decrease = float(
+                sum(
+                    jnp.vdot(gi, mi)
+                    for gi, mi in zip(jax.tree_util.tree_leaves(g), jax.tree_util.tree_leaves(move))
+                )
+            )
             try:
                 val_t, g_t = evaluate(trial)
             except GradientRunError:
@@ -133,7 +144,8 @@ def optimize(problem, settings: OptimizerSettings = OptimizerSettings(), design=
                 step *= 0.5
                 continue
             ok = np.isfinite(val_t) and (
-                settings.method == "adam" or val_t <= val + settings.armijo * decrease)
+                settings.method == "adam" or val_t <= val + settings.armijo * decrease
+            )
             if ok:
                 accepted = True
                 break

@@ -133,8 +133,9 @@ class PreformCosine:
     def profile(self, u, z):
         """Unscaled profile factor 1 + sum_k a_k cos(k pi z / H) at heights z."""
         k = jnp.arange(1, self.n_modes + 1)
-        return 1.0 + jnp.sum(u[None, :] * jnp.cos(jnp.pi * k[None, :] * z[:, None]
-                                                   / self.height_mm), axis=1)
+        return 1.0 + jnp.sum(
+            u[None, :] * jnp.cos(jnp.pi * k[None, :] * z[:, None] / self.height_mm), axis=1
+        )
 
     def shape(self, u, coords):
         coords = jnp.asarray(coords)
@@ -143,8 +144,9 @@ class PreformCosine:
             v0 = workpiece_volume(coords, self.elements, True)
             c = jnp.sqrt(v0 / workpiece_volume(moved, self.elements, True))
         else:  # plane strain: the area scales by c
-            c = (workpiece_volume(coords, self.elements, False)
-                 / workpiece_volume(moved, self.elements, False))
+            c = workpiece_volume(coords, self.elements, False) / workpiece_volume(
+                moved, self.elements, False
+            )
         return moved.at[:, 0].multiply(c)
 
     def apply(self, u, inputs, times):
@@ -182,8 +184,10 @@ class NodalCoordinates:
         return replace(inputs, coords=coords), times
 
     def physical(self, u):
-        return {f"node{n}_d{'rz'[c]}_mm": float(u[k])
-                for k, (n, c) in enumerate(zip(self.nodes, self.components))}
+        return {
+            f"node{n}_d{'rz'[c]}_mm": float(u[k])
+            for k, (n, c) in enumerate(zip(self.nodes, self.components))
+        }
 
 
 @dataclass(frozen=True)

@@ -60,8 +60,7 @@ class DesignProblem:
     def _value_and_grad(self):
         # the reverse pass reuses the forward factorizations that fit the scene's
         # adjoint_memory_mb; they are freed by _released once the program has run
-        return jit(jax.value_and_grad(partial(self._j, reuse_factorizations=True),
-                                      has_aux=True))
+        return jit(jax.value_and_grad(partial(self._j, reuse_factorizations=True), has_aux=True))
 
     def _released(self, traj):
         return release(self.scene, jax.block_until_ready(traj))
@@ -104,7 +103,8 @@ def check_design_scene(scene: Scene) -> None:
         raise ConfigError(
             f"design problems (jaxform design, taylor-test) need a scene pressed by a die: "
             f"this [{scene.kind}] scene has no {' or '.join(f'[{s}]' for s in missing)} "
-            f"section; allowed workpieces: [billet], [ring], [block]")
+            f"section; allowed workpieces: [billet], [ring], [block]"
+        )
 
 
 def available_groups(scene: Scene) -> tuple[str, ...]:
@@ -133,16 +133,22 @@ def build_group(scene: Scene, name: str):
         params = scene.inputs.params
         for p in d["material_params"]:
             if not hasattr(params, p):
-                raise ConfigError(f"design.material_params: {p!r} is not a parameter of this "
-                                  f"material; allowed: {', '.join(vars(params))}")
-        return par.MaterialParams(tuple(d["material_params"]),
-                                  tuple(float(getattr(params, p)) for p in d["material_params"]),
-                                  bound_log=float(np.log(d["bound_factor"])))
+                raise ConfigError(
+                    f"design.material_params: {p!r} is not a parameter of this "
+                    f"material; allowed: {', '.join(vars(params))}"
+                )
+        return par.MaterialParams(
+            tuple(d["material_params"]),
+            tuple(float(getattr(params, p)) for p in d["material_params"]),
+            bound_log=float(np.log(d["bound_factor"])),
+        )
     if name == "friction":
         model = cfg["friction"]["model"]
         if model not in ("coulomb", "shear"):
-            raise ConfigError(f"design.variables has 'friction' but friction.model = {model!r}: "
-                              f"needs 'coulomb' or 'shear'")
+            raise ConfigError(
+                f"design.variables has 'friction' but friction.model = {model!r}: "
+                f"needs 'coulomb' or 'shear'"
+            )
         key = "mu" if model == "coulomb" else "m"
         return par.Friction(key, float(cfg["friction"][key]), 10.0 if key == "mu" else 1.0)
     if name == "speed":
@@ -150,13 +156,19 @@ def build_group(scene: Scene, name: str):
         return par.RamSpeed(speed, bound_log=float(np.log(d["bound_factor"])))
     if name == "preform":
         if "billet" not in cfg or cfg["mesh"]["file"]:
-            raise ConfigError("design.variables has 'preform': needs a [billet] section and "
-                              "the structured mesh (mesh.file = '')")
+            raise ConfigError(
+                "design.variables has 'preform': needs a [billet] section and "
+                "the structured mesh (mesh.file = '')"
+            )
         b = cfg["billet"]
-        return par.PreformCosine(d["preform_modes"], 0.5 * b["height_mm"], 0.5 * b["diameter_mm"],
-                                 np.asarray(scene.mesh.elements),
-                                 axisymmetric=scene.model.formulation.axisymmetric,
-                                 amplitude_max=d["preform_amplitude_max"])
+        return par.PreformCosine(
+            d["preform_modes"],
+            0.5 * b["height_mm"],
+            0.5 * b["diameter_mm"],
+            np.asarray(scene.mesh.elements),
+            axisymmetric=scene.model.formulation.axisymmetric,
+            amplitude_max=d["preform_amplitude_max"],
+        )
     if name == "nodes":
         nf = scene.model.layout.n_fields
         held = np.zeros((scene.model.layout.n_nodes, 2), dtype=bool)
@@ -170,8 +182,10 @@ def build_group(scene: Scene, name: str):
         n_pts = int(scene.inputs.die.points.shape[0])
         pts = d["die_points"] or list(range(n_pts))
         if any(p != int(p) or not 0 <= p < n_pts for p in pts):
-            raise ConfigError(f"design.die_points = {d['die_points']!r}: must be integer "
-                              f"indices in [0, {n_pts - 1}] of the die profile points")
+            raise ConfigError(
+                f"design.die_points = {d['die_points']!r}: must be integer "
+                f"indices in [0, {n_pts - 1}] of the die profile points"
+            )
         return par.DieProfile(tuple(int(p) for p in pts), offset_max_mm=d["die_offset_max_mm"])
     raise ConfigError(f"design group {name!r}: must be one of {', '.join(GROUPS)}")
 
@@ -223,8 +237,13 @@ def build_objective(scene: Scene):
     return obj.ShapeTarget(nodes, np.column_stack([c["r_mm"], c["z_mm"]]))
 
 
-def build_problem(scene: Scene, groups: tuple[str, ...] | None = None,
-                  objective=None, times=None, single_program: bool = False) -> DesignProblem:
+def build_problem(
+    scene: Scene,
+    groups: tuple[str, ...] | None = None,
+    objective=None,
+    times=None,
+    single_program: bool = False,
+) -> DesignProblem:
     """A design problem for ``scene``: design groups, objective and a fixed step schedule.
 
     Arguments:
@@ -250,7 +269,8 @@ def build_problem(scene: Scene, groups: tuple[str, ...] | None = None,
     start = par.initial_design(built)
     if "material" in start:
         start["material"] = start["material"] + np.log(
-            scene.config["design"]["material_start_factor"])
+            scene.config["design"]["material_start_factor"]
+        )
     objective = build_objective(scene) if objective is None else objective
     if times is None:
         inputs, _ = par.apply_all(built, start, scene.inputs, jnp.asarray(scene.step_targets()))

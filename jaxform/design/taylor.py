@@ -20,8 +20,14 @@ from dataclasses import dataclass
 import numpy as np
 
 # magnitude of the random direction per group, in that group's design variables
-SCALE = {"material": 0.02, "friction": 0.01, "speed": 0.02, "preform": 0.01, "nodes": 0.003,
-         "die": 0.01}
+SCALE = {
+    "material": 0.02,
+    "friction": 0.01,
+    "speed": 0.02,
+    "preform": 0.01,
+    "nodes": 0.003,
+    "die": 0.01,
+}
 
 
 @dataclass(frozen=True)
@@ -44,8 +50,14 @@ def _rates(h, r):
     return np.log(r[:-1] / r[1:]) / np.log(h[:-1] / h[1:])
 
 
-def taylor_test(problem, design=None, h=(1.0, 0.5, 0.25, 0.125), seed=0,
-                groups: tuple[str, ...] | None = None, progress=None) -> list[TaylorRow]:
+def taylor_test(
+    problem,
+    design=None,
+    h=(1.0, 0.5, 0.25, 0.125),
+    seed=0,
+    groups: tuple[str, ...] | None = None,
+    progress=None,
+) -> list[TaylorRow]:
     """Taylor remainders for each group of ``problem`` at ``design`` (a gradient check).
 
     Arguments:
@@ -86,14 +98,15 @@ def taylor_test(problem, design=None, h=(1.0, 0.5, 0.25, 0.125), seed=0,
 
 
 def format_table(rows: list[TaylorRow]) -> str:
-    lines = [f"{'group':<10} {'h':>9} {'|J(u+h du)-J(u)|':>18} {'rate':>6} "
-             f"{'|...-h dJ.du|':>14} {'rate':>6}"]
+    lines = [
+        f"{'group':<10} {'h':>9} {'|J(u+h du)-J(u)|':>18} {'rate':>6} "
+        f"{'|...-h dJ.du|':>14} {'rate':>6}"
+    ]
     for row in rows:
         for k, hk in enumerate(row.h):
             ra0 = f"{row.rate0[k - 1]:6.2f}" if k else " " * 6
             ra1 = f"{row.rate1[k - 1]:6.2f}" if k else " " * 6
-            lines.append(f"{row.group:<10} {hk:9.4g} {row.r0[k]:18.6e} {ra0} "
-                         f"{row.r1[k]:14.6e} {ra1}")
+            lines.append(
+                f"{row.group:<10} {hk:9.4g} {row.r0[k]:18.6e} {ra0} {row.r1[k]:14.6e} {ra1}"
+            )
     return "\n".join(lines)
-
-

@@ -130,8 +130,7 @@ def _local_residual(z, args):
     """Both backward-Euler equations at z = (y, s): flow (MPa) and hardening (MPa)."""
     sig_tr, s_n, log_dt, p = args
     y, s = z[0], z[1]
-    return jnp.stack([_flow_residual(y, s, sig_tr, log_dt, p),
-                      _s_residual(s, (y, s_n, log_dt, p))])
+    return jnp.stack([_flow_residual(y, s, sig_tr, log_dt, p), _s_residual(s, (y, s_n, log_dt, p))])
 
 
 @dataclass(frozen=True)
@@ -184,7 +183,13 @@ class Anand:
         y0 = jnp.clip(y_visc, y_lo, y_hi)
         args = (sig_tr, s_n, log_dt, p)
         y, conv_y = root_scalar(
-            self._y_residual, args, y_lo, y_hi, y0, self.rtol, self.rtol * sig_tr,
+            self._y_residual,
+            args,
+            y_lo,
+            y_hi,
+            y0,
+            self.rtol,
+            self.rtol * sig_tr,
             self.max_outer,
         )
         s_new, conv_s = self._s_of_y(y, s_n, log_dt, p)
@@ -215,8 +220,14 @@ class Anand:
         return deqps, s_new, sigma_new, ok
 
     # -- the material update ----------------------------------------------------------
-    def update(self, kin: StepKinematics, state_old: MaterialState, params: AnandParams, dt,
-               solution: MaterialState | None = None):
+    def update(
+        self,
+        kin: StepKinematics,
+        state_old: MaterialState,
+        params: AnandParams,
+        dt,
+        solution: MaterialState | None = None,
+    ):
         p = params
         trial = elastic_trial(state_old.stress, kin.dE, p.G_MPa, p.K_MPa)
         sig_tr, positive = trial_equivalent(trial)

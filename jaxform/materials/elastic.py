@@ -34,8 +34,14 @@ class Hypoelastic:
     def shear_modulus(self, params: ElasticParams):
         return params.G_MPa
 
-    def update(self, kin: StepKinematics, state_old: MaterialState, params: ElasticParams, dt,
-               solution: MaterialState | None = None):
+    def update(
+        self,
+        kin: StepKinematics,
+        state_old: MaterialState,
+        params: ElasticParams,
+        dt,
+        solution: MaterialState | None = None,
+    ):
         del solution  # closed form: nothing to solve
         trial = elastic_trial(state_old.stress, kin.dE, params.G_MPa, params.K_MPa)
         stress = finish(kin, trial)

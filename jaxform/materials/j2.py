@@ -45,8 +45,14 @@ class J2Plasticity:
     def shear_modulus(self, params: J2Params):
         return params.G_MPa
 
-    def update(self, kin: StepKinematics, state_old: MaterialState, params: J2Params, dt,
-               solution: MaterialState | None = None):
+    def update(
+        self,
+        kin: StepKinematics,
+        state_old: MaterialState,
+        params: J2Params,
+        dt,
+        solution: MaterialState | None = None,
+    ):
         del solution  # closed form: nothing to solve
         g, h = params.G_MPa, params.H_MPa
         trial = elastic_trial(state_old.stress, kin.dE, g, params.K_MPa)

@@ -101,8 +101,7 @@ def material_from_table(law_name: str, params: dict, where: str = "material.para
     unknown = sorted(set(params) - set(ranges))
     if unknown:
         raise MaterialError(
-            f"{where}: unknown key(s) {unknown} for law {law_name!r}; "
-            f"allowed: {sorted(ranges)}"
+            f"{where}: unknown key(s) {unknown} for law {law_name!r}; allowed: {sorted(ranges)}"
         )
     missing = sorted(set(ranges) - set(params))
     if missing:
@@ -111,8 +110,9 @@ def material_from_table(law_name: str, params: dict, where: str = "material.para
     for key, (lo, hi, lo_incl) in ranges.items():
         v = params[key]
         if isinstance(v, bool) or not isinstance(v, (int, float)):
-            raise MaterialError(f"{where}.{key} = {v!r}: must be a number in "
-                                f"{_range_text(lo, hi, lo_incl)}")
+            raise MaterialError(
+                f"{where}.{key} = {v!r}: must be a number in {_range_text(lo, hi, lo_incl)}"
+            )
         v = float(v)
         ok_lo = v >= lo if lo_incl else v > lo
         if not (math.isfinite(v) and ok_lo and v < hi):
@@ -123,8 +123,10 @@ def material_from_table(law_name: str, params: dict, where: str = "material.para
     return law_cls(), params_cls(**values)
 
 
-_FORMAT = (f"a material file is TOML with law = one of {sorted(LAWS)}, an optional "
-           f"description and a [params] table")
+_FORMAT = (
+    f"a material file is TOML with law = one of {sorted(LAWS)}, an optional "
+    f"description and a [params] table"
+)
 
 
 def _allowed(names) -> str:
@@ -160,8 +162,9 @@ def load_material(name_or_path: str | Path, key: str = "material.preset"):
     try:
         data = path.read_bytes()
     except OSError as err:
-        raise MaterialError(f"{head}: cannot read the file ({err.strerror}); "
-                            f"{_allowed(sorted(presets))}") from err
+        raise MaterialError(
+            f"{head}: cannot read the file ({err.strerror}); {_allowed(sorted(presets))}"
+        ) from err
     return _from_bytes(data, head)
 
 
@@ -175,15 +178,16 @@ def _from_bytes(data: bytes, head: str):
         raise MaterialError(f"{head}: invalid TOML ({err}); {_FORMAT}") from err
     unknown = sorted(set(table) - {"law", "description", "params"})
     if unknown:
-        raise MaterialError(f"{head}: unknown key(s) {unknown}; allowed: law, description, "
-                            f"params")
+        raise MaterialError(f"{head}: unknown key(s) {unknown}; allowed: law, description, params")
     law = table.get("law")
     if not isinstance(law, str) or law not in LAWS:
         raise MaterialError(f"{head}: law = {law!r}: must be one of {sorted(LAWS)}")
     params = table.get("params")
     if not isinstance(params, dict):
-        raise MaterialError(f"{head}: needs a [params] table with the keys of law {law!r}: "
-                            f"{', '.join(LAWS[law][2])}")
+        raise MaterialError(
+            f"{head}: needs a [params] table with the keys of law {law!r}: "
+            f"{', '.join(LAWS[law][2])}"
+        )
     return material_from_table(law, params, where=f"{head}: params")
 
 
