@@ -545,8 +545,8 @@ def _failure_message(scene: Scene, inp: Inputs, state: SimState, step: int, row)
     t = float(state.t)
     return (
         f"step {step} (last converged time {t:g} s, target time "
-        f"{min(t + h_min, scene.t_end):g} s) failed at the smallest step dt = {h_min:g} s "
-        f"(time.dt_s / 2**solver.max_cutbacks) after {int(row['cutbacks'])} attempts: "
+        f"{min(t + h_min, scene.t_end):g} s) failed after {int(row['cutbacks'])} attempts, "
+        f"the last at the smallest step dt = {h_min:g} s (time.dt_s / 2**solver.max_cutbacks): "
         f"{CAUSES.get(int(row['code']), 'unknown')}; worst element {e} at "
         f"({centre[0]:.4g}, {centre[1]:.4g}) mm, corner quality {q[e]:.3g}"
     )
