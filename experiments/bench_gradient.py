@@ -9,7 +9,7 @@ configs/upsetting_friction.toml) on the same fixed step schedule:
 * gradient: value and gradient with respect to every design group of the scene
   (material s0/h0/s_hat, friction, ram speed, 3 preform modes, die points) in one
   reverse pass (problem.value_and_grad, compiled);
-* simulate: the ordinary forward run with cutback (jaxform.simulate), for reference.
+* simulate: the ordinary forward run with cutback (jaxform.simulation), for reference.
 
 Times are the best of --repeat runs after compilation; the forward and gradient runs
 alternate (forward, gradient, forward, ...), so that load from other jobs on a shared
@@ -44,7 +44,7 @@ from jaxform.config import load_config
 from jaxform.design import available_groups, build_problem
 from jaxform.gradients import kept_steps
 from jaxform.scenes import build_scene
-from jaxform.simulate import simulate
+from jaxform.simulation import simulate
 
 CONFIGS = {"seed": "configs/upsetting_seed.toml", "friction": "configs/upsetting_friction.toml"}
 

@@ -37,7 +37,7 @@ def jacobian(n: int):
     import jaxform
     from jaxform.config import load_config
     from jaxform.scenes import build_scene
-    from jaxform.simulate import step_context
+    from jaxform.stepping import initial_state, step_context
 
     jaxform.enable_x64()
     cfg = load_config(
@@ -45,7 +45,7 @@ def jacobian(n: int):
     )
     sc = build_scene(cfg)
     lay, idx, inp, model = sc.model.layout, sc.idx, sc.inputs, sc.model
-    st = sc.initial_state()
+    st = initial_state(sc.model, sc.inputs)
     coords = np.asarray(inp.coords)
     e = cfg["die"]["speed_mm_s"] * sc.dt / cfg["billet"]["height_mm"]
     x = np.zeros(lay.n_dofs)

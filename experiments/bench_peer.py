@@ -13,7 +13,8 @@ under and beside the punch and the force is within a few % of its plateau.  Forc
 punch force per mm of depth on the half model (N/mm).
 
 * **jaxform** (this repository): the scene is a ``[block]`` config dict (rigid punch
-  ``die.profile_mm``, corner radius h/10) run by ``jaxform.simulate`` -- the real code path:
+  ``die.profile_mm``, corner radius h/10) run by ``jaxform.simulation.simulate`` -- the real
+  code path:
   node-to-die contact by complementarity functions with the contact multipliers as extra
   unknowns, finite strain (updated positions, rotation-neutralized strain increment),
   Newton with backtracking line search and a rate predictor inside one compiled
@@ -147,7 +148,8 @@ def run_jaxform(n: int, element: str, split: bool = True) -> dict:
     import jaxform
     from jaxform.config import load_config
     from jaxform.scenes import build_scene
-    from jaxform.simulate import simulate, step_context
+    from jaxform.simulation import simulate
+    from jaxform.stepping import step_context
 
     jaxform.enable_x64()
     cfg = load_config(jaxform_config(n, element))

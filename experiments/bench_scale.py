@@ -51,7 +51,7 @@ def one(n: int, linear: str) -> dict:
     import jaxform
     from jaxform.config import load_config
     from jaxform.scenes import build_scene
-    from jaxform.simulate import step_context
+    from jaxform.stepping import initial_state, step_context
     from jaxform.xla_options import jit
 
     jaxform.enable_x64()
@@ -67,7 +67,7 @@ def one(n: int, linear: str) -> dict:
     )
     sc = build_scene(cfg)
     lay, idx, inp, model = sc.model.layout, sc.idx, sc.inputs, sc.model
-    st = sc.initial_state()
+    st = initial_state(sc.model, sc.inputs)
     coords = np.asarray(inp.coords)
     e = cfg["die"]["speed_mm_s"] * sc.dt / cfg["billet"]["height_mm"]  # first step's strain
     x = np.zeros(lay.n_dofs)

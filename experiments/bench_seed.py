@@ -18,7 +18,7 @@ from timing import cold_and_warm
 import jaxform
 from jaxform.config import load_config
 from jaxform.scenes import build_scene
-from jaxform.simulate import simulate
+from jaxform.simulation import simulate
 
 
 def main():

@@ -23,7 +23,7 @@ Programs: ``seed`` (``jaxform.driver.run`` of configs/upsetting_seed.toml, full 
 with klujax), ``seed-modified`` (the same with modified Newton: its load-step chunk frees
 factorizations through a host callback), ``friction`` (configs/upsetting_friction.toml),
 ``gradient`` (value and gradient of the 10 x 10 seed with respect to every design group,
-as experiments/bench_gradient.py), ``design`` (``jaxform.design.driver.run_design`` of
+as experiments/bench_gradient.py), ``design`` (``jaxform.driver.run_design`` of
 configs/preform_design.toml).  ``--quick``: seed only, and two design iterations.
 Writes a CSV (default out/bench_startup.csv) and prints a markdown table.  Timings on a
 shared machine are noisy: compare cold and warm of one program, not across runs.
@@ -119,7 +119,7 @@ def child(program: str, quick: bool) -> dict:
         from jaxform.design import available_groups, build_problem
         from jaxform.scenes import build_scene
     else:
-        from jaxform.design.driver import run_design
+        from jaxform.driver import run_design
     t_import = time.perf_counter() - t0
     jaxform.enable_x64()
     enable_compilation_cache()  # the directory from JAXFORM_CACHE_DIR (set by the parent)

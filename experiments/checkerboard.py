@@ -30,7 +30,7 @@ import jaxform
 from jaxform.config import load_config
 from jaxform.postprocess import nodal_fields, pressure_oscillation
 from jaxform.scenes import build_scene
-from jaxform.simulate import simulate
+from jaxform.simulation import simulate
 
 CONFIG = Path(__file__).resolve().parents[1] / "configs" / "cooks_membrane.toml"
 REFERENCE_MM = 0.077587  # linear tip compliance x 1 N (experiments/cooks_membrane.py)

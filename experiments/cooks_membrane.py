@@ -35,7 +35,7 @@ import numpy as np
 import jaxform
 from jaxform.config import load_config
 from jaxform.scenes import build_scene
-from jaxform.simulate import simulate
+from jaxform.simulation import simulate
 
 CONFIG = Path(__file__).resolve().parents[1] / "configs" / "cooks_membrane.toml"
 # (load N per mm of depth, time step s): one step for the small load, ten for the large one

@@ -52,7 +52,7 @@ QUIET = ["output.plots=false", "output.fields=false"]
 
 
 def run_one(config: str, overrides: list[str]) -> dict:
-    from jaxform.simulate import SimulationError
+    from jaxform.simulation import SimulationError
 
     cfg = jaxform.load_config(config, overrides + QUIET)
     t0 = time.perf_counter()
@@ -63,8 +63,7 @@ def run_one(config: str, overrides: list[str]) -> dict:
         res, failure = err.result, str(err)
     wall = time.perf_counter() - t0
     h = res.history
-    kind = res.scene.kind
-    height = cfg[kind]["depth_mm" if kind == "block" else "height_mm"]
+    height = res.scene.workpiece.reference_height_mm
     steps = len(h["time_s"]) - 1
     return dict(
         outcome="failed" if failure else "completed",

@@ -58,7 +58,7 @@ from jaxform.materials import load_material
 from jaxform.mesh import Mesh, rectangle, write_mesh
 from jaxform.postprocess import positions
 from jaxform.scenes import build_scene
-from jaxform.simulate import simulate
+from jaxform.simulation import simulate
 
 ROOT = Path(__file__).resolve().parents[1]
 SEED = ROOT / "configs" / "upsetting_seed.toml"
@@ -77,8 +77,8 @@ def run(config: Path, overrides: list[str]):
 
 def flow_curve(scene, res) -> tuple[np.ndarray, np.ndarray]:
     """(true strain, true axial stress MPa) of a homogeneous axisymmetric compression."""
-    b = scene.config["billet"]
-    r0, h0 = 0.5 * b["diameter_mm"], b["height_mm"]
+    b = scene.workpiece
+    r0, h0 = 0.5 * b.diameter_mm, b.height_mm
     h = h0 - res.history["stroke_mm"]
     area = math.pi * r0**2 * h0 / h
     return np.log(h0 / h)[1:], (res.history["force_N"] / area)[1:]
@@ -115,7 +115,7 @@ def mean_pressure(scene, res) -> float:
     pos = positions(scene, res.fields["x"][-1])
     top = pos[scene.mesh.node_sets["top"], 1].max()
     rc = pos[pos[:, 1] >= top - 1e-6, 0].max()
-    axi = scene.config["mesh"]["geometry"] == "axisymmetric"
+    axi = scene.model.formulation.axisymmetric
     return float(res.history["force_N"][-1] / (math.pi * rc**2 if axi else rc))
 
 

@@ -32,7 +32,7 @@ import numpy as np
 import jaxform
 from jaxform.config import load_config
 from jaxform.scenes import build_scene
-from jaxform.simulate import simulate
+from jaxform.simulation import simulate
 
 CONFIG = Path(__file__).resolve().parents[1] / "configs" / "prandtl_punch.toml"
 ELEMENTS = ("q4", "q1p0", "q1q1")

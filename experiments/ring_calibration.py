@@ -20,7 +20,7 @@ import jaxform
 from jaxform.config import load_config
 from jaxform.io import write_csv
 from jaxform.scenes import build_scene
-from jaxform.simulate import simulate
+from jaxform.simulation import simulate
 
 
 def main():

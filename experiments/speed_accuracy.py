@@ -63,7 +63,7 @@ import jaxform
 from jaxform.config import load_config
 from jaxform.postprocess import positions
 from jaxform.scenes import build_scene
-from jaxform.simulate import SimulationError, simulate
+from jaxform.simulation import SimulationError, simulate
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = {

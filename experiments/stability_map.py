@@ -42,7 +42,7 @@ import numpy as np
 import jaxform
 from jaxform.config import load_config
 from jaxform.scenes import build_scene
-from jaxform.simulate import SimulationError, simulate
+from jaxform.simulation import SimulationError, simulate
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = {

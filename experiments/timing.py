@@ -49,7 +49,7 @@ def cold_and_warm(cfg: dict):
     """(scene, result, first run's wall time incl. compilation, second run's) of the
     scene of a validated config; the second run reuses the first's compiled program."""
     from jaxform.scenes import build_scene
-    from jaxform.simulate import simulate
+    from jaxform.simulation import simulate
 
     t0 = time.perf_counter()
     scene = build_scene(cfg)

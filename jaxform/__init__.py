@@ -15,14 +15,14 @@ The entry points a script needs, one import away (see ``examples/tutorial.py``):
   problem: groups, objective, compiled value and gradient), :func:`optimize` with
   :class:`OptimizerSettings`, :func:`taylor_test`.
 
+Beside :func:`simulate` (the host loop, progress and rezoning included), the caller may own
+the loop: :func:`init` and :func:`step` advance a scene one converged step at a time.
+
 Importing jaxform imports nothing else (not JAX) and changes no global setting: each
-name is loaded from its module on first use (PEP 562).  ``jaxform.simulate`` is the
-function; its module's other names are imported with ``from jaxform.simulate import ...``.
+name is loaded from its module on first use (PEP 562).
 """
 
 import importlib as _importlib
-import sys as _sys
-import types as _types
 
 # exported name -> the module that defines it
 _EXPORTS = {
@@ -32,7 +32,9 @@ _EXPORTS = {
     "run": "jaxform.driver",
     "load_config": "jaxform.config",
     "build_scene": "jaxform.scenes",
-    "simulate": "jaxform.simulate",
+    "simulate": "jaxform.simulation",
+    "init": "jaxform.simulation",
+    "step": "jaxform.simulation",
     "trajectory": "jaxform.gradients",
     "build_problem": "jaxform.design.problem",
     "optimize": "jaxform.design.optimize",
@@ -50,6 +52,8 @@ __all__ = [
     "require_x64",
     "run",
     "simulate",
+    "init",
+    "step",
     "taylor_test",
     "trajectory",
 ]
@@ -67,17 +71,3 @@ def __getattr__(name: str):
 
 def __dir__():
     return sorted(set(globals()) | set(__all__))
-
-
-class _Package(_types.ModuleType):
-    """jaxform's module type: importing the submodule ``jaxform.simulate`` binds it on the
-    package, as every import does; here that binding is skipped for an exported name, so
-    ``jaxform.simulate`` stays the function whichever was imported first."""
-
-    def __setattr__(self, name, value):
-        if name in _EXPORTS and isinstance(value, _types.ModuleType):
-            return
-        super().__setattr__(name, value)
-
-
-_sys.modules[__name__].__class__ = _Package

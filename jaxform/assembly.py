@@ -78,7 +78,7 @@ class Indices:
 @dataclass(frozen=True)
 class StepContext:
     """Everything a step's residual reads besides the unknowns x (a PyTree, traced; built
-    once per step by :func:`jaxform.simulate.step_context`)."""
+    once per step by :func:`jaxform.stepping.step_context`)."""
 
     gauss: GaussState  # converged Gauss state at the start of the step
     coords: jax.Array  # reference nodal coordinates (mm)

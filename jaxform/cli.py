@@ -33,6 +33,43 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
+class Progress:
+    """The run's progress: a tqdm bar redrawn in place on a terminal, one line per compiled
+    chunk otherwise (a log file or a pipe gets no carriage returns)."""
+
+    def __init__(self, stream):
+        self.stream, self.bar, self.first_s = stream, None, None
+        self.t0 = time.perf_counter()
+        self.tty = bool(getattr(stream, "isatty", lambda: False)())
+
+    @staticmethod
+    def describe(p: dict) -> str:
+        return (
+            f"t={p['time_s']:.3f} s dt={p['dt_s']:.4g} s stroke={p['stroke_mm']:.4f} mm "
+            f"force={p['force_N']:.3f} N newton={int(p['iterations'])} "
+            f"cutbacks={int(p['cutbacks'])}"
+        )
+
+    def __call__(self, p: dict) -> None:
+        if self.first_s is None:
+            self.first_s = time.perf_counter() - self.t0
+        if self.tty:
+            from tqdm import tqdm
+
+            if self.bar is None:
+                self.bar = tqdm(total=p["n_steps"], file=self.stream, unit="step")
+            self.bar.total = p["n_steps"]
+            self.bar.set_postfix_str(self.describe(p), refresh=False)
+            self.bar.update(p["step"] - self.bar.n)
+        elif p["chunk_end"]:
+            print(f"step {p['step']}/{p['n_steps']}: {self.describe(p)}", file=self.stream,
+                  flush=True)  # fmt: skip
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
 def check_out_dir(out: str) -> None:
     """``--out`` is, or can be made, a writable folder (checked before any computation)."""
     p = Path(out)
@@ -82,47 +119,14 @@ def _check_taylor_steps(h) -> None:
         )
 
 
-def _check_die_clearance(cfg: dict) -> None:
-    """ConfigError if the die profile is malformed or overlaps the workpiece section at
-    t = 0 (generated sections only: a mesh file's section is known once it is read)."""
-    from jaxform.config import ConfigError
-    from jaxform.dies import DieError, catmull_rom, check_clearance, check_profile
-
-    d = cfg.get("die")
-    if not d or not d["profile_mm"] or cfg["mesh"]["file"] or "membrane" in cfg:
-        return
-    if "block" in cfg:
-        r0, r1, top = 0.0, cfg["block"]["width_mm"], cfg["block"]["depth_mm"]
-    elif "ring" in cfg:
-        r = cfg["ring"]
-        r0, r1 = 0.5 * r["inner_diameter_mm"], 0.5 * r["outer_diameter_mm"]
-        top = 0.5 * r["height_mm"]
-    else:
-        r0, r1, top = 0.0, 0.5 * cfg["billet"]["diameter_mm"], 0.5 * cfg["billet"]["height_mm"]
-    s = np.linspace(0.0, 1.0, 65)
-    edges = [
-        np.column_stack([r0 + (r1 - r0) * s, np.full_like(s, top)]),  # top face
-        np.column_stack([np.full_like(s, r1), top * s]),  # outer side
-        np.column_stack([np.full_like(s, r0), top * s]),
-    ]  # axis or inner side
-    try:
-        pts = check_profile(np.asarray(d["profile_mm"]), "die.profile_mm")
-        if d["profile_kind"] == "spline":
-            pts = check_profile(catmull_rom(pts), "die.profile_mm (sampled spline)")
-        check_clearance(pts, np.vstack(edges), "die.profile_mm", 1e-9 * max(r1, top))
-    except DieError as err:
-        raise ConfigError(str(err)) from None
-
-
 def _load_checked(args, gradient: bool = False):
     """The validated config of a scene command, or ConfigError: everything that can be
     checked before a scene is built (for gradient commands also the design set-up)."""
-    from jaxform.config import check_gradient_run, load_config
+    from jaxform.config import check_design_run, check_gradient_run, load_config
 
     cfg = load_config(args.config, args.set)
-    _check_die_clearance(cfg)
     if gradient and args.command == "design":
-        check_gradient_run(cfg, cfg["design"]["variables"], "design.variables")
+        check_design_run(cfg)
     elif gradient:
         check_gradient_run(cfg, args.groups, "--groups")
     return cfg
@@ -194,42 +198,32 @@ def _material_point(args) -> int:
 def _run(args) -> int:
     from jaxform.config import ConfigError
     from jaxform.driver import run
-    from jaxform.simulate import SimulationError
+    from jaxform.simulation import SimulationError
 
     check_out_dir(args.out)
     cfg = _load_checked(args)
     t0 = time.perf_counter()
-    first = []
-
-    def progress(p):
-        if not first:
-            first.append(time.perf_counter() - t0)
-        done = p["step"] / p["n_steps"]
-        bar = "#" * int(30 * done) + "." * (30 - int(30 * done))
-        print(
-            f"[{bar}] step {p['step']:4d}/{p['n_steps']} t={p['time_s']:8.3f} s "
-            f"dt={p['dt_s']:.4g} s "
-            f"stroke={p['stroke_mm']:7.4f} mm force={p['force_N']:10.3f} N "
-            f"newton={int(p['iterations']):2d} cutbacks={int(p['cutbacks'])}",
-            flush=True,
-        )
-
+    progress = Progress(sys.stdout)
     try:
         result = run(cfg, (), out_dir=args.out, progress=progress)
     except ConfigError as err:
+        progress.close()
         print(f"config error: {err}", file=sys.stderr)
         return 2
     except SimulationError as err:
+        progress.close()
         print(f"simulation stopped: {err}", file=sys.stderr)
         print(f"last converged state written to {args.out}", file=sys.stderr)
         return 1
+    progress.close()
+    first = progress.first_s
     h = result.history
     print(
         f"done: {len(h['time_s']) - 1} steps, {int(h['newton_iterations'].sum())} Newton "
         f"iterations, {int(h['cutbacks'].sum())} cutbacks, {int(h['rezoned'].sum())} rezonings, "
         f"final force {h['force_N'][-1]:.2f} N, "
         f"{time.perf_counter() - t0:.1f} s wall (first chunk incl. compile "
-        f"{first[0] if first else 0:.1f} s)"
+        f"{first or 0:.1f} s)"
     )
     written = sorted(p.name for p in Path(args.out).iterdir() if p.is_file())
     print(f"outputs in {args.out}: {', '.join(written)}")
@@ -237,8 +231,8 @@ def _run(args) -> int:
 
 
 def _taylor(args) -> int:
-    from jaxform.design.driver import run_taylor
     from jaxform.design.taylor import format_table
+    from jaxform.driver import run_taylor
 
     _check_taylor_steps(args.h)
     cfg = _load_checked(args, gradient=True)
@@ -261,7 +255,7 @@ def _guarded(command: str, fn):
     1 for a run that failed."""
     from jaxform.config import ConfigError
     from jaxform.gradients import GradientRunError
-    from jaxform.simulate import SimulationError
+    from jaxform.simulation import SimulationError
 
     try:
         return fn(), 0
@@ -274,7 +268,7 @@ def _guarded(command: str, fn):
 
 
 def _design(args) -> int:
-    from jaxform.design.driver import run_design
+    from jaxform.driver import run_design
 
     check_out_dir(args.out)
     cfg = _load_checked(args, gradient=True)
@@ -306,7 +300,7 @@ def _design(args) -> int:
 def _cache_setting(args) -> str:
     """``[solver] compilation_cache_dir`` of the command's config ('auto' without one, or
     when the config is invalid: the command itself then reports why)."""
-    from jaxform.config import ConfigError, load_config
+    from jaxform.config import ConfigError, load_config, typed
 
     if getattr(args, "config", None) is None:
         return "auto"
@@ -314,7 +308,19 @@ def _cache_setting(args) -> str:
         cfg = load_config(args.config, list(getattr(args, "set", [])))
     except (ConfigError, OSError):
         return "auto"
-    return cfg.get("solver", {}).get("compilation_cache_dir", "auto")
+    return typed(cfg).solver.compilation_cache_dir
+
+
+def _scene_arguments(parser, config_help: str) -> None:
+    """The arguments of every scene command: the config and its --set overrides."""
+    parser.add_argument("config", help=config_help)
+    parser.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="SECTION.KEY=VALUE",
+        help="override a config value (repeatable)",
+    )
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -327,14 +333,7 @@ def main(argv: list[str] | None = None) -> int:
     sub = parser.add_subparsers(dest="command", required=True)
 
     rp = sub.add_parser("run", help="run a forging scene from a TOML config")
-    rp.add_argument("config", help="scene config (TOML), e.g. configs/upsetting_seed.toml")
-    rp.add_argument(
-        "--set",
-        action="append",
-        default=[],
-        metavar="SECTION.KEY=VALUE",
-        help="override a config value (repeatable)",
-    )
+    _scene_arguments(rp, "scene config (TOML), e.g. configs/upsetting_seed.toml")
     rp.add_argument("--out", default="out/run", help="output folder")
     rp.set_defaults(func=_run)
 
@@ -370,14 +369,7 @@ def main(argv: list[str] | None = None) -> int:
     mp.set_defaults(func=_material_point)
 
     tp = sub.add_parser("taylor-test", help="check the scene's gradients (Taylor remainders)")
-    tp.add_argument("config", help="scene config (TOML)")
-    tp.add_argument(
-        "--set",
-        action="append",
-        default=[],
-        metavar="SECTION.KEY=VALUE",
-        help="override a config value (repeatable)",
-    )
+    _scene_arguments(tp, "scene config (TOML)")
     tp.add_argument(
         "--groups",
         nargs="+",
@@ -394,14 +386,7 @@ def main(argv: list[str] | None = None) -> int:
     tp.set_defaults(func=_taylor)
 
     dp = sub.add_parser("design", help="gradient-based design from the config's [design]")
-    dp.add_argument("config", help="scene config (TOML) with a [design] section")
-    dp.add_argument(
-        "--set",
-        action="append",
-        default=[],
-        metavar="SECTION.KEY=VALUE",
-        help="override a config value (repeatable)",
-    )
+    _scene_arguments(dp, "scene config (TOML) with a [design] section")
     dp.add_argument("--out", default="out/design", help="output folder")
     dp.set_defaults(func=_design)
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import copy
 import csv
+import dataclasses
 import math
 import tomllib
 from collections.abc import Iterable
@@ -22,13 +23,19 @@ from typing import Any
 
 import tomli_w
 
+from jaxform.errors import ConfigError
+
 __all__ = [
+    "Config",
     "ConfigError",
+    "SECTIONS",
+    "typed",
     "Field",
     "SCHEMA",
     "load_config",
     "dump_config",
     "describe_schema",
+    "check_design_run",
     "check_gradient_run",
     "MAX_STEPS",
     "MAX_ELEMENTS",
@@ -42,10 +49,6 @@ MAX_ELEMENTS = 250_000  # mesh.nr x mesh.nz (e.g. 500 x 500)
 # Every length (key ending in _mm) and speed (_mm_s) is at most this: a 1 km scene is
 # already far outside forging, and 1e300 mm overflows the contact scale and the plots.
 MAX_LENGTH_MM = 1e6
-
-
-class ConfigError(ValueError):
-    """An invalid scene config; the message names the dotted key and what is allowed."""
 
 
 @dataclass(frozen=True)
@@ -80,465 +83,461 @@ def _num(x: float) -> str:
     return str(int(x)) if float(x).is_integer() and abs(x) < 1e15 else repr(float(x))
 
 
-SCHEMA: dict[str, dict[str, Field]] = {
-    "billet": {
-        "diameter_mm": Field("float", None, 0.0, None, False, False, doc="billet diameter (mm)"),
-        "height_mm": Field("float", None, 0.0, None, False, False, doc="billet height (mm)"),
-    },
-    "ring": {
-        "outer_diameter_mm": Field(
-            "float", None, 0.0, None, False, False, doc="ring outer diameter (mm)"
-        ),
-        "inner_diameter_mm": Field(
-            "float", None, 0.0, None, False, False, doc="ring inner diameter (mm), < outer"
-        ),
-        "height_mm": Field("float", None, 0.0, None, False, False, doc="ring height (mm)"),
-    },
-    "block": {
-        "width_mm": Field(
-            "float",
-            None,
-            0.0,
-            None,
-            False,
-            False,
-            doc="plane-strain block for indentation: modelled half-width from the "
-            "symmetry line x = 0 (mm)",
-        ),
-        "depth_mm": Field(
-            "float",
-            None,
-            0.0,
-            None,
-            False,
-            False,
-            doc="block depth (mm): frictionless support at y = 0, indented face at y = depth",
-        ),
-        "fine_width_mm": Field(
-            "float",
-            None,
-            0.0,
-            None,
-            False,
-            False,
-            doc="width of the zone of equal elements at the indented face (mm), <= block.width_mm",
-        ),
-        "fine_depth_mm": Field(
-            "float",
-            None,
-            0.0,
-            None,
-            False,
-            False,
-            doc="depth of the zone of equal elements below the indented face "
-            "(mm), <= block.depth_mm",
-        ),
-        "growth": Field(
-            "float",
-            1.2,
-            1.0,
-            3.0,
-            False,
-            True,
-            doc="size ratio of neighbouring elements outside the fine zone",
-        ),
-    },
-    "membrane": {
-        "corners_mm": Field(
-            "points",
-            None,
-            doc="the 4 corners [x_mm, y_mm] of a convex plane-strain panel, "
-            "counter-clockwise; edges: bottom 1-2, right 2-3, top 3-4, "
-            "left 4-1",
-        ),
-        "clamped_edge": Field(
-            "str", "left", choices=("bottom", "right", "top", "left"), doc="edge with u = 0"
-        ),
-        "tip_mm": Field(
-            "floats",
-            [],
-            doc="[x_mm, y_mm] of the point whose displacement the "
-            "history records as tip_ux_mm, tip_uy_mm (nearest node; [] = corner 3)",
-        ),
-    },
-    "load": {
-        "edge": Field(
-            "str",
-            "right",
-            choices=("bottom", "right", "top", "left"),
-            doc="membrane edge carrying a uniform dead traction",
-        ),
-        "force_x_N": Field(
-            "float",
-            0.0,
-            doc="x-resultant of the traction (N per mm of depth), "
-            "spread uniformly over the edge's initial length",
-        ),
-        "force_y_N": Field(
-            "float",
-            0.0,
-            doc="y-resultant of the traction (N per mm of depth), "
-            "spread uniformly over the edge's initial length",
-        ),
-        "ramp_time_s": Field(
-            "float",
-            1.0,
-            0.0,
-            None,
-            False,
-            False,
-            doc="the load grows linearly from 0 to full over this time (s); the run ends there",
-        ),
-    },
-    "mesh": {
-        "nr": Field(
-            "int",
-            10,
-            1,
-            2000,
-            doc="elements across the radius of the quarter section "
-            "(block: across the fine zone; membrane: along edges bottom and top)",
-        ),
-        "nz": Field(
-            "int",
-            10,
-            1,
-            2000,
-            doc="elements along the half height of the quarter section "
-            "(block: down the fine zone; membrane: along edges left and right)",
-        ),
-        "element": Field(
-            "str",
-            "q1q1",
-            choices=("q1q1", "q1p0", "q4"),
-            doc="element formulation: stabilized mixed u-p (seed), "
-            "mean-dilatation F-bar, plain displacement",
-        ),
-        "geometry": Field(
-            "str",
-            "axisymmetric",
-            choices=("axisymmetric", "plane_strain"),
-            doc="2-D idealization (plane strain: forces per mm of depth)",
-        ),
-        "stabilization": Field(
-            "float",
-            0.1,
-            0.0,
-            None,
-            True,
-            False,
-            doc="q1q1 pressure stabilization theta in tau = theta h^2/(2G) (the thesis used 1e-4)",
-        ),
-        "file": Field(
-            "str",
-            "",
-            doc="optional gmsh/meshio quadrilateral mesh file replacing "
-            "the structured mesh ('' = structured); line groups name the "
-            "boundary sets (symmetry, top required; axis, side, inner, "
-            "outer), point groups node sets (e.g. one axis node)",
-        ),
-        "rezone_quality": Field(
-            "float",
-            0.0,
-            0.0,
-            1.0,
-            True,
-            False,
-            doc="rezone (relocate the nodes, carry the state over) after a "
-            "step whose worst element corner quality (jaxform.rezone: "
-            "1 for squares) falls below this (0 = never; structured "
-            "meshes only)",
-        ),
-    },
-    "material": {
-        "preset": Field(
-            "str",
-            "al1100_673K",
-            doc="material preset name (jaxform/materials/data) or a .toml path",
-        ),
-    },
-    "die": {
-        "speed_mm_s": Field(
-            "float",
-            None,
-            0.0,
-            None,
-            False,
-            False,
-            doc="ram speed (mm/s): the dies close at this speed (each moves at "
-            "half of it towards the mid-plane; a block's die at all of it); "
-            "required unless a path table is given",
-        ),
-        "reduction": Field(
-            "float",
-            None,
-            0.0,
-            1.0,
-            False,
-            False,
-            doc="final height reduction (fraction of the initial height; block: "
-            "of its depth); the run ends when the ram stroke reaches it",
-        ),
-        "profile_mm": Field(
-            "points",
-            [],
-            doc="top-die profile as [r_mm, z_mm] points at t = 0, "
-            "walked with the workpiece on the right (from the axis outward for "
-            "a top die); [] = flat die on the billet's top face",
-        ),
-        "profile_kind": Field(
-            "str",
-            "polyline",
-            choices=("polyline", "spline"),
-            doc="straight segments between the points, or the Catmull-Rom spline through them",
-        ),
-        "path_time_s": Field(
-            "floats", [], doc="die path table: times (s), starting at 0 ([] = constant speed)"
-        ),
-        "path_travel_mm": Field(
-            "floats",
-            [],
-            doc="die path table: downward travel of the top "
-            "die relative to the mid-plane at those times (mm), starting "
-            "at 0 (the ram stroke is twice it)",
-        ),
-        "corner_radius_mm": Field(
-            "float",
-            0.5,
-            0.0,
-            None,
-            False,
-            False,
-            doc="radius of the arcs that round the profile's vertices "
-            "(mm): the die surface is C1; where two segments are "
-            "too short for it, the arc runs between their midpoints "
-            "(so sampled fillets and splines keep their shape)",
-        ),
-        "closed": Field(
-            "bool",
-            False,
-            doc="the profile closes a cavity with the mid-plane: "
-            "report die_fill (cavity volume filled with material / cavity "
-            "volume) in the history",
-        ),
-    },
-    "friction": {
-        "model": Field(
-            "str",
-            "none",
-            choices=("none", "coulomb", "shear", "sticking"),
-            doc="die-workpiece friction law",
-        ),
-        "mu": Field("float", 0.0, 0.0, 10.0, doc="Coulomb coefficient (friction.model = coulomb)"),
-        "m": Field(
-            "float",
-            0.0,
-            0.0,
-            1.0,
-            doc="shear friction factor, tau = m sigma_eq/sqrt(3) (friction.model = shear)",
-        ),
-    },
-    "time": {
-        "dt_s": Field(
-            "float",
-            None,
-            0.0,
-            None,
-            False,
-            False,
-            doc="largest time step (s): steps adapt below it",
-        ),
-        "dt_growth": Field(
-            "float",
-            1.5,
-            1.0,
-            4.0,
-            doc="after an easy step (no cutback, few Newton iterations) the next "
-            "step grows by this factor, up to time.dt_s (1: never grows back)",
-        ),
-        "alpha": Field(
-            "float", 0.5, 0.0, 1.0, doc="generalized mid-point parameter of the strain increment"
-        ),
-    },
-    "solver": {
-        "max_newton_iterations": Field(
-            "int",
-            25,
-            1,
-            1000,
-            doc="Newton iterations per step before a cutback (modified "
-            "Newton: those with a new Jacobian; up to 3x as "
-            "many more with a kept factorization)",
-        ),
-        "rtol": Field(
-            "float", 1e-10, 0.0, 1.0, False, False, doc="relative residual tolerance of Newton"
-        ),
-        "max_cutbacks": Field("int", 6, 0, 30, doc="times a failed step may be halved"),
-        "line_search": Field("bool", True, doc="backtracking line search in Newton"),
-        "linear": Field(
-            "str",
-            "auto",
-            choices=("auto", "dense", "sparse", "jax-sparse"),
-            doc="linear solver backend (auto: on CPU dense LU below 100 unknowns, "
-            "klujax sparse LU above; on a GPU dense LU below 20 000, "
-            "jax-sparse (cuSolver) above; see jaxform/linear.py)",
-        ),
-        "newton": Field(
-            "str",
-            "auto",
-            choices=("auto", "newton", "modified"),
-            doc="newton: a new Jacobian and factorization every iteration; "
-            "modified: one factorization kept across iterations and steps, "
-            "refreshed when a step contracts the residual by less than "
-            "2x (needs linear = dense or sparse); auto: modified on the "
-            "sparse backend from MODIFIED_MIN_UNKNOWNS unknowns, newton "
-            "below (see jaxform/solver.py)",
-        ),
-        "adjoint_memory_mb": Field(
-            "float",
-            4096.0,
-            0.0,
-            None,
-            doc="memory (MB) a gradient run may hold in forward "
-            "factorizations kept for its reverse pass, which then "
-            "refines each step's adjoint solve with the kept "
-            "factors instead of factoring again; the last steps "
-            "that fit are kept, the others factor in the reverse "
-            "pass (0: none kept; ~69 MB a step at 100 x 100 with "
-            "klujax; see jaxform/gradients.py)",
-        ),
-        "chunk_steps": Field(
-            "int",
-            8,
-            1,
-            10000,
-            doc="load steps per compiled chunk (progress is reported between chunks)",
-        ),
-        "compilation_cache_dir": Field(
-            "str",
-            "auto",
-            doc="where compiled programs are kept for the next run: "
-            "a directory, 'off', or 'auto' (the environment "
-            "variable JAXFORM_CACHE_DIR, else "
-            "~/.cache/jaxform; see jaxform/cache.py)",
-        ),
-    },
-    "output": {
-        "fields": Field("bool", True, doc="write ParaView fields (VTU series)"),
-        "plots": Field("bool", True, doc="write PNG plots"),
-        "profile_strokes_mm": Field(
-            "floats",
-            [],
-            doc="ram strokes (mm) at which the contact "
-            "pressure/slip profile is plotted ([] = 25/50/75/100 %)",
-        ),
-    },
-    "design": {
-        "objective": Field(
-            "str",
-            "forging_work",
-            choices=(
-                "forging_work",
-                "peak_force",
-                "side_straightness",
-                "shape_target",
-                "force_misfit",
-                "eqps_spread",
-                "die_fill",
-            ),
-            doc="design objective (jaxform design / taylor-test), a function of the run: "
-            "force integral over stroke (N mm), peak ram force (N), mean squared "
-            "deviation of the final side from straight (mm^2), of chosen nodes from "
-            "target positions (mm^2), force-stroke misfit against a target curve, "
-            "variance of eqps, 1 - die fill",
-        ),
-        "variables": Field(
-            "strs",
-            ["material"],
-            choices=("material", "friction", "speed", "preform", "nodes", "die"),
-            doc="design variable groups jaxform design optimizes",
-        ),
-        "material_params": Field(
-            "strs",
-            ["s0_MPa", "h0_MPa", "s_hat_MPa"],
-            doc="material parameters of the 'material' group (names of the law's parameters)",
-        ),
-        "material_start_factor": Field(
-            "float",
-            1.0,
-            0.0,
-            None,
-            False,
-            True,
-            doc="the design starts from the material parameters "
-            "times this (e.g. 0.7 to identify from 30 % off)",
-        ),
-        "preform_modes": Field("int", 3, 1, 20, doc="cosine modes of the preform profile"),
-        "preform_amplitude_max": Field(
-            "float",
-            0.2,
-            0.0,
-            0.9,
-            False,
-            True,
-            doc="bound on each preform mode amplitude (fraction of the radius)",
-        ),
-        "node_offset_max_mm": Field(
-            "float",
-            0.1,
-            0.0,
-            None,
-            False,
-            True,
-            doc="bound on each initial node coordinate's offset of the 'nodes' group (mm)",
-        ),
-        "die_points": Field(
-            "floats",
-            [],
-            doc="indices of die.profile_mm points whose z is a design variable ([] = all)",
-        ),
-        "die_offset_max_mm": Field(
-            "float",
-            1.0,
-            0.0,
-            None,
-            False,
-            True,
-            doc="bound on each die point's vertical offset (mm)",
-        ),
-        "bound_factor": Field(
-            "float",
-            2.0,
-            1.0,
-            1000.0,
-            False,
-            True,
-            doc="material parameters and ram speed stay within [p0 / factor, p0 * factor]",
-        ),
-        "target_csv": Field(
-            "str",
-            "",
-            doc="target for force_misfit (CSV with stroke_mm, "
-            "force_N) or shape_target (CSV with node, r_mm, z_mm)",
-        ),
-        "optimizer": Field(
-            "str",
-            "lbfgs",
-            choices=("lbfgs", "adam"),
-            doc="optax optimizer (L-BFGS with zoom line search, or Adam)",
-        ),
-        "iterations": Field("int", 20, 1, 10000, doc="optimizer iterations"),
-        "learning_rate": Field(
-            "float",
-            0.05,
-            0.0,
-            None,
-            False,
-            False,
-            doc="Adam step size in the scaled design variables",
-        ),
-    },
+# ----------------------------------------------------------------------------------
+# The typed sections: one frozen dataclass per [section], one annotated attribute per
+# key.  ``key(...)`` records the key's default (none: required), its allowed range or
+# choices and its doc; the validator below reads them through SCHEMA, and
+# :func:`typed` turns a validated document into these objects (lists become tuples).
+
+_KINDS = {
+    "float": "float",
+    "float | None": "float",
+    "int": "int",
+    "str": "str",
+    "bool": "bool",
+    "tuple[float, ...]": "floats",
+    "tuple[str, ...]": "strs",
+    "tuple[tuple[float, float], ...]": "points",
 }
+SECTIONS: dict[str, type] = {}
+
+
+def key(
+    default: Any = None,
+    *,
+    low: float | None = None,
+    high: float | None = None,
+    low_open: bool = False,
+    high_open: bool = False,
+    choices: tuple[str, ...] | None = None,
+    doc: str = "",
+):
+    """A config key of a section class (default None: required)."""
+    spec = dict(default=default, low=low, high=high, low_inclusive=not low_open,
+                high_inclusive=not high_open, choices=choices, doc=doc)  # fmt: skip
+    return dataclasses.field(metadata={"key": spec})
+
+
+def section(name: str):
+    """Register a section class under its TOML name."""
+
+    def register(cls: type) -> type:
+        SECTIONS[name] = cls
+        return cls
+
+    return register
+
+
+@section("billet")
+@dataclass(frozen=True, kw_only=True)
+class BilletConfig:
+    """[billet]: a solid cylinder (axisymmetric) or block (plane strain), half-height model."""
+
+    diameter_mm: float = key(low=0.0, low_open=True, doc="billet diameter (mm)")
+    height_mm: float = key(low=0.0, low_open=True, doc="billet height (mm)")
+
+
+@section("ring")
+@dataclass(frozen=True, kw_only=True)
+class RingConfig:
+    """[ring]: a ring section, half-height model."""
+
+    outer_diameter_mm: float = key(low=0.0, low_open=True, doc="ring outer diameter (mm)")
+    inner_diameter_mm: float = key(low=0.0, low_open=True, doc="ring inner diameter (mm), < outer")
+    height_mm: float = key(low=0.0, low_open=True, doc="ring height (mm)")
+
+
+@section("block")
+@dataclass(frozen=True, kw_only=True)
+class BlockConfig:
+    """[block]: a plane-strain block indented from the top (Prandtl's punch)."""
+
+    width_mm: float = key(
+        low=0.0,
+        low_open=True,
+        doc="plane-strain block for indentation: modelled half-width from the symmetry line x = 0"
+        " (mm)",
+    )
+    depth_mm: float = key(
+        low=0.0,
+        low_open=True,
+        doc="block depth (mm): frictionless support at y = 0, indented face at y = depth",
+    )
+    fine_width_mm: float = key(
+        low=0.0,
+        low_open=True,
+        doc="width of the zone of equal elements at the indented face (mm), <= block.width_mm",
+    )
+    fine_depth_mm: float = key(
+        low=0.0,
+        low_open=True,
+        doc="depth of the zone of equal elements below the indented face (mm), <= block.depth_mm",
+    )
+    growth: float = key(
+        1.2,
+        low=1.0,
+        high=3.0,
+        low_open=True,
+        doc="size ratio of neighbouring elements outside the fine zone",
+    )
+
+
+@section("membrane")
+@dataclass(frozen=True, kw_only=True)
+class MembraneConfig:
+    """[membrane]: a plane-strain panel with 4 straight edges (Cook's membrane), no die."""
+
+    corners_mm: tuple[tuple[float, float], ...] = key(
+        doc="the 4 corners [x_mm, y_mm] of a convex plane-strain panel, counter-clockwise; "
+        "edges: bottom 1-2, right 2-3, top 3-4, left 4-1"
+    )
+    clamped_edge: str = key(
+        "left", choices=("bottom", "right", "top", "left"), doc="edge with u = 0"
+    )
+    tip_mm: tuple[float, ...] = key(
+        [],
+        doc="[x_mm, y_mm] of the point whose displacement the history records as tip_ux_mm, "
+        "tip_uy_mm (nearest node; [] = corner 3)",
+    )
+
+
+@section("load")
+@dataclass(frozen=True, kw_only=True)
+class LoadConfig:
+    """[load]: the dead traction on a membrane edge."""
+
+    edge: str = key(
+        "right",
+        choices=("bottom", "right", "top", "left"),
+        doc="membrane edge carrying a uniform dead traction",
+    )
+    force_x_N: float = key(
+        0.0,
+        doc="x-resultant of the traction (N per mm of depth), spread uniformly over the edge's "
+        "initial length",
+    )
+    force_y_N: float = key(
+        0.0,
+        doc="y-resultant of the traction (N per mm of depth), spread uniformly over the edge's "
+        "initial length",
+    )
+    ramp_time_s: float = key(
+        1.0,
+        low=0.0,
+        low_open=True,
+        doc="the load grows linearly from 0 to full over this time (s); the run ends there",
+    )
+
+
+@section("mesh")
+@dataclass(frozen=True, kw_only=True)
+class MeshConfig:
+    """[mesh]: element, geometry, resolution, mesh file and rezoning trigger."""
+
+    nr: int = key(
+        10,
+        low=1,
+        high=2000,
+        doc="elements across the radius of the quarter section (block: across the fine zone; "
+        "membrane: along edges bottom and top)",
+    )
+    nz: int = key(
+        10,
+        low=1,
+        high=2000,
+        doc="elements along the half height of the quarter section (block: down the fine zone; "
+        "membrane: along edges left and right)",
+    )
+    element: str = key(
+        "q1q1",
+        choices=("q1q1", "q1p0", "q4"),
+        doc="element formulation: stabilized mixed u-p (seed), mean-dilatation F-bar, plain "
+        "displacement",
+    )
+    geometry: str = key(
+        "axisymmetric",
+        choices=("axisymmetric", "plane_strain"),
+        doc="2-D idealization (plane strain: forces per mm of depth)",
+    )
+    stabilization: float = key(
+        0.1,
+        low=0.0,
+        doc="q1q1 pressure stabilization theta in tau = theta h^2/(2G) (the thesis used 1e-4)",
+    )
+    file: str = key(
+        "",
+        doc="optional gmsh/meshio quadrilateral mesh file replacing the structured mesh ('' = "
+        "structured); line groups name the boundary sets (symmetry, top required; axis, side,"
+        " inner, outer), point groups node sets (e.g. one axis node)",
+    )
+    rezone_quality: float = key(
+        0.0,
+        low=0.0,
+        high=1.0,
+        high_open=True,
+        doc="rezone (relocate the nodes, carry the state over) after a step whose worst element "
+        "corner quality (jaxform.rezone: 1 for squares) falls below this (0 = never; "
+        "structured meshes only)",
+    )
+
+
+@section("material")
+@dataclass(frozen=True, kw_only=True)
+class MaterialConfig:
+    """[material]: the constitutive law and its parameters."""
+
+    preset: str = key(
+        "al1100_673K", doc="material preset name (jaxform/materials/data) or a .toml path"
+    )
+
+
+@section("die")
+@dataclass(frozen=True, kw_only=True)
+class DieConfig:
+    """[die]: the rigid top die: profile, motion, stroke."""
+
+    speed_mm_s: float | None = key(
+        low=0.0,
+        low_open=True,
+        doc="ram speed (mm/s): the dies close at this speed (each moves at half of it towards the"
+        " mid-plane; a block's die at all of it); required unless a path table is given",
+    )
+    reduction: float | None = key(
+        low=0.0,
+        high=1.0,
+        low_open=True,
+        high_open=True,
+        doc="final height reduction (fraction of the initial height; block: of its depth); the "
+        "run ends when the ram stroke reaches it",
+    )
+    profile_mm: tuple[tuple[float, float], ...] = key(
+        [],
+        doc="top-die profile as [r_mm, z_mm] points at t = 0, walked with the workpiece on the "
+        "right (from the axis outward for a top die); [] = flat die on the billet's top face",
+    )
+    profile_kind: str = key(
+        "polyline",
+        choices=("polyline", "spline"),
+        doc="straight segments between the points, or the Catmull-Rom spline through them",
+    )
+    path_time_s: tuple[float, ...] = key(
+        [], doc="die path table: times (s), starting at 0 ([] = constant speed)"
+    )
+    path_travel_mm: tuple[float, ...] = key(
+        [],
+        doc="die path table: downward travel of the top die relative to the mid-plane at those "
+        "times (mm), starting at 0 (the ram stroke is twice it)",
+    )
+    corner_radius_mm: float = key(
+        0.5,
+        low=0.0,
+        low_open=True,
+        doc="radius of the arcs that round the profile's vertices (mm): the die surface is C1; "
+        "where two segments are too short for it, the arc runs between their midpoints (so "
+        "sampled fillets and splines keep their shape)",
+    )
+    closed: bool = key(
+        False,
+        doc="the profile closes a cavity with the mid-plane: report die_fill (cavity volume "
+        "filled with material / cavity volume) in the history",
+    )
+
+
+@section("friction")
+@dataclass(frozen=True, kw_only=True)
+class FrictionConfig:
+    """[friction]: the friction law at the die."""
+
+    model: str = key(
+        "none", choices=("none", "coulomb", "shear", "sticking"), doc="die-workpiece friction law"
+    )
+    mu: float = key(0.0, low=0.0, high=10.0, doc="Coulomb coefficient (friction.model = coulomb)")
+    m: float = key(
+        0.0,
+        low=0.0,
+        high=1.0,
+        doc="shear friction factor, tau = m sigma_eq/sqrt(3) (friction.model = shear)",
+    )
+
+
+@section("time")
+@dataclass(frozen=True, kw_only=True)
+class TimeConfig:
+    """[time]: the load steps."""
+
+    dt_s: float = key(low=0.0, low_open=True, doc="largest time step (s): steps adapt below it")
+    dt_growth: float = key(
+        1.5,
+        low=1.0,
+        high=4.0,
+        doc="after an easy step (no cutback, few Newton iterations) the next step grows by this "
+        "factor, up to time.dt_s (1: never grows back)",
+    )
+    alpha: float = key(
+        0.5, low=0.0, high=1.0, doc="generalized mid-point parameter of the strain increment"
+    )
+
+
+@section("solver")
+@dataclass(frozen=True, kw_only=True)
+class SolverConfig:
+    """[solver]: Newton, linear solver, chunks, memory, compilation cache."""
+
+    max_newton_iterations: int = key(
+        25,
+        low=1,
+        high=1000,
+        doc="Newton iterations per step before a cutback (modified Newton: those with a new "
+        "Jacobian; up to 3x as many more with a kept factorization)",
+    )
+    rtol: float = key(
+        1e-10,
+        low=0.0,
+        high=1.0,
+        low_open=True,
+        high_open=True,
+        doc="relative residual tolerance of Newton",
+    )
+    max_cutbacks: int = key(6, low=0, high=30, doc="times a failed step may be halved")
+    line_search: bool = key(True, doc="backtracking line search in Newton")
+    linear: str = key(
+        "auto",
+        choices=("auto", "dense", "sparse", "jax-sparse"),
+        doc="linear solver backend (auto: on CPU dense LU below 100 unknowns, klujax sparse LU "
+        "above; on a GPU dense LU below 20 000, jax-sparse (cuSolver) above; see "
+        "jaxform/linear.py)",
+    )
+    newton: str = key(
+        "auto",
+        choices=("auto", "newton", "modified"),
+        doc="newton: a new Jacobian and factorization every iteration; modified: one "
+        "factorization kept across iterations and steps, refreshed when a step contracts the "
+        "residual by less than 2x (needs linear = dense or sparse); auto: modified on the "
+        "sparse backend from MODIFIED_MIN_UNKNOWNS unknowns, newton below (see "
+        "jaxform/solver.py)",
+    )
+    adjoint_memory_mb: float = key(
+        4096.0,
+        low=0.0,
+        doc="memory (MB) a gradient run may hold in forward factorizations kept for its reverse "
+        "pass, which then refines each step's adjoint solve with the kept factors instead of "
+        "factoring again; the last steps that fit are kept, the others factor in the reverse "
+        "pass (0: none kept; ~69 MB a step at 100 x 100 with klujax; see "
+        "jaxform/gradients.py)",
+    )
+    chunk_steps: int = key(
+        8,
+        low=1,
+        high=10000,
+        doc="load steps per compiled chunk (progress is reported between chunks)",
+    )
+    compilation_cache_dir: str = key(
+        "auto",
+        doc="where compiled programs are kept for the next run: a directory, 'off', or 'auto' "
+        "(the environment variable JAXFORM_CACHE_DIR, else ~/.cache/jaxform; see "
+        "jaxform/cache.py)",
+    )
+
+
+@section("output")
+@dataclass(frozen=True, kw_only=True)
+class OutputConfig:
+    """[output]: what a run writes."""
+
+    fields: bool = key(True, doc="write ParaView fields (VTU series)")
+    plots: bool = key(True, doc="write PNG plots")
+    profile_strokes_mm: tuple[float, ...] = key(
+        [],
+        doc="ram strokes (mm) at which the contact pressure/slip profile is plotted ([] = "
+        "25/50/75/100 %)",
+    )
+
+
+@section("design")
+@dataclass(frozen=True, kw_only=True)
+class DesignConfig:
+    """[design]: design problems (jaxform design and taylor-test)."""
+
+    objective: str = key(
+        "forging_work",
+        choices=(
+            "forging_work",
+            "peak_force",
+            "side_straightness",
+            "shape_target",
+            "force_misfit",
+            "eqps_spread",
+            "die_fill",
+        ),
+        doc="design objective (jaxform design / taylor-test), a function of the run: force "
+        "integral over stroke (N mm), peak ram force (N), mean squared deviation of the final"
+        " side from straight (mm^2), of chosen nodes from target positions (mm^2), "
+        "force-stroke misfit against a target curve, variance of eqps, 1 - die fill",
+    )
+    variables: tuple[str, ...] = key(
+        ["material"],
+        choices=("material", "friction", "speed", "preform", "nodes", "die"),
+        doc="design variable groups jaxform design optimizes",
+    )
+    material_params: tuple[str, ...] = key(
+        ["s0_MPa", "h0_MPa", "s_hat_MPa"],
+        doc="material parameters of the 'material' group (names of the law's parameters)",
+    )
+    material_start_factor: float = key(
+        1.0,
+        low=0.0,
+        low_open=True,
+        doc="the design starts from the material parameters times this (e.g. 0.7 to identify from"
+        " 30 % off)",
+    )
+    preform_modes: int = key(3, low=1, high=20, doc="cosine modes of the preform profile")
+    preform_amplitude_max: float = key(
+        0.2,
+        low=0.0,
+        high=0.9,
+        low_open=True,
+        doc="bound on each preform mode amplitude (fraction of the radius)",
+    )
+    node_offset_max_mm: float = key(
+        0.1,
+        low=0.0,
+        low_open=True,
+        doc="bound on each initial node coordinate's offset of the 'nodes' group (mm)",
+    )
+    die_points: tuple[float, ...] = key(
+        [], doc="indices of die.profile_mm points whose z is a design variable ([] = all)"
+    )
+    die_offset_max_mm: float = key(
+        1.0, low=0.0, low_open=True, doc="bound on each die point's vertical offset (mm)"
+    )
+    bound_factor: float = key(
+        2.0,
+        low=1.0,
+        high=1000.0,
+        low_open=True,
+        doc="material parameters and ram speed stay within [p0 / factor, p0 * factor]",
+    )
+    target_csv: str = key(
+        "",
+        doc="target for force_misfit (CSV with stroke_mm, force_N) or shape_target (CSV with "
+        "node, r_mm, z_mm)",
+    )
+    optimizer: str = key(
+        "lbfgs",
+        choices=("lbfgs", "adam"),
+        doc="optax optimizer (L-BFGS with zoom line search, or Adam)",
+    )
+    iterations: int = key(20, low=1, high=10000, doc="optimizer iterations")
+    learning_rate: float = key(
+        0.05, low=0.0, low_open=True, doc="Adam step size in the scaled design variables"
+    )
+
+
+def _schema_of(cls: type) -> dict[str, Field]:
+    return {f.name: Field(_KINDS[f.type], **f.metadata["key"]) for f in dataclasses.fields(cls)}
+
+
+SCHEMA: dict[str, dict[str, Field]] = {name: _schema_of(cls) for name, cls in SECTIONS.items()}
 
 
 def _bound_lengths(schema: dict[str, dict[str, Field]]) -> dict[str, dict[str, Field]]:
@@ -554,6 +553,59 @@ def _bound_lengths(schema: dict[str, dict[str, Field]]) -> dict[str, dict[str, F
 
 
 SCHEMA = _bound_lengths(SCHEMA)
+
+
+@dataclass(frozen=True, kw_only=True)
+class Config:
+    """A validated scene config, typed and frozen: one attribute per section, None where
+    the scene has no such section (a membrane has no die; a billet no load).  Built by
+    :func:`typed` from :func:`load_config`'s document; :meth:`to_dict` gives it back."""
+
+    billet: BilletConfig | None = None
+    ring: RingConfig | None = None
+    block: BlockConfig | None = None
+    membrane: MembraneConfig | None = None
+    load: LoadConfig | None = None
+    mesh: MeshConfig
+    material: MaterialConfig
+    die: DieConfig | None = None
+    friction: FrictionConfig | None = None
+    time: TimeConfig
+    solver: SolverConfig
+    output: OutputConfig
+    design: DesignConfig
+
+    @property
+    def workpiece(self) -> str:
+        """The workpiece section's name: 'billet', 'ring', 'block' or 'membrane'."""
+        return next(w for w in WORKPIECES if getattr(self, w) is not None)
+
+    def to_dict(self) -> dict:
+        """The TOML document (sections present, lists for tuples)."""
+        return {
+            name: {f.name: _thaw(getattr(sec, f.name)) for f in dataclasses.fields(sec)}
+            for name in SECTIONS
+            if (sec := getattr(self, name)) is not None
+        }
+
+
+def _freeze(value: Any) -> Any:
+    return tuple(_freeze(v) for v in value) if isinstance(value, list) else value
+
+
+def _thaw(value: Any) -> Any:
+    return [_thaw(v) for v in value] if isinstance(value, tuple) else value
+
+
+def typed(cfg: dict) -> Config:
+    """The :class:`Config` of a document from :func:`load_config` (validated already)."""
+    return Config(
+        **{
+            name: SECTIONS[name](**{k: _freeze(v) for k, v in table.items()})
+            for name, table in cfg.items()
+        }
+    )
+
 
 # Exactly one workpiece section: a solid billet, a ring, an indented block (all pressed by
 # a die) or a membrane (clamped, loaded by a traction; no die).
@@ -785,7 +837,7 @@ def _size_checks(out: dict) -> None:
             f"{t_end / dt:.3g} steps, at most {MAX_STEPS}: raise time.dt_s or "
             f"shorten the run"
         )
-    if t_end is not None and t_end / dt <= 1e-9:  # jaxform.simulate.Scene.n_steps: 0 steps
+    if t_end is not None and t_end / dt <= 1e-9:  # jaxform.scenes.Scene.n_steps: 0 steps
         raise ConfigError(
             f"time.dt_s = {dt!r}: the run to {t_end:.6g} s ({what}) would take no "
             f"step; give time.dt_s <= {t_end:.6g}"
@@ -948,6 +1000,11 @@ def describe_schema() -> str:
 
 
 GRADIENT_GROUPS = SCHEMA["design"]["variables"].choices
+
+
+def check_design_run(cfg: dict) -> None:
+    """:func:`check_gradient_run` for ``jaxform design``: the groups of design.variables."""
+    check_gradient_run(cfg, cfg["design"]["variables"], "design.variables")
 
 
 def check_gradient_run(

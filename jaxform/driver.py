@@ -1,7 +1,10 @@
-"""`jaxform.run`: one call from a config to a history, fields and output files.
+"""Config in, files out: what `jaxform run`, `jaxform design` and `jaxform taylor-test` do.
 
-config (TOML path or dict) --load_config--> validated dict --build_scene--> Scene
-  --simulate--> Result --write_outputs--> history.csv, config.toml, fields.pvd + VTUs, PNGs
+:func:`run`, one call from a config to a history, fields and output files:
+
+config (TOML path or dict) --load_config--> validated document --typed--> Config
+  --build_scene--> Scene --simulate--> Result
+  --write_outputs--> history.csv, config.toml, fields.pvd + VTUs, PNGs
 """
 
 from __future__ import annotations
@@ -12,11 +15,12 @@ from pathlib import Path
 import numpy as np
 
 from jaxform.cache import enable_compilation_cache
-from jaxform.config import dump_config, load_config
+from jaxform.config import dump_config, load_config, typed
 from jaxform.io import write_csv, write_vtu_series
 from jaxform.postprocess import nodal_fields
+from jaxform.precision import require_x64
 from jaxform.scenes import build_scene
-from jaxform.simulate import Result, SimulationError, simulate
+from jaxform.simulation import HISTORY_KEYS, Result, SimulationError, simulate
 
 
 def run(
@@ -35,14 +39,14 @@ def run(
             stroke_mm, force_N, iterations, cutbacks).
 
     Returns:
-        the :class:`jaxform.simulate.Result` (history and fields).
+        the :class:`jaxform.simulation.Result` (history and fields).
 
     Raises:
         ConfigError: a bad config.  SimulationError (with ``.result``): a step failed
         after all cutbacks; the outputs of the last converged state are written.
     """
-    cfg = load_config(config, list(overrides))
-    enable_compilation_cache(cfg.get("solver", {}).get("compilation_cache_dir"))
+    cfg = typed(load_config(config, list(overrides)))
+    enable_compilation_cache(cfg.solver.compilation_cache_dir)
     scene = build_scene(cfg)
     try:
         result = simulate(scene, progress)
@@ -61,61 +65,42 @@ def write_outputs(out_dir: str | Path, result: Result) -> None:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     scene = result.scene
-    cfg = scene.config
+    cfg = scene.settings
     h = result.history
-    if scene.kind == "membrane":  # no die: the applied load and the tip displacement
-        cols = {
-            "time_s": h["time_s"],
-            "dt_s": h["dt_s"],
-            "load_N": h["force_N"],
-            "tip_ux_mm": h["tip_ux_mm"],
-            "tip_uy_mm": h["tip_uy_mm"],
-            "newton_iterations": h["newton_iterations"],
-            "cutbacks": h["cutbacks"],
-        }
-    else:
-        cols = {
-            k: h[k]
-            for k in (
-                "time_s",
-                "dt_s",
-                "stroke_mm",
-                "force_N",
-                "newton_iterations",
-                "cutbacks",
-                "friction_work_Nmm",
-            )
-        }
-    cols.update({k: h[k] for k in ("inner_diameter_mm", "outer_diameter_mm", "die_fill") if k in h})
+    if scene.workpiece.pressed:
+        keys = ("time_s", "dt_s", "stroke_mm", "force_N", "newton_iterations", "cutbacks",
+                "friction_work_Nmm")  # fmt: skip
+        cols = {k: h[k] for k in keys}
+    else:  # no die: the applied load
+        cols = {"time_s": h["time_s"], "dt_s": h["dt_s"], "load_N": h["force_N"],
+                "newton_iterations": h["newton_iterations"], "cutbacks": h["cutbacks"]}  # fmt: skip
+    # the workpiece's and the die's own columns (ring diameters, membrane tip, die fill)
+    cols.update({k: v for k, v in h.items() if k not in HISTORY_KEYS and k not in cols})
     if scene.rezone_quality > 0:  # worst element corner quality; 1 where the mesh was rezoned
         cols.update({k: h[k] for k in ("mesh_quality", "rezoned")})
     write_csv(out / "history.csv", cols)
-    dump_config(cfg, out / "config.toml")
+    dump_config(cfg.to_dict(), out / "config.toml")
     if result.failure:
         (out / "FAILED.txt").write_text(result.failure + "\n")
-    if cfg["output"]["fields"]:
+    if cfg.output.fields:
         write_vtu_series(out, scene, result)
-    if cfg["output"]["plots"]:
+    if cfg.output.plots:
         coords0 = np.asarray(scene.inputs.coords)
         u, _, _ = nodal_fields(scene, result.fields["x"][-1])
         coords1 = coords0 + u
         el = np.asarray(scene.mesh.elements)
-        mesh_text = f"{cfg['mesh']['element']}, {cfg['mesh']['nr']}x{cfg['mesh']['nz']}"
-        axes = (
-            ("r [mm]", "z [mm]")
-            if cfg["mesh"]["geometry"] == "axisymmetric"
-            else ("x [mm]", "y [mm]")
-        )
-        if scene.kind == "membrane":
+        mesh_text = f"{cfg.mesh.element}, {cfg.mesh.nr}x{cfg.mesh.nz}"
+        axi = scene.model.formulation.axisymmetric
+        axes = ("r [mm]", "z [mm]") if axi else ("x [mm]", "y [mm]")
+        if not scene.workpiece.pressed:
             _membrane_plots(out, result, coords0, coords1, el, mesh_text, axes)
             return
-        height = cfg[scene.kind]["depth_mm" if scene.kind == "block" else "height_mm"]
-        red = 100.0 * h["stroke_mm"][-1] / height
+        red = 100.0 * h["stroke_mm"][-1] / scene.workpiece.reference_height_mm
         plot.force_stroke(
             h["stroke_mm"],
             h["force_N"],
             out / "force_stroke.png",
-            f"{mesh_text}, friction {cfg['friction']['model']}",
+            f"{mesh_text}, friction {cfg.friction.model}",
         )
         plot.deformed_mesh(
             coords0,
@@ -174,7 +159,7 @@ def _contact_plot(path: Path, result: Result) -> None:
     from jaxform.postprocess import contact_profile
 
     h, f = result.history, result.fields
-    strokes = result.scene.config["output"]["profile_strokes_mm"] or [
+    strokes = result.scene.settings.output.profile_strokes_mm or [
         q * h["stroke_mm"][-1] for q in (0.25, 0.5, 0.75, 1.0)
     ]
     profiles = {}
@@ -184,3 +169,66 @@ def _contact_plot(path: Path, result: Result) -> None:
             result.scene, f["x"][k], f["slip_mm"][k], f["contact_status"][k]
         )
     plot.contact_profiles(profiles, path)
+
+
+def run_design(config, overrides=(), out_dir: str | Path = "out/design", progress=None):
+    """Optimize the config's [design] problem; write the history and plots to out_dir.
+
+    Arguments:
+        config: the path of a TOML scene or a nested dict; overrides: ``section.key=value``.
+        out_dir: folder for design_history.csv, objective.png, shapes.png, config.toml.
+        progress: called after each optimizer iteration (iteration, objective,
+            projected gradient norm, design).
+
+    Returns:
+        (the design problem, its optimization history)."""
+    from jaxform.design import OptimizerSettings, build_problem, optimize
+    from jaxform.plot import design_objective, design_shapes
+
+    require_x64()
+    cfg = typed(load_config(config, overrides))
+    scene = build_scene(cfg)
+    problem = build_problem(scene)
+    d = cfg.design
+    settings = OptimizerSettings(d.optimizer, d.iterations, d.learning_rate)
+    hist = optimize(problem, settings, progress=progress)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    dump_config(cfg.to_dict(), out / "config.toml")
+    cols = {
+        "iteration": np.arange(len(hist.objective)),
+        "objective": np.array(hist.objective),
+        "grad_norm": np.array(hist.grad_norm),
+    }
+    phys = [problem.physical(u) for u in hist.designs]
+    for key in phys[0]:
+        cols[key] = np.array([p[key] for p in phys])
+    write_csv(out / "design_history.csv", cols)
+    unit = getattr(problem.objective, "unit", "-")
+    design_objective(hist.objective, out / "objective.png", f"{d.objective} ({d.optimizer})", unit)
+    _, traj0 = problem.value(hist.designs[0])
+    _, traj1 = problem.value(hist.designs[-1])
+    shapes = {
+        "initial design, start": np.asarray(traj0.coords),
+        "initial design, end": np.asarray(traj0.positions),
+        "optimized, start": np.asarray(traj1.coords),
+        "optimized, end": np.asarray(traj1.positions),
+    }
+    design_shapes(
+        shapes,
+        np.asarray(scene.mesh.elements),
+        out / "shapes.png",
+        f"shapes: {d.objective} {hist.objective[0]:.4g} -> {hist.objective[-1]:.4g} {unit}",
+    )
+    return problem, hist
+
+
+def run_taylor(config, overrides=(), groups=None, h=(1.0, 0.5, 0.25, 0.125), progress=None):
+    """Taylor test of every design group of the scene (or the ones named)."""
+    from jaxform.design import available_groups, build_problem, taylor_test
+
+    require_x64()
+    scene = build_scene(load_config(config, overrides))
+    names = available_groups(scene) if not groups else tuple(groups)
+    problem = build_problem(scene, groups=names)
+    return taylor_test(problem, h=h, progress=progress)

@@ -9,7 +9,8 @@ function of ONE element (vmapped over elements by the assembly), returning
   ``LOCAL_SOLVE_FAILED`` (a material update did not converge) or ``INVERTED``
   (det F <= 0 at a Gauss point).
 
-Formulations (``kind``):
+Formulations (``mesh.element``; :func:`formulation` maps the name to the two static
+switches of :class:`Formulation`, ``mean_dilatation`` and ``mixed_pressure``):
 
 * ``q4``   plain displacement quadrilateral: locks for nearly incompressible flow.
 * ``q1p0`` F-bar / mean dilatation: the material sees F_bar = (J_bar/J)^(1/3) F with
@@ -38,8 +39,6 @@ from jaxform.materials.base import MaterialState
 from jaxform.smallmat import det3, inv2, inv3
 from jaxform.status import INVERTED, LOCAL_SOLVE_FAILED, OK
 
-KINDS = ("q1q1", "q1p0", "q4")
-
 
 @jax.tree_util.register_dataclass
 @dataclass(frozen=True)
@@ -52,18 +51,17 @@ class GaussState:
 
 @dataclass(frozen=True)
 class Formulation:
-    kind: str = "q1q1"
+    """An element formulation (static, hashable): the seed's q1q1 by default."""
+
+    mixed_pressure: bool = True  # a nodal pressure unknown, stabilized (q1q1)
+    mean_dilatation: bool = False  # the material sees F-bar (q1p0)
     axisymmetric: bool = True
     theta: float = 0.1  # q1q1 stabilization factor
     alpha: float = 0.5  # mid-point parameter of the strain increment
 
-    def __post_init__(self):
-        if self.kind not in KINDS:
-            raise ValueError(f"mesh.element = {self.kind!r}: must be one of {KINDS}")
-
     @property
     def n_fields(self) -> int:
-        return 3 if self.kind == "q1q1" else 2
+        return 3 if self.mixed_pressure else 2
 
     def residual(
         self, law, params, dt, x_ref, dofs, gstate: GaussState, solution: GaussState | None = None
@@ -77,7 +75,7 @@ class Formulation:
         f = el.deformation_gradient(u, dndx, radius, axi)
         det_f = det3(f)
         geom_ok = jnp.all(det_f > 0.0) & jnp.all(det_ref > 0.0)
-        if self.kind == "q1p0":
+        if self.mean_dilatation:
             jbar = jnp.sum(det_f * weight) / jnp.sum(weight)
             safe = jnp.where(det_f > 0.0, det_f, 1.0)
             f_mat = f * (jnp.abs(jbar) / safe)[:, None, None] ** (1.0 / 3.0)
@@ -91,14 +89,14 @@ class Formulation:
         converged = None if solution is None else solution.mat
         sigma, mat_new, ok = jax.vmap(point)(f_rel, gstate.mat, converged)
         ok = ok > 0.5
-        if self.kind == "q1q1":
+        if self.mixed_pressure:
             p_hat = el.N_GP @ dofs[:, 2]
             p_mat = -jnp.trace(sigma, axis1=1, axis2=2) / 3.0
             eye = jnp.eye(3, dtype=sigma.dtype)
             sigma = sigma + (p_mat - p_hat)[:, None, None] * eye
             mat_new = MaterialState(stress=sigma, s=mat_new.s, eqps=mat_new.eqps)
         r_u = el.virtual_work_residual(el.first_piola(sigma, f), dndx, radius, weight, axi)
-        if self.kind == "q1q1":
+        if self.mixed_pressure:
             r_p = self._pressure_residual(law, params, f, dndx, weight, det_ref, p_mat, dofs[:, 2])
             r = jnp.concatenate([r_u, r_p[:, None]], axis=1)
         else:
@@ -201,3 +199,19 @@ def initial_gauss_state(law, params, n_elements: int) -> GaussState:
     mat = jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (n_elements, 4) + a.shape), st)
     eye = jnp.broadcast_to(jnp.eye(3), (n_elements, 4, 3, 3))
     return GaussState(F=eye, mat=mat)
+
+
+# mesh.element -> the formulation's switches
+ELEMENTS = {
+    "q1q1": dict(mixed_pressure=True, mean_dilatation=False),
+    "q1p0": dict(mixed_pressure=False, mean_dilatation=True),
+    "q4": dict(mixed_pressure=False, mean_dilatation=False),
+}
+
+
+def formulation(element: str, **settings) -> Formulation:
+    """The :class:`Formulation` of ``mesh.element`` = element ('q1q1', 'q1p0' or 'q4'),
+    with the other settings (axisymmetric, theta, alpha) passed on."""
+    if element not in ELEMENTS:
+        raise ValueError(f"mesh.element = {element!r}: must be one of {tuple(ELEMENTS)}")
+    return Formulation(**ELEMENTS[element], **settings)

@@ -2,9 +2,9 @@
 
 :func:`trajectory` runs a scene's load steps as one ``lax.scan`` over a *fixed* step
 schedule (no cutback: a while loop cannot be reverse-differentiated), each step the
-implicitly differentiated Newton solve of :func:`jaxform.simulate.solve_step`.  So
+implicitly differentiated Newton solve of :func:`jaxform.stepping.solve_step`.  So
 ``jax.grad`` of any scalar function of the returned :class:`Trajectory` with respect to
-anything in :class:`jaxform.simulate.Inputs` (initial coordinates = preform shape, die
+anything in :class:`jaxform.scenes.Inputs` (initial coordinates = preform shape, die
 profile points and path table = die shape and ram speed schedule, friction coefficients,
 material parameters) and to the step times costs, per step, one transposed solve with
 the converged step's Jacobian and one residual VJP: never a pass back through Newton
@@ -49,17 +49,17 @@ import numpy as np
 
 from jaxform.formulations import GaussState
 from jaxform.linear import Factorization
-from jaxform.simulate import (
-    Inputs,
-    Scene,
+from jaxform.scenes import Inputs, Scene
+from jaxform.solver import NewtonSettings
+from jaxform.status import CAUSES, OK
+from jaxform.stepping import (
     SimState,
     Stepper,
     converged_state,
     die_force,
+    initial_state,
     solve_step,
 )
-from jaxform.solver import NewtonSettings
-from jaxform.status import CAUSES, OK
 from jaxform.xla_options import jit
 
 
@@ -195,7 +195,7 @@ def trajectory(
             "Newton loop runs finished lanes too, which would free factorizations "
             "still in use; run batches without it (as jaxform.batch does)"
         )
-    state0 = initial_state_for(scene, inputs)
+    state0 = initial_state(scene.model, inputs)
     stepper = Stepper(scene.model, scene.linear, exact_newton(scene.newton), 0,
                       symmetric_z=scene.symmetric_z)  # fmt: skip
     return _trajectory(
@@ -243,10 +243,10 @@ def exact_newton(settings: NewtonSettings) -> NewtonSettings:
 
 def schedule(scene: Scene, inputs: Inputs | None = None) -> np.ndarray:
     """The step schedule the forward run takes: run the scene (adaptive steps, with
-    cutbacks, :func:`jaxform.simulate.simulate`) and return the end times of its
+    cutbacks, :func:`jaxform.simulation.simulate`) and return the end times of its
     converged steps, so that a differentiable run takes the same steps and each of them
     converged in the forward run."""
-    from jaxform.simulate import simulate
+    from jaxform.simulation import simulate
 
     if scene.rezone_quality > 0.0:
         raise ValueError(
@@ -257,23 +257,6 @@ def schedule(scene: Scene, inputs: Inputs | None = None) -> np.ndarray:
     run = scene if inputs is None else replace(scene, inputs=inputs)
     h = simulate(run).history
     return np.asarray(h["time_s"][1:])
-
-
-def initial_state_for(scene: Scene, inputs: Inputs) -> SimState:
-    """The scene's initial state for given inputs (the material state depends on params)."""
-    from jaxform.formulations import initial_gauss_state
-
-    st = scene.initial_state()
-    g = initial_gauss_state(scene.model.law, inputs.params, scene.model.layout.n_elements)
-    return SimState(
-        x=st.x,
-        gauss=g,
-        t=st.t,
-        x_rate=st.x_rate,
-        friction_work=st.friction_work,
-        slip_mm=st.slip_mm,
-        contact_status=st.contact_status,
-    )
 
 
 def check(traj: Trajectory) -> None:

@@ -333,33 +333,33 @@ def choose_backend(name: str, n_unknowns: int, platform: str | None = None):
     ('cpu', 'cuda', 'rocm', 'tpu'; default: where JAX runs).  See the module docstring."""
     if name not in BACKENDS:
         raise ValueError(f"solver.linear = {name!r}: must be one of {', '.join(BACKENDS)}")
-    kind = platform_kind(platform)
-    sparse_gpu = kind in SPARSE_GPU_PLATFORMS
-    if kind == "cpu":
+    where = platform_kind(platform)
+    sparse_gpu = where in SPARSE_GPU_PLATFORMS
+    if where == "cpu":
         if name == "auto":
             name = "dense" if n_unknowns < DENSE_LIMIT else "sparse"
     elif name == "auto":
         name = "dense" if n_unknowns < GPU_DENSE_LIMIT or not sparse_gpu else "jax-sparse"
         if name == "dense" and n_unknowns >= GPU_DENSE_LIMIT:
             _warn_once(
-                f"solver.linear = 'auto' on {kind}: dense LU for {n_unknowns} unknowns "
-                f"(no sparse direct solver lowers on {kind})"
+                f"solver.linear = 'auto' on {where}: dense LU for {n_unknowns} unknowns "
+                f"(no sparse direct solver lowers on {where})"
             )
     elif name == "sparse":
         name = "jax-sparse" if sparse_gpu else "dense"
         why = (
             "cuSolver sparse QR via jax.experimental.sparse.linalg.spsolve"
             if sparse_gpu
-            else f"dense LU: no sparse direct solver lowers on {kind}"
+            else f"dense LU: no sparse direct solver lowers on {where}"
         )
         _warn_once(
-            f"solver.linear = 'sparse' on {kind}: klujax is CPU-only (importing it "
+            f"solver.linear = 'sparse' on {where}: klujax is CPU-only (importing it "
             f"would move JAX to the CPU), using '{name}' ({why})"
         )
     elif name == "jax-sparse" and not sparse_gpu:
         name = "dense"
         _warn_once(
-            f"solver.linear = 'jax-sparse' on {kind}: spsolve lowers only on CPU and "
+            f"solver.linear = 'jax-sparse' on {where}: spsolve lowers only on CPU and "
             f"CUDA, using 'dense' (dense LU)"
         )
     if name == "jax-sparse":

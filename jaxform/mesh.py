@@ -303,8 +303,8 @@ def write_mesh(path: str | Path, mesh: Mesh) -> None:
     points = {k: np.asarray(v, dtype=np.int64) for k, v in mesh.node_sets.items() if k not in lines}
     cells, tags, field_data = [], [], {}
     for tag, (name, data) in enumerate([*lines.items(), *points.items()], start=1):
-        kind, dim = ("line", 1) if name in lines else ("vertex", 0)
-        cells.append((kind, data.reshape(-1, 2) if kind == "line" else data.reshape(-1, 1)))
+        cell, dim = ("line", 1) if name in lines else ("vertex", 0)
+        cells.append((cell, data.reshape(-1, dim + 1)))
         tags.append(np.full(len(cells[-1][1]), tag))
         field_data[name] = np.array([tag, dim])
     tag = len(cells) + 1

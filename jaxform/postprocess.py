@@ -1,11 +1,10 @@
 """Host-side quantities derived from converged states (NumPy): what engineers read.
 
-* ring scenes: ``inner_diameter_mm`` and ``outer_diameter_mm`` at the ring's mid-height
-  (the nodes of the inner/outer surface on the symmetry plane);
-* membrane scenes: ``tip_ux_mm`` and ``tip_uy_mm``, the displacement of the ``tip`` node;
-* closed dies: ``die_fill`` = volume of the cavity that the material occupies / volume of
-  the cavity enclosed by the (rounded, :mod:`jaxform.dies`) die profile, the axis and the
-  mid-plane (Pappus: V = 2 pi * integral of r dA);
+* the extra history columns of a run: the workpiece's own
+  (:meth:`jaxform.workpieces.Workpiece.extra_history`: ring diameters, a membrane's tip
+  displacement) and, for closed dies, ``die_fill`` = volume of the cavity that the
+  material occupies / volume of the cavity enclosed by the (rounded, :mod:`jaxform.dies`)
+  die profile, the axis and the mid-plane (Pappus: V = 2 pi * integral of r dA);
 * contact profiles along the die: normal pressure and shear traction (multiplier over
   the node's contact area, MPa), status (0 open, 1 stick, 2 slip), accumulated slip;
 * the pressure-oscillation measure of equal-order u-p (q1q1): how far the nodal pressure
@@ -17,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from jaxform.dies import sample_rounded
+from jaxform.geometry import polygon_measure
 
 
 def positions(scene, x) -> np.ndarray:
@@ -35,24 +35,11 @@ def nodal_fields(scene, x: np.ndarray):
     return nodal[:, :2], pressure, np.asarray(x[lay.n_node_dofs :])
 
 
-def _mid_height_node(scene, name: str) -> int:
-    nodes = np.intersect1d(scene.mesh.node_sets[name], scene.mesh.node_sets["symmetry"])
-    return int(nodes[0])
-
-
-def _revolved(poly: np.ndarray, axisymmetric: bool) -> float:
-    """Volume of revolution (axisymmetric) or area (plane strain) of a closed polygon."""
-    x, y = poly[:, 0], poly[:, 1]
-    xn, yn = np.roll(x, -1), np.roll(y, -1)
-    cross = x * yn - xn * y
-    if axisymmetric:
-        return abs(2.0 * np.pi * np.sum(cross * (x + xn)) / 6.0)
-    return abs(0.5 * np.sum(cross))
-
-
 def material_volume(scene, pos: np.ndarray) -> float:
+    """Volume (axisymmetric, mm^3) or area (plane strain, mm^2) of the material at nodal
+    positions ``pos``."""
     axi = scene.model.formulation.axisymmetric
-    return sum(_revolved(pos[e], axi) for e in np.asarray(scene.mesh.elements))
+    return float(np.sum(polygon_measure(pos[np.asarray(scene.mesh.elements)], axi)))
 
 
 def _clip_above(poly: np.ndarray, z0: float = 0.0) -> np.ndarray:
@@ -82,7 +69,7 @@ def cavity_volume(scene, t: float) -> float:
     poly = cavity_polygon(scene, t)
     if len(poly) < 3:
         return 0.0
-    return _revolved(poly, scene.model.formulation.axisymmetric)
+    return abs(float(polygon_measure(poly, scene.model.formulation.axisymmetric)))
 
 
 def _signed_area(poly: np.ndarray) -> float:
@@ -170,21 +157,18 @@ def filled_volume(scene, pos: np.ndarray, t: float) -> float:
 
 
 def extra_history(scene, xs: np.ndarray, times: np.ndarray) -> dict[str, np.ndarray]:
-    out: dict[str, np.ndarray] = {}
-    if scene.kind == "membrane":
-        k = int(scene.mesh.node_sets["tip"][0])
-        u = np.array([nodal_fields(scene, x)[0][k] for x in xs])
-        out["tip_ux_mm"], out["tip_uy_mm"] = u[:, 0], u[:, 1]
-    if scene.kind == "ring":
-        ki, ko = _mid_height_node(scene, "inner"), _mid_height_node(scene, "outer")
-        pos = [positions(scene, x) for x in xs]
-        out["inner_diameter_mm"] = np.array([2.0 * p[ki, 0] for p in pos])
-        out["outer_diameter_mm"] = np.array([2.0 * p[ko, 0] for p in pos])
-    if "die" in scene.config and scene.config["die"]["closed"]:
+    """The history columns a scene adds to every run: its workpiece's
+    (:meth:`jaxform.workpieces.Workpiece.extra_history`) and, for a closed die,
+    ``die_fill`` (0..1)."""
+    coords = np.asarray(scene.inputs.coords)
+    pos = np.stack([positions(scene, x) for x in xs])
+    out = dict(scene.workpiece.extra_history(scene.mesh, pos, pos - coords))
+    die = scene.settings.die
+    if die is not None and die.closed:
         out["die_fill"] = np.array(
             [
-                filled_volume(scene, positions(scene, x), t) / max(cavity_volume(scene, t), 1e-300)
-                for x, t in zip(xs, times)
+                filled_volume(scene, p, t) / max(cavity_volume(scene, t), 1e-300)
+                for p, t in zip(pos, times)
             ]
         )
     return out

@@ -27,7 +27,7 @@ sparsity pattern stay) and moves the nodes (:func:`smooth`):
 3. the rezoned configuration becomes the new reference (u = 0, F_n = I): the material
    update is incremental (thesis: updated-Lagrangian stress update), so nothing else
    refers to the initial mesh.  Outputs keep measuring displacements from the initial
-   mesh (:func:`jaxform.simulate.simulate`).
+   mesh (:func:`jaxform.simulation.simulate`).
 
 The trigger is the mesh quality (:func:`corner_qualities`): 2 det[a, b] / (|a|^2 + |b|^2)
 for the two edges a, b at an element corner (1 for a square; it falls with skew and with
@@ -417,8 +417,6 @@ class RezoneReport:
 
 def rezone(scene, state, inputs):
     """(new state, new inputs, RezoneReport) for a scene's converged state."""
-    from jaxform.postprocess import material_volume
-
     if scene.grid is None:
         raise RezoneError("rezoning needs a structured mesh (mesh.file = '')")
     nr, nz = scene.grid
@@ -462,6 +460,7 @@ def rezone(scene, state, inputs):
     rate_new = np.concatenate([new_rate_nodal.ravel(), rate[lay.n_node_dofs :]])
     new_state = replace(state, x=jnp.asarray(x_new), gauss=gauss, x_rate=jnp.asarray(rate_new))
     new_inputs = replace(inputs, coords=jnp.asarray(new_pos))
-    v0 = material_volume(scene, pos)
-    v1 = material_volume(scene, new_pos)
+    axi = scene.model.formulation.axisymmetric
+    v0 = float(np.sum(polygon_measure(pos[elements], axi)))
+    v1 = float(np.sum(polygon_measure(new_pos[elements], axi)))
     return new_state, new_inputs, RezoneReport(t, q_old, q_new, v1 / v0 - 1.0)

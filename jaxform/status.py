@@ -1,7 +1,7 @@
 """Status codes: how a step, a Newton solve or a material update ended.
 
 Failures inside compiled programs are integer codes, never exceptions; the host boundary
-(:mod:`jaxform.simulate`, :mod:`jaxform.gradients`) turns them into a smaller step or a
+(:mod:`jaxform.simulation`, :mod:`jaxform.gradients`) turns them into a smaller step or a
 message.  Codes are ordered by severity (larger = worse), so the worst of several is
 their maximum.  This module imports nothing, so any layer may use it.
 """

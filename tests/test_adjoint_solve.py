@@ -41,7 +41,7 @@ def _matrix(seed=0):
 @dataclass(frozen=True)
 class Linear:
     """The step-linear contract of jaxform.solver.solve_implicit on a fixed pattern
-    (jaxform.simulate.StepLinear reads the pattern from the step's arguments instead)."""
+    (jaxform.stepping.StepLinear reads the pattern from the step's arguments instead)."""
 
     solver: LinearSolver
     rows: jax.Array

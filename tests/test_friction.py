@@ -17,7 +17,8 @@ from fd_check import jacobian_fd_error
 from jaxform.config import load_config
 from jaxform.postprocess import positions
 from jaxform.scenes import build_scene
-from jaxform.simulate import simulate, step_context
+from jaxform.simulation import simulate
+from jaxform.stepping import step_context
 
 BILLET = {
     "billet": {"diameter_mm": 5.0, "height_mm": 7.5},

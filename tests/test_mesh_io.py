@@ -12,7 +12,7 @@ import pytest
 from jaxform.config import load_config
 from jaxform.mesh import Mesh, MeshError, billet_quarter, read_mesh, rectangle, write_mesh
 from jaxform.scenes import build_scene
-from jaxform.simulate import simulate
+from jaxform.simulation import simulate
 
 SETS = ("axis", "symmetry", "top", "side")
 

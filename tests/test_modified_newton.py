@@ -13,7 +13,7 @@ from test_upsetting import scene, seed_run
 
 from jaxform.config import ConfigError
 from jaxform.linear import LinearSolver
-from jaxform.simulate import simulate
+from jaxform.simulation import simulate
 from jaxform.solver import NewtonSettings, choose_method, modified_newton, newton
 from jaxform.status import OK
 

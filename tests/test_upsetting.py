@@ -23,8 +23,9 @@ from jaxform.io import read_csv
 from jaxform.materialpoint import uniaxial_compression
 from jaxform.postprocess import contact_profile, nodal_fields
 from jaxform.scenes import build_scene
-from jaxform.simulate import SimulationError, simulate, step_context
+from jaxform.simulation import SimulationError, simulate
 from jaxform.status import OK
+from jaxform.stepping import step_context
 
 BASE = {
     "billet": {"diameter_mm": 5.0, "height_mm": 7.5},
@@ -332,10 +333,10 @@ def test_seed_scene_outputs(tmp_path):
             res,
             scene=replace(
                 res.scene,
-                config={
-                    **res.scene.config,
-                    "output": {**res.scene.config["output"], "fields": True, "plots": True},
-                },
+                settings=replace(
+                    res.scene.settings,
+                    output=replace(res.scene.settings.output, fields=True, plots=True),
+                ),
             ),
         ),
     )
@@ -360,11 +361,11 @@ def test_compact_point_tangent_equals_the_plain_derivatives(element, monkeypatch
     where f is constant and its tangent a symbolic zero).  Same derivatives computed in
     another order: equal to 1e-12 relative (measured ~3e-16)."""
     from jaxform import formulations as fm
-    from jaxform.formulations import Formulation, initial_gauss_state
+    from jaxform.formulations import formulation, initial_gauss_state
     from jaxform.materials.presets import load_material
 
     law, params = load_material("al1100_673K")
-    form = Formulation(kind=element, axisymmetric=True)
+    form = formulation(element, axisymmetric=True)
     x_ref = jnp.array([[1.0, 0.0], [2.1, 0.2], [2.0, 1.1], [0.9, 0.9]])
     rng = np.random.default_rng(3)
     strain = np.column_stack([0.02 * x_ref[:, 0], -0.04 * x_ref[:, 1]])

@@ -27,7 +27,7 @@ from jaxform.element import facet_forces
 from jaxform.loads import external_forces
 from jaxform.postprocess import pressure_oscillation
 from jaxform.scenes import build_scene
-from jaxform.simulate import simulate
+from jaxform.simulation import simulate
 
 ROOT = Path(__file__).resolve().parents[1]
 COOK = ROOT / "configs" / "cooks_membrane.toml"

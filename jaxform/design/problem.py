@@ -22,14 +22,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxform.config import ConfigError
 from jaxform.design import objectives as obj
 from jaxform.design import parametrize as par
+from jaxform.errors import ConfigError
 from jaxform.gradients import check, release, schedule, trajectory
-from jaxform.simulate import Scene
+from jaxform.scenes import Scene
+from jaxform.workpieces import DIE_GROUPS
 from jaxform.xla_options import jit
 
-GROUPS = ("material", "friction", "speed", "preform", "nodes", "die")
+GROUPS = DIE_GROUPS  # every design group, in the order problems list them
 
 
 @dataclass(frozen=True, eq=False)
@@ -91,19 +92,14 @@ class DesignProblem:
 # from a config
 
 
-# the config sections the design groups and objectives read (membrane scenes have none)
-NEEDED_SECTIONS = ("die", "friction")
-
-
 def check_design_scene(scene: Scene) -> None:
     """Raise ConfigError (one line) unless ``scene`` has what design problems read: a die
     and friction (billet, ring and block scenes; a membrane under a load has neither)."""
-    missing = [s for s in NEEDED_SECTIONS if s not in scene.config]
-    if missing:
+    if not scene.workpiece.pressed:
         raise ConfigError(
             f"design problems (jaxform design, taylor-test) need a scene pressed by a die: "
-            f"this [{scene.kind}] scene has no {' or '.join(f'[{s}]' for s in missing)} "
-            f"section; allowed workpieces: [billet], [ring], [block]"
+            f"this [{scene.workpiece.name}] scene has no [die] or [friction] section; "
+            f"allowed workpieces: [billet], [ring], [block]"
         )
 
 
@@ -117,57 +113,51 @@ def available_groups(scene: Scene) -> tuple[str, ...]:
         the group names, a subset of :data:`GROUPS` in that order.
     """
     check_design_scene(scene)
-    cfg = scene.config
-    names = ["material", "speed"]
-    if cfg["friction"]["model"] in ("coulomb", "shear"):
-        names.insert(1, "friction")
-    if "billet" in cfg and not cfg["mesh"]["file"]:
-        names.append("preform")
-    names += ["nodes", "die"]
-    return tuple(names)
+    friction = scene.settings.friction.model in ("coulomb", "shear")
+    return tuple(g for g in scene.workpiece.design_groups() if g != "friction" or friction)
 
 
 def build_group(scene: Scene, name: str):
-    cfg, d = scene.config, scene.config["design"]
+    cfg, d = scene.settings, scene.settings.design
     if name == "material":
         params = scene.inputs.params
-        for p in d["material_params"]:
+        for p in d.material_params:
             if not hasattr(params, p):
                 raise ConfigError(
                     f"design.material_params: {p!r} is not a parameter of this "
                     f"material; allowed: {', '.join(vars(params))}"
                 )
         return par.MaterialParams(
-            tuple(d["material_params"]),
-            tuple(float(getattr(params, p)) for p in d["material_params"]),
-            bound_log=float(np.log(d["bound_factor"])),
+            tuple(d.material_params),
+            tuple(float(getattr(params, p)) for p in d.material_params),
+            bound_log=float(np.log(d.bound_factor)),
         )
     if name == "friction":
-        model = cfg["friction"]["model"]
+        model = cfg.friction.model
         if model not in ("coulomb", "shear"):
             raise ConfigError(
                 f"design.variables has 'friction' but friction.model = {model!r}: "
                 f"needs 'coulomb' or 'shear'"
             )
         key = "mu" if model == "coulomb" else "m"
-        return par.Friction(key, float(cfg["friction"][key]), 10.0 if key == "mu" else 1.0)
+        return par.Friction(key, float(getattr(cfg.friction, key)), 10.0 if key == "mu" else 1.0)
     if name == "speed":
-        speed = cfg["die"]["speed_mm_s"] or float("nan")
-        return par.RamSpeed(speed, bound_log=float(np.log(d["bound_factor"])))
+        speed = cfg.die.speed_mm_s or float("nan")
+        return par.RamSpeed(speed, bound_log=float(np.log(d.bound_factor)))
     if name == "preform":
-        if "billet" not in cfg or cfg["mesh"]["file"]:
+        b = scene.workpiece
+        if "preform" not in b.design_groups():
             raise ConfigError(
                 "design.variables has 'preform': needs a [billet] section and "
                 "the structured mesh (mesh.file = '')"
             )
-        b = cfg["billet"]
         return par.PreformCosine(
-            d["preform_modes"],
-            0.5 * b["height_mm"],
-            0.5 * b["diameter_mm"],
+            d.preform_modes,
+            0.5 * b.height_mm,
+            0.5 * b.diameter_mm,
             np.asarray(scene.mesh.elements),
             axisymmetric=scene.model.formulation.axisymmetric,
-            amplitude_max=d["preform_amplitude_max"],
+            amplitude_max=d.preform_amplitude_max,
         )
     if name == "nodes":
         nf = scene.model.layout.n_fields
@@ -177,16 +167,16 @@ def build_group(scene: Scene, name: str):
         node, comp = fixed // nf, fixed % nf
         held[node[comp < 2], comp[comp < 2]] = True
         nodes, comps = np.nonzero(~held)
-        return par.NodalCoordinates(nodes, comps, offset_max_mm=d["node_offset_max_mm"])
+        return par.NodalCoordinates(nodes, comps, offset_max_mm=d.node_offset_max_mm)
     if name == "die":
         n_pts = int(scene.inputs.die.points.shape[0])
-        pts = d["die_points"] or list(range(n_pts))
+        pts = d.die_points or tuple(range(n_pts))
         if any(p != int(p) or not 0 <= p < n_pts for p in pts):
             raise ConfigError(
-                f"design.die_points = {d['die_points']!r}: must be integer "
+                f"design.die_points = {list(d.die_points)!r}: must be integer "
                 f"indices in [0, {n_pts - 1}] of the die profile points"
             )
-        return par.DieProfile(tuple(int(p) for p in pts), offset_max_mm=d["die_offset_max_mm"])
+        return par.DieProfile(tuple(int(p) for p in pts), offset_max_mm=d.die_offset_max_mm)
     raise ConfigError(f"design group {name!r}: must be one of {', '.join(GROUPS)}")
 
 
@@ -209,8 +199,8 @@ def side_nodes(scene: Scene) -> np.ndarray:
 
 
 def build_objective(scene: Scene):
-    d = scene.config["design"]
-    name = d["objective"]
+    d = scene.settings.design
+    name = d.objective
     axi = scene.model.formulation.axisymmetric
     if name == "forging_work":
         return obj.ForgingWork()
@@ -221,16 +211,16 @@ def build_objective(scene: Scene):
     if name == "eqps_spread":
         return obj.EqpsSpread(np.arange(scene.model.layout.n_elements))
     if name == "die_fill":
-        if not scene.config["die"]["closed"]:
+        if not scene.settings.die.closed:
             raise ConfigError("design.objective = 'die_fill' needs die.closed = true")
         return obj.UnfilledCavity(np.asarray(scene.mesh.elements), axi)
-    if not d["target_csv"]:
+    if not d.target_csv:
         raise ConfigError(f"design.objective = {name!r} needs design.target_csv")
     if name == "force_misfit":
-        c = _read_columns(d["target_csv"], ("stroke_mm", "force_N"))
+        c = _read_columns(d.target_csv, ("stroke_mm", "force_N"))
         keep = c["stroke_mm"] > 0
         return obj.ForceMisfit(c["stroke_mm"][keep], c["force_N"][keep])
-    c = _read_columns(d["target_csv"], ("node", "r_mm", "z_mm"))
+    c = _read_columns(d.target_csv, ("node", "r_mm", "z_mm"))
     nodes = c["node"].astype(int)
     if np.any(nodes < 0) or np.any(nodes >= scene.mesh.n_nodes):
         raise ConfigError(f"design.target_csv: node ids must lie in [0, {scene.mesh.n_nodes - 1}]")
@@ -264,13 +254,11 @@ def build_problem(
         a missing key.
     """
     check_design_scene(scene)
-    names = tuple(scene.config["design"]["variables"]) if groups is None else tuple(groups)
+    names = tuple(scene.settings.design.variables) if groups is None else tuple(groups)
     built = tuple(build_group(scene, n) for n in names)
     start = par.initial_design(built)
     if "material" in start:
-        start["material"] = start["material"] + np.log(
-            scene.config["design"]["material_start_factor"]
-        )
+        start["material"] = start["material"] + np.log(scene.settings.design.material_start_factor)
     objective = build_objective(scene) if objective is None else objective
     if times is None:
         inputs, _ = par.apply_all(built, start, scene.inputs, jnp.asarray(scene.step_targets()))

@@ -6,7 +6,7 @@ The presets are such files shipped inside the package (``jaxform/materials/data`
 with :mod:`importlib.resources`, so an installed jaxform finds them from any directory).
 ``load_material(name)`` accepts a preset name or a path to a ``.toml`` file and returns
 ``(law, params)`` with every parameter validated; every failure is a
-:class:`MaterialError`, a :class:`jaxform.config.ConfigError` naming the config key.
+:class:`MaterialError`, a :class:`jaxform.errors.ConfigError` naming the config key.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from pathlib import Path
 
 import jax.numpy as jnp
 
-from jaxform.config import ConfigError
+from jaxform.errors import ConfigError
 from jaxform.materials.anand import Anand, AnandParams
 from jaxform.materials.elastic import ElasticParams, Hypoelastic
 from jaxform.materials.j2 import J2Params, J2Plasticity

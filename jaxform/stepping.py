@@ -1,52 +1,45 @@
-"""Load stepping: steps with cutback, chunks of lax.scan, the run's history.
+"""The time-stepping core: one adaptive load step and compiled chunks of them.
 
-The caller owns the loop (jax-md style): :func:`jaxform.scenes.build_scene` does the
-set-up once (mesh, dofs, pattern, material, dies), :func:`simulate` advances it chunk by
-chunk through a
-compiled ``lax.scan`` over load steps and hands each chunk to an optional progress
-callback.  The step adapts (:class:`Stepper`): a failed Newton solve (no convergence, a
-failed local material solve, an inverted element) halves it, down to ``time.dt_s /
-2**solver.max_cutbacks``; easy steps let it grow back by ``time.dt_growth`` up to
-``time.dt_s``.  When a step fails at the smallest size the simulation stops, keeping the
-last converged state, and :class:`SimulationError` names the step, the time, the cause
-and the worst element.
+Pure functions of immutable state, all compiled: :func:`solve_step` solves one step by
+Newton (differentiable by the implicit function theorem), :func:`attempt_step` makes one
+converged step of adaptive size (a failed attempt halves the step, down to ``time.dt_s /
+2**solver.max_cutbacks``; an easy step lets the next grow by ``time.dt_growth`` up to
+``time.dt_s``), and :func:`run_chunk` scans a number of them, reporting each step's
+outputs and status code.  The host loop around it (progress, rezoning, the history) is
+:mod:`jaxform.simulation`; this module imports no output code.
 
-Scenes are half-height models (symmetry plane z = 0): the top die travels d(t) towards
-the mid-plane, ``stroke_mm`` = 2 d(t) and ``force_N`` refer to the whole workpiece (the
-z-component of the contact multipliers, which already include the 2 pi of axisymmetry).
-Each converged step also accumulates the friction work (N mm) and each candidate's slip.
-
-Scenes without a die (a membrane under a traction load, :mod:`jaxform.loads`) have
-``Inputs.die = None`` and no contact candidates; their ``force_N`` is the magnitude of the
-applied load's resultant at the step (N, per mm of depth in plane strain) and
-``stroke_mm`` is 0.
+Scenes are half-height models (symmetry plane z = 0) unless their workpiece says
+otherwise (``Stepper.symmetric_z``): the top die travels d(t) towards the mid-plane,
+``stroke_mm`` = 2 d(t) and ``force_N`` refer to the whole workpiece (the z-component of
+the contact multipliers, which already include the 2 pi of axisymmetry).  Each converged
+step also accumulates the friction work (N mm) and each candidate's slip.  Scenes without
+a die (a membrane under a traction load, :mod:`jaxform.loads`) have ``Inputs.die = None``;
+their ``force_N`` is the magnitude of the applied load's resultant at the step (N, per mm
+of depth in plane strain) and ``stroke_mm`` is 0.
 """
 
 from __future__ import annotations
 
-import math
-from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from functools import partial
+from typing import TYPE_CHECKING
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
-from jaxform import mesh as meshing
 from jaxform.assembly import Indices, Model, StepContext
 from jaxform.contact import ContactStep, nodal_average, shear_bounds, tributary_areas
-from jaxform.dies import RigidDie
 from jaxform.formulations import GaussState, initial_gauss_state
 from jaxform.kinematics import deviator, safe_norm_eq
 from jaxform.linear import LinearSolver, matvec
-from jaxform.loads import FacetLoad, external_forces, total_force
-from jaxform.postprocess import extra_history
-from jaxform.precision import require_x64
-from jaxform.rezone import RezoneError, corner_qualities, min_quality, rezone
+from jaxform.loads import external_forces, total_force
+from jaxform.rezone import min_quality
 from jaxform.solver import NewtonSettings, solve_implicit
-from jaxform.status import CAUSES, OK
+from jaxform.status import OK
 from jaxform.xla_options import jit
+
+if TYPE_CHECKING:
+    from jaxform.scenes import Inputs
 
 
 @jax.tree_util.register_dataclass
@@ -61,74 +54,19 @@ class SimState:
     contact_status: jax.Array  # (n_c,) 0 open, 1 stick, 2 slip at the last converged step
 
 
-@jax.tree_util.register_dataclass
-@dataclass(frozen=True)
-class Inputs:
-    """Everything a design may differentiate, passed to the compiled step as arguments."""
-
-    coords: jax.Array  # initial nodal coordinates (mm)
-    params: object  # material parameters
-    die: RigidDie | None  # profile, path and friction coefficients (None: no die)
-    c_contact: jax.Array  # complementarity scale (N/mm), set-up constant
-    load: FacetLoad | None = None  # traction load on idx.load_facets (None: no load)
-
-
-@dataclass(frozen=True)
-class Scene:
-    """A set-up scene (built by jaxform.scenes.build_scene): the caller runs it."""
-
-    config: dict
-    mesh: meshing.Mesh
-    model: Model
-    idx: Indices
-    linear: LinearSolver
-    newton: NewtonSettings
-    inputs: Inputs
-    dt: float
-    t_end: float
-    max_cutbacks: int
-    chunk: int
-    kind: str = "billet"  # workpiece: 'billet', 'ring', 'block' or 'membrane'
-    symmetric_z: bool = True  # half-height model: stroke = 2 x die travel
-    rezone_quality: float = 0.0  # rezone when the worst corner quality drops below (0: never)
-    grid: tuple[int, int] | None = None  # (nr, nz) of a structured mesh (rezoning needs it)
-    adjoint_memory_mb: float = 0.0  # forward factorizations a gradient run may keep (MB)
-    dt_growth: float = 1.5  # an easy step lets the next one grow by this factor (to dt)
-
-    @property
-    def n_steps(self) -> int:
-        return int(math.ceil(self.t_end / self.dt - 1e-9))
-
-    def step_targets(self) -> np.ndarray:
-        k = np.arange(1, self.n_steps + 1)
-        return np.minimum(k * self.dt, self.t_end)
-
-    def initial_state(self) -> SimState:
-        lay = self.model.layout
-        g = initial_gauss_state(self.model.law, self.inputs.params, lay.n_elements)
-        z = jnp.zeros(lay.n_dofs)
-        zc = jnp.zeros(lay.n_contact)
-        return SimState(
-            x=z,
-            gauss=g,
-            t=jnp.asarray(0.0),
-            x_rate=z,
-            friction_work=jnp.asarray(0.0),
-            slip_mm=zc,
-            contact_status=jnp.zeros(lay.n_contact, jnp.int32),
-        )
-
-
-class SimulationError(RuntimeError):
-    """A step failed after all cutbacks; ``result`` holds the history up to the last good step."""
-
-    def __init__(self, message: str, result):
-        super().__init__(message)
-        self.result = result
-
-
-# ----------------------------------------------------------------------------------
-# compiled pieces (static: model, linear solver, Newton settings, cutbacks)
+def initial_state(model: Model, inputs: Inputs) -> SimState:
+    """The state at t = 0: no displacement, the material's initial Gauss state."""
+    lay = model.layout
+    z = jnp.zeros(lay.n_dofs)
+    return SimState(
+        x=z,
+        gauss=initial_gauss_state(model.law, inputs.params, lay.n_elements),
+        t=jnp.asarray(0.0),
+        x_rate=z,
+        friction_work=jnp.asarray(0.0),
+        slip_mm=jnp.zeros(lay.n_contact),
+        contact_status=jnp.zeros(lay.n_contact, jnp.int32),
+    )
 
 
 def _tree_where(c, a, b):
@@ -503,171 +441,3 @@ def run_chunk(
     init = (state, control, jnp.asarray(False), jnp.asarray(False), fac)
     (state, control, _, _, fac), outs = jax.lax.scan(step, init, None, length=n)
     return state, control, outs, fac
-
-
-@dataclass
-class Result:
-    """History (one row per converged load step, row 0 = initial state) and fields."""
-
-    history: dict[str, np.ndarray]
-    fields: dict[str, np.ndarray]  # per row: x, stress, s, eqps
-    scene: Scene
-    final_state: SimState
-    newton_histories: np.ndarray  # per step: ||R_k|| / F of the last (sub)step's Newton
-    failure: str | None = None
-    inputs: Inputs | None = None  # the inputs final_state refers to (coords change on rezoning)
-    rezones: list = field(default_factory=list)  # jaxform.rezone.RezoneReport per rezoning
-
-
-def _absolute(scene: Scene, inp: Inputs, x: np.ndarray) -> np.ndarray:
-    """Unknowns with the displacement measured from the scene's reference coordinates
-    ``scene.inputs.coords`` (after rezoning the compiled step measures it from the rezoned
-    reference ``inp.coords``)."""
-    shift = np.asarray(inp.coords) - np.asarray(scene.inputs.coords)
-    if not np.any(shift):
-        return x
-    lay = scene.model.layout
-    x = np.array(x)
-    lay.nodal(x)[:, :2] += shift  # a view: shifts x in place
-    return x
-
-
-def _failure_message(scene: Scene, inp: Inputs, state: SimState, step: int, row) -> str:
-    """Why step ``step`` failed, where: the cause, the time reached, the smallest step
-    tried, and the worst element of the last converged mesh (its centre and corner
-    quality), which names the place when the cause is geometric (an element folding)."""
-    pos = scene.model.nodal_positions(np.asarray(state.x), np.asarray(inp.coords), scene.idx)
-    elements = np.asarray(scene.mesh.elements)
-    q = corner_qualities(np.asarray(pos), elements).min(axis=1)
-    e = int(np.argmin(q))
-    centre = np.asarray(pos)[elements[e]].mean(axis=0)
-    h_min = scene.dt * 0.5**scene.max_cutbacks
-    t = float(state.t)
-    return (
-        f"step {step} (last converged time {t:g} s, target time "
-        f"{min(t + h_min, scene.t_end):g} s) failed after {int(row['cutbacks'])} attempts, "
-        f"the last at the smallest step dt = {h_min:g} s (time.dt_s / 2**solver.max_cutbacks): "
-        f"{CAUSES.get(int(row['code']), 'unknown')}; worst element {e} at "
-        f"({centre[0]:.4g}, {centre[1]:.4g}) mm, corner quality {q[e]:.3g}"
-    )
-
-
-HISTORY_KEYS = (
-    "time_s",
-    "dt_s",
-    "stroke_mm",
-    "force_N",
-    "iterations",
-    "factorizations",
-    "cutbacks",
-    "friction_work_Nmm",
-    "mesh_quality",
-    "rezoned",
-)
-FIELD_KEYS = ("x", "stress", "s", "eqps", "slip_mm", "contact_status")
-PROGRESS_KEYS = ("time_s", "stroke_mm", "force_N", "iterations", "cutbacks", "dt_s")
-
-
-def _initial_row(scene: Scene, state: SimState) -> dict:
-    """History row 0: the initial state."""
-    out = jax.device_get(
-        step_outputs(scene.model, state, scene.inputs, scene.idx, scene.symmetric_z)
-    )
-    q = min_quality(np.asarray(scene.inputs.coords), np.asarray(scene.mesh.elements))
-    return dict(out, iterations=0, factorizations=0, cutbacks=0, code=OK, rezoned=0,
-                dt_s=0.0, mesh_quality=float(q))  # fmt: skip
-
-
-def _progress(scene: Scene, step: int, row: dict) -> dict:
-    """What the progress callback gets after a step: its number, an estimate of the
-    number of steps (the rest at the largest step) and the row's scalars."""
-    left = max(scene.t_end - float(row["time_s"]), 0.0)
-    n_steps = step + int(math.ceil(left / scene.dt - 1e-9))
-    return dict(step=step, n_steps=n_steps, **{k: row[k] for k in PROGRESS_KEYS})
-
-
-def _rezone_after(scene: Scene, state: SimState, inp: Inputs, control: StepControl):
-    """Rezone after a step that paused the chunk: (state, inputs, control, report).  A
-    rezoning that could not raise the quality keeps the mesh and waits until the quality
-    has fallen by another 10 %.  Raises RezoneError."""
-    state, inp, report = rezone(scene, state, inp)
-    trigger = scene.rezone_quality if report.improved else 0.9 * report.quality_before
-    return state, inp, replace(control, rezone_quality=jnp.asarray(trigger)), report
-
-
-def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Result:
-    """Run the scene to its end; raises SimulationError (with .result) on failure.
-
-    Steps adapt (:class:`Stepper`): ``scene.dt`` is the largest step, a failed attempt
-    halves it, easy steps let it grow back; every converged step is a history row
-    (column ``dt_s``), and the run ends exactly at ``scene.t_end``.  With
-    ``scene.rezone_quality`` > 0, a step after which an element's worst corner quality
-    is below it ends the compiled chunk; the mesh is rezoned (:mod:`jaxform.rezone`) and
-    the run goes on from there (history column ``rezoned`` = 1 on that step).
-
-    Arguments:
-        scene: a scene built by :func:`jaxform.scenes.build_scene`.
-        progress: called after each converged step with a dict (step, n_steps estimate,
-            time_s, stroke_mm, force_N, iterations, cutbacks, dt_s), or None.
-
-    Returns:
-        A :class:`Result`: the history (one row per converged step, row 0 the initial
-        state), the fields, the final state and the rezoning reports."""
-    require_x64()
-    state, inp = scene.initial_state(), scene.inputs
-    stepper = Stepper(scene.model, scene.linear, scene.newton, scene.max_cutbacks,
-                      scene.dt_growth, scene.symmetric_z)  # fmt: skip
-    control = StepControl(h=jnp.asarray(scene.dt), dt_max=jnp.asarray(scene.dt),
-                          t_end=jnp.asarray(scene.t_end),
-                          rezone_quality=jnp.asarray(scene.rezone_quality))  # fmt: skip
-    rows, rezones, failure = [_initial_row(scene, state)], [], None
-    t_stop = scene.t_end - 1e-9 * scene.dt
-    modified = scene.newton.method == "modified"
-    n = scene.model.layout.n_dofs
-    owned = [scene.linear.empty_factorization(n, state.x.dtype) if modified else None]
-    try:
-        while float(state.t) < t_stop and failure is None:
-            fac, owned[0] = owned[0], None  # the chunk frees it when it refactors
-            state_new, control, outs, owned[0] = run_chunk(
-                stepper, state, control, inp, scene.idx, scene.chunk, fac
-            )
-            outs = jax.device_get(outs)
-            for j in range(scene.chunk):
-                row = {k: v[j] for k, v in outs.items()}
-                if not row["active"]:
-                    break
-                if int(row["code"]) != OK:
-                    failure = _failure_message(scene, inp, state_new, len(rows), row)
-                    break
-                row.update(x=_absolute(scene, inp, row["x"]), dt_s=float(row["h_used"]),
-                           rezoned=int(bool(row["paused"])))  # fmt: skip
-                rows.append(row)
-                if progress is not None:
-                    progress(_progress(scene, len(rows) - 1, row))
-            state = state_new
-            if rows[-1]["rezoned"] and float(state.t) >= t_stop:
-                rows[-1]["rezoned"] = 0  # the run ends here: nothing to rezone for
-            if rows[-1]["rezoned"] and failure is None:
-                try:
-                    state, inp, control, report = _rezone_after(scene, state, inp, control)
-                except RezoneError as err:
-                    failure = f"step {len(rows) - 1}: {err}"
-                else:
-                    rezones.append(report)
-                    rows[-1]["rezoned"] = int(report.improved)
-    finally:
-        # the last factorization modified Newton kept is freed here; one a raising chunk
-        # held is lost, never freed twice
-        if owned[0] is not None:
-            jax.block_until_ready(scene.linear.release(owned[0]))
-    history = {k: np.array([float(r[k]) for r in rows]) for k in HISTORY_KEYS}
-    history["newton_iterations"] = history.pop("iterations")
-    fields = {k: np.stack([np.asarray(r[k]) for r in rows]) for k in FIELD_KEYS}
-    history.update(extra_history(scene, fields["x"], history["time_s"]))
-    hists = np.array([r["hist"] for r in rows[1:]])
-    result = Result(history=history, fields=fields, scene=scene, final_state=state,
-                    newton_histories=hists, failure=failure, inputs=inp,
-                    rezones=rezones)  # fmt: skip
-    if failure:
-        raise SimulationError(failure, result)
-    return result

@@ -1,0 +1,272 @@
+"""The host loop: a scene run to its end, with progress, rezoning and the history.
+
+The caller owns the loop (jax-md style): :func:`init` gives the state at t = 0 and the
+step control, :func:`step` advances one converged step of adaptive size (compiled once
+per scene), and the caller decides what to do between steps.  :func:`simulate` is that
+loop, written once for the command line and scripts: it advances the scene chunk by
+chunk through the compiled ``lax.scan`` of :func:`jaxform.stepping.run_chunk`, hands each
+converged step to an optional progress callback, rezones the mesh when the scene asks for
+it (:mod:`jaxform.rezone`), and collects the history (one row per converged step, column
+``dt_s``; the workpiece's and the die's extra columns, :func:`jaxform.postprocess.extra_history`).
+When a step fails at the smallest step size the run stops, keeping the last converged
+state, and :class:`SimulationError` names the step, the time, the cause and the worst
+element.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxform.postprocess import extra_history
+from jaxform.precision import require_x64
+from jaxform.rezone import RezoneError, corner_qualities, min_quality, rezone
+from jaxform.scenes import Inputs, Scene
+from jaxform.status import CAUSES, OK
+from jaxform.stepping import (
+    SimState,
+    StepControl,
+    Stepper,
+    attempt_step,
+    initial_state,
+    run_chunk,
+    step_outputs,
+)
+from jaxform.xla_options import jit
+
+
+class SimulationError(RuntimeError):
+    """A step failed after all cutbacks; ``result`` holds the history up to the last good step."""
+
+    def __init__(self, message: str, result):
+        super().__init__(message)
+        self.result = result
+
+
+@dataclass
+class Result:
+    """History (one row per converged load step, row 0 = initial state) and fields."""
+
+    history: dict[str, np.ndarray]
+    fields: dict[str, np.ndarray]  # per row: x, stress, s, eqps
+    scene: Scene
+    final_state: SimState
+    newton_histories: np.ndarray  # per step: ||R_k|| / F of the last (sub)step's Newton
+    failure: str | None = None
+    inputs: Inputs | None = None  # the inputs final_state refers to (coords change on rezoning)
+    rezones: list = field(default_factory=list)  # jaxform.rezone.RezoneReport per rezoning
+
+
+def _absolute(scene: Scene, inp: Inputs, x: np.ndarray) -> np.ndarray:
+    """Unknowns with the displacement measured from the scene's reference coordinates
+    ``scene.inputs.coords`` (after rezoning the compiled step measures it from the rezoned
+    reference ``inp.coords``)."""
+    shift = np.asarray(inp.coords) - np.asarray(scene.inputs.coords)
+    if not np.any(shift):
+        return x
+    lay = scene.model.layout
+    x = np.array(x)
+    lay.nodal(x)[:, :2] += shift  # a view: shifts x in place
+    return x
+
+
+def _failure_message(scene: Scene, inp: Inputs, state: SimState, step: int | None, row) -> str:
+    """Why step ``step`` (None: the step from ``state``) failed, where: the cause, the
+    time reached, the smallest step tried, and the worst element of the last converged
+    mesh (its centre and corner quality), which names the place when the cause is
+    geometric (an element folding)."""
+    pos = scene.model.nodal_positions(np.asarray(state.x), np.asarray(inp.coords), scene.idx)
+    elements = np.asarray(scene.mesh.elements)
+    q = corner_qualities(np.asarray(pos), elements).min(axis=1)
+    e = int(np.argmin(q))
+    centre = np.asarray(pos)[elements[e]].mean(axis=0)
+    h_min = scene.dt * 0.5**scene.max_cutbacks
+    t = float(state.t)
+    name = "the step" if step is None else f"step {step}"
+    return (
+        f"{name} (last converged time {t:g} s, target time "
+        f"{min(t + h_min, scene.t_end):g} s) failed after {int(row['cutbacks'])} attempts, "
+        f"the last at the smallest step dt = {h_min:g} s (time.dt_s / 2**solver.max_cutbacks): "
+        f"{CAUSES.get(int(row['code']), 'unknown')}; worst element {e} at "
+        f"({centre[0]:.4g}, {centre[1]:.4g}) mm, corner quality {q[e]:.3g}"
+    )
+
+
+HISTORY_KEYS = (
+    "time_s",
+    "dt_s",
+    "stroke_mm",
+    "force_N",
+    "iterations",
+    "factorizations",
+    "cutbacks",
+    "friction_work_Nmm",
+    "mesh_quality",
+    "rezoned",
+)
+FIELD_KEYS = ("x", "stress", "s", "eqps", "slip_mm", "contact_status")
+PROGRESS_KEYS = ("time_s", "stroke_mm", "force_N", "iterations", "cutbacks", "dt_s")
+
+
+def _initial_row(scene: Scene, state: SimState) -> dict:
+    """History row 0: the initial state."""
+    out = jax.device_get(
+        step_outputs(scene.model, state, scene.inputs, scene.idx, scene.symmetric_z)
+    )
+    q = min_quality(np.asarray(scene.inputs.coords), np.asarray(scene.mesh.elements))
+    return dict(out, iterations=0, factorizations=0, cutbacks=0, code=OK, rezoned=0,
+                dt_s=0.0, mesh_quality=float(q))  # fmt: skip
+
+
+def _progress(scene: Scene, step: int, row: dict, chunk_end: bool) -> dict:
+    """What the progress callback gets after a step: its number, an estimate of the
+    number of steps (the rest at the largest step), whether it is the last converged step
+    of its compiled chunk, and the row's scalars."""
+    left = max(scene.t_end - float(row["time_s"]), 0.0)
+    n_steps = step + int(math.ceil(left / scene.dt - 1e-9))
+    return dict(step=step, n_steps=n_steps, chunk_end=chunk_end,
+                **{k: row[k] for k in PROGRESS_KEYS})  # fmt: skip
+
+
+def _rezone_after(scene: Scene, state: SimState, inp: Inputs, control: StepControl):
+    """Rezone after a step that paused the chunk: (state, inputs, control, report).  A
+    rezoning that could not raise the quality keeps the mesh and waits until the quality
+    has fallen by another 10 %.  Raises RezoneError."""
+    state, inp, report = rezone(scene, state, inp)
+    trigger = scene.rezone_quality if report.improved else 0.9 * report.quality_before
+    return state, inp, replace(control, rezone_quality=jnp.asarray(trigger)), report
+
+
+def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Result:
+    """Run the scene to its end; raises SimulationError (with .result) on failure.
+
+    Steps adapt (:class:`Stepper`): ``scene.dt`` is the largest step, a failed attempt
+    halves it, easy steps let it grow back; every converged step is a history row
+    (column ``dt_s``), and the run ends exactly at ``scene.t_end``.  With
+    ``scene.rezone_quality`` > 0, a step after which an element's worst corner quality
+    is below it ends the compiled chunk; the mesh is rezoned (:mod:`jaxform.rezone`) and
+    the run goes on from there (history column ``rezoned`` = 1 on that step).
+
+    Arguments:
+        scene: a scene built by :func:`jaxform.scenes.build_scene`.
+        progress: called after each converged step with a dict (step, n_steps estimate,
+            chunk_end, time_s, stroke_mm, force_N, iterations, cutbacks, dt_s), or None.
+
+    Returns:
+        A :class:`Result`: the history (one row per converged step, row 0 the initial
+        state), the fields, the final state and the rezoning reports."""
+    state, control = init(scene)
+    control = replace(control, rezone_quality=jnp.asarray(scene.rezone_quality))
+    inp, stepper = scene.inputs, stepper_of(scene)
+    rows, rezones, failure = [_initial_row(scene, state)], [], None
+    t_stop = scene.t_end - 1e-9 * scene.dt
+    modified = scene.newton.method == "modified"
+    n = scene.model.layout.n_dofs
+    owned = [scene.linear.empty_factorization(n, state.x.dtype) if modified else None]
+    try:
+        while float(state.t) < t_stop and failure is None:
+            fac, owned[0] = owned[0], None  # the chunk frees it when it refactors
+            state_new, control, outs, owned[0] = run_chunk(
+                stepper, state, control, inp, scene.idx, scene.chunk, fac
+            )
+            outs = jax.device_get(outs)
+            first = len(rows)
+            for j in range(scene.chunk):
+                row = {k: v[j] for k, v in outs.items()}
+                if not row["active"]:
+                    break
+                if int(row["code"]) != OK:
+                    failure = _failure_message(scene, inp, state_new, len(rows), row)
+                    break
+                row.update(x=_absolute(scene, inp, row["x"]), dt_s=float(row["h_used"]),
+                           rezoned=int(bool(row["paused"])))  # fmt: skip
+                rows.append(row)
+            for k in range(first, len(rows) if progress is not None else first):
+                progress(_progress(scene, k, rows[k], k == len(rows) - 1))
+            state = state_new
+            if rows[-1]["rezoned"] and float(state.t) >= t_stop:
+                rows[-1]["rezoned"] = 0  # the run ends here: nothing to rezone for
+            if rows[-1]["rezoned"] and failure is None:
+                try:
+                    state, inp, control, report = _rezone_after(scene, state, inp, control)
+                except RezoneError as err:
+                    failure = f"step {len(rows) - 1}: {err}"
+                else:
+                    rezones.append(report)
+                    rows[-1]["rezoned"] = int(report.improved)
+    finally:
+        # the last factorization modified Newton kept is freed here; one a raising chunk
+        # held is lost, never freed twice
+        if owned[0] is not None:
+            jax.block_until_ready(scene.linear.release(owned[0]))
+    history = {k: np.array([float(r[k]) for r in rows]) for k in HISTORY_KEYS}
+    history["newton_iterations"] = history.pop("iterations")
+    fields = {k: np.stack([np.asarray(r[k]) for r in rows]) for k in FIELD_KEYS}
+    history.update(extra_history(scene, fields["x"], history["time_s"]))
+    hists = np.array([r["hist"] for r in rows[1:]])
+    result = Result(history=history, fields=fields, scene=scene, final_state=state,
+                    newton_histories=hists, failure=failure, inputs=inp,
+                    rezones=rezones)  # fmt: skip
+    if failure:
+        raise SimulationError(failure, result)
+    return result
+
+
+def stepper_of(scene: Scene) -> Stepper:
+    """The static part of the scene's compiled steps."""
+    return Stepper(scene.model, scene.linear, scene.newton, scene.max_cutbacks,
+                   scene.dt_growth, scene.symmetric_z)  # fmt: skip
+
+
+def init(scene: Scene) -> tuple[SimState, StepControl]:
+    """The start of a run that the caller steps (:func:`step`).
+
+    Arguments:
+        scene: from :func:`jaxform.scenes.build_scene`.
+
+    Returns:
+        (state at t = 0, step control): the first step is the largest, ``scene.dt``;
+        no rezoning trigger (:func:`step` does not rezone).
+    """
+    require_x64()
+    control = StepControl(h=jnp.asarray(scene.dt), dt_max=jnp.asarray(scene.dt),
+                          t_end=jnp.asarray(scene.t_end),
+                          rezone_quality=jnp.asarray(0.0))  # fmt: skip
+    return initial_state(scene.model, scene.inputs), control
+
+
+_attempt = jit(attempt_step, static_argnums=0)
+
+
+def step(
+    scene: Scene, state: SimState, control: StepControl, inputs: Inputs | None = None
+) -> tuple[SimState, StepControl, dict]:
+    """One converged step from ``state`` (adaptive size; the last one ends at t_end).
+
+    Arguments:
+        scene: from :func:`jaxform.scenes.build_scene`.
+        state, control: from :func:`init` or the previous call.
+        inputs: the differentiable inputs (default ``scene.inputs``).
+
+    Returns:
+        (state, control for the next step, info): info has the step's outputs
+        (time_s, stroke_mm, force_N, ...), ``dt_s``, ``iterations`` and ``cutbacks``.
+
+    Raises:
+        SimulationError: the step failed at the smallest step size (its ``result`` is
+        None; the state passed in is the last good one).
+    """
+    inp = scene.inputs if inputs is None else inputs
+    new, info, _ = _attempt(stepper_of(scene), state, control, inp, scene.idx)
+    if int(info["code"]) != OK:
+        row = {"cutbacks": info["cutbacks"], "code": info["code"]}
+        raise SimulationError(_failure_message(scene, inp, state, None, row), None)
+    out = jax.device_get(step_outputs(scene.model, new, inp, scene.idx, scene.symmetric_z))
+    out.update(dt_s=float(info["h_used"]), iterations=int(info["iterations"]),
+               cutbacks=int(info["cutbacks"]))  # fmt: skip
+    return new, replace(control, h=info["h_next"]), out
