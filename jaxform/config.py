@@ -341,6 +341,15 @@ class DieConfig:
         doc="the profile closes a cavity with the mid-plane: report die_fill (cavity volume "
         "filled with material / cavity volume) in the history",
     )
+    part_radius_mm: float = key(
+        0.0,
+        low=0.0,
+        doc="closed dies with a flash land: the radius (mm) where the part's cavity ends; "
+        "die_fill then counts the cavity at r <= part_radius_mm only, and the history "
+        "gains flash_volume_mm3, the material beyond it (whole workpiece: both halves of "
+        "a half-height model; per mm of depth in plane strain). 0: the whole cavity is "
+        "the part",
+    )
 
 
 @section("friction")
@@ -770,6 +779,11 @@ def _cross_checks(raw: dict, out: dict) -> None:
     if d["profile_mm"] and len(d["profile_mm"]) < 2:
         raise ConfigError(
             "die.profile_mm: needs at least 2 [r_mm, z_mm] points (or [] for a flat die)"
+        )
+    if d["part_radius_mm"] > 0.0 and not d["closed"]:
+        raise ConfigError(
+            f"die.part_radius_mm = {d['part_radius_mm']!r}: needs die.closed = true "
+            f"(it splits a closed die's cavity into the part and the flash land)"
         )
     if out["mesh"]["rezone_quality"] > 0.0 and out["mesh"]["file"]:
         raise ConfigError(

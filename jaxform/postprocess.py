@@ -2,7 +2,8 @@
 
 * the extra history columns of a run: the workpiece's own
   (:meth:`jaxform.workpieces.Workpiece.extra_history`: ring diameters, a membrane's tip
-  displacement) and, for closed dies, ``die_fill`` = volume of the cavity that the
+  displacement), ``flash_volume_mm3`` (the material beyond ``die.part_radius_mm``) and, for
+  closed dies, ``die_fill`` = volume of the cavity that the
   material occupies / volume of the cavity enclosed by the (rounded, :mod:`jaxform.dies`)
   die profile, the axis and the mid-plane (Pappus: V = 2 pi * integral of r dA);
 * contact profiles along the die: normal pressure and shear traction (multiplier over
@@ -42,6 +43,21 @@ def material_volume(scene, pos: np.ndarray) -> float:
     return float(np.sum(polygon_measure(pos[np.asarray(scene.mesh.elements)], axi)))
 
 
+def material_beyond(scene, pos: np.ndarray, radius: float) -> float:
+    """Volume (axisymmetric, mm^3; plane strain, mm^2) of the material at r >= radius:
+    each element clipped to that half-plane."""
+    axi = scene.model.formulation.axisymmetric
+    total = 0.0
+    for e in np.asarray(scene.mesh.elements):
+        poly = pos[e]
+        if poly[:, 0].max() <= radius:
+            continue
+        part = poly if poly[:, 0].min() >= radius else _clip_above(poly[:, ::-1], radius)[:, ::-1]
+        if len(part) >= 3:
+            total += abs(float(polygon_measure(part, axi)))
+    return total
+
+
 def _clip_above(poly: np.ndarray, z0: float = 0.0) -> np.ndarray:
     """Sutherland-Hodgman clip of a closed polygon to the half-plane z >= z0."""
     out = []
@@ -56,10 +72,14 @@ def _clip_above(poly: np.ndarray, z0: float = 0.0) -> np.ndarray:
 
 
 def cavity_polygon(scene, t: float) -> np.ndarray:
-    """The cavity at time t (die profile, mid-plane, axis) as a counter-clockwise polygon."""
+    """The part's cavity at time t (die profile, mid-plane, axis; up to
+    ``die.part_radius_mm`` where one is set) as a counter-clockwise polygon."""
     die = scene.inputs.die
     pts = sample_rounded(die.points, die.corner_radius) - np.array([0.0, float(die.travel(t))])
     poly = _clip_above(np.vstack([[0.0, 0.0], pts, [pts[-1, 0], 0.0]]))
+    r_part = scene.settings.die.part_radius_mm
+    if r_part > 0.0 and len(poly):
+        poly = -_clip_above(-poly[:, ::-1], -r_part)[:, ::-1]  # keep r <= r_part
     if len(poly) >= 3 and _signed_area(poly) < 0.0:
         poly = poly[::-1]
     return poly
@@ -170,6 +190,11 @@ def extra_history(scene, xs: np.ndarray, times: np.ndarray) -> dict[str, np.ndar
                 filled_volume(scene, p, t) / max(cavity_volume(scene, t), 1e-300)
                 for p, t in zip(pos, times)
             ]
+        )
+    if die is not None and die.part_radius_mm > 0.0:
+        halves = 2.0 if scene.symmetric_z else 1.0
+        out["flash_volume_mm3"] = np.array(
+            [halves * material_beyond(scene, p, die.part_radius_mm) for p in pos]
         )
     return out
 

@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxform.config import load_config
+from jaxform.config import ConfigError, load_config
 from jaxform.dies import closest_point_gap, make_die, sample_rounded
 from jaxform.postprocess import cavity_volume, filled_volume, material_volume
 from jaxform.scenes import build_scene
@@ -115,3 +115,45 @@ def test_filled_volume_is_the_material_inside_the_cavity(width, height, expected
     else:
         assert abs(material_volume(sc, pos) - np.pi * width**2 * height) <= 1e-9 * v
     assert abs(v / expected - 1.0) <= 1e-12, (v, expected)
+
+
+def test_part_fill_and_flash_volume_split_at_the_part_radius():
+    """A flat closed die at z = 2 over r in [0, 3] with the part ending at r = 1.5 (the
+    rest a flash land).  Reference, by hand (Pappus, whole workpiece = both halves):
+    a billet section r < 2.5, z < 2 fills the part cylinder r < 1.5, z < 2 exactly
+    (fill 1) and has pi (2.5^2 - 1.5^2) x 2 x 2 = 16 pi mm^3 beyond r = 1.5; one of
+    r < 1, z < 2 fills (1/1.5)^2 of the part and has no flash.  1e-12 relative."""
+    from jaxform.postprocess import extra_history
+
+    sc = build_scene(
+        load_config(
+            {
+                "billet": {"diameter_mm": 4.0, "height_mm": 2.0},
+                "mesh": {"nr": 5, "nz": 3},
+                "die": {
+                    "speed_mm_s": 0.1,
+                    "reduction": 0.1,
+                    "closed": True,
+                    "part_radius_mm": 1.5,
+                    "corner_radius_mm": 1e-3,
+                    "profile_mm": [[0.0, 2.0], [3.0, 2.0], [3.0, 0.0]],
+                },
+                "time": {"dt_s": 1.0},
+            }
+        )
+    )
+    c0 = np.asarray(sc.mesh.coords)
+    lay = sc.model.layout
+    rows = []
+    for width in (2.5, 1.0):  # section half-widths, 2 mm high (to the die face)
+        x = np.zeros(lay.n_dofs)
+        lay.nodal(x)[:, :2] = c0 * np.array([width / 2.0, 2.0]) - c0
+        rows.append(x)
+    cols = extra_history(sc, np.array(rows), np.zeros(2))
+    np.testing.assert_allclose(cols["die_fill"], [1.0, (1.0 / 1.5) ** 2], rtol=1e-12)
+    np.testing.assert_allclose(cols["flash_volume_mm3"][0], 16.0 * np.pi, rtol=1e-12)
+    assert cols["flash_volume_mm3"][1] == 0.0
+    with pytest.raises(ConfigError, match="die.part_radius_mm = 1.5: needs die.closed"):
+        die = {"speed_mm_s": 0.1, "reduction": 0.1, "part_radius_mm": 1.5}
+        load_config({"billet": {"diameter_mm": 4.0, "height_mm": 2.0}, "time": {"dt_s": 1.0},
+                     "die": die})  # fmt: skip
