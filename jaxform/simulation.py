@@ -22,12 +22,13 @@ from dataclasses import dataclass, field, replace
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.errors import JaxRuntimeError
 
 from jaxform.postprocess import extra_history
 from jaxform.precision import require_x64
 from jaxform.rezone import RezoneError, corner_qualities, min_quality, rezone
 from jaxform.scenes import Inputs, Scene
-from jaxform.status import CAUSES, OK
+from jaxform.status import CAUSES, OK, SINGULAR
 from jaxform.stepping import (
     SimState,
     StepControl,
@@ -133,6 +134,44 @@ def _progress(scene: Scene, step: int, row: dict, chunk_end: bool) -> dict:
                 **{k: row[k] for k in PROGRESS_KEYS})  # fmt: skip
 
 
+def _singular(err: Exception) -> bool:
+    return "singular" in str(err)
+
+
+def _chunk(scene: Scene, stepper: Stepper, state: SimState, control, inp: Inputs, fac):
+    """:func:`run_chunk` over ``scene.chunk`` steps.  A linear solver that finds the
+    Jacobian singular raises (klujax does, instead of returning a status); then the steps
+    are retried one at a time, the step halved after each singular attempt as after any
+    failed one, down to the smallest step, where the outputs carry the code SINGULAR."""
+    try:
+        return run_chunk(stepper, state, control, inp, scene.idx, scene.chunk, fac)
+    except JaxRuntimeError as err:
+        if not _singular(err):
+            raise
+    # the factorization passed in may have been freed inside the failed chunk: a new one
+    n = scene.model.layout.n_dofs
+    modified = scene.newton.method == "modified"
+    h_min = scene.dt * 0.5**scene.max_cutbacks
+    h, cutbacks = float(control.h), 0
+    while True:
+        fac = scene.linear.empty_factorization(n, state.x.dtype) if modified else None
+        try:
+            st, ctl, outs, fac = run_chunk(
+                stepper, state, replace(control, h=jnp.asarray(h)), inp, scene.idx, 1, fac
+            )
+        except JaxRuntimeError as err:
+            if not _singular(err):
+                raise
+            cutbacks += 1
+            if h <= h_min * (1.0 + 1e-9):
+                failed = dict(active=np.array([True]), code=np.array([SINGULAR]),
+                              cutbacks=np.array([cutbacks]))  # fmt: skip
+                return state, control, failed, None
+            h = max(0.5 * h, h_min)
+            continue
+        return st, ctl, dict(outs, cutbacks=outs["cutbacks"] + cutbacks), fac
+
+
 def _rezone_after(scene: Scene, state: SimState, inp: Inputs, control: StepControl):
     """Rezone after a step that paused the chunk: (state, inputs, control, report).  A
     rezoning that could not raise the quality keeps the mesh and waits until the quality
@@ -171,12 +210,10 @@ def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Re
     try:
         while float(state.t) < t_stop and failure is None:
             fac, owned[0] = owned[0], None  # the chunk frees it when it refactors
-            state_new, control, outs, owned[0] = run_chunk(
-                stepper, state, control, inp, scene.idx, scene.chunk, fac
-            )
+            state_new, control, outs, owned[0] = _chunk(scene, stepper, state, control, inp, fac)
             outs = jax.device_get(outs)
             first = len(rows)
-            for j in range(scene.chunk):
+            for j in range(len(outs["active"])):
                 row = {k: v[j] for k, v in outs.items()}
                 if not row["active"]:
                     break

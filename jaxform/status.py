@@ -11,6 +11,7 @@ NEWTON_NOT_CONVERGED = 1
 LOCAL_SOLVE_FAILED = 2
 INVERTED = 3
 NOT_FINITE = 4
+SINGULAR = 5  # raised by a linear solver (klujax) on the host, not a code inside jit
 
 CAUSES = {
     OK: "converged",
@@ -18,4 +19,5 @@ CAUSES = {
     LOCAL_SOLVE_FAILED: "the local material solve failed",
     INVERTED: "an element inverted (det F <= 0)",
     NOT_FINITE: "the residual is not finite",
+    SINGULAR: "the linear solver found the Jacobian singular",
 }

@@ -265,6 +265,55 @@ def test_cutback_completes_a_step_made_to_fail():
     assert abs(res.history["stroke_mm"][-1] - 0.3 * 7.5) <= 1e-12
 
 
+def test_klujax_raises_on_a_singular_matrix():
+    """The assumption the host loop's singular cutback rests on: klujax raises a
+    JaxRuntimeError naming a singular matrix instead of returning a status."""
+    import klujax
+    from jax.errors import JaxRuntimeError
+
+    rows, cols = jnp.array([0, 1, 1]), jnp.array([0, 0, 1])
+    with pytest.raises(JaxRuntimeError, match="singular"):
+        klujax.solve(rows, cols, jnp.array([1.0, 2.0, 0.0]), jnp.ones(2))
+
+
+def _singular_after(t_from: float, h_above: float, until: float = np.inf):
+    """run_chunk, raising as klujax does on a singular Jacobian for every attempt from
+    t_from <= t < until with a step larger than h_above."""
+    from jax.errors import JaxRuntimeError
+
+    from jaxform import simulation
+
+    real = simulation.run_chunk
+
+    def fake(stepper, state, control, inp, idx, n, fac=None):
+        t = float(state.t)
+        if t_from - 1e-9 <= t < until and float(control.h) > h_above:
+            raise JaxRuntimeError("INVALID_ARGUMENT: klu_factor/z_factor failed (singular matrix?)")
+        return real(stepper, state, control, inp, idx, n, fac)
+
+    return fake
+
+
+def test_singular_jacobian_cuts_back_like_any_failed_step(monkeypatch):
+    """A step whose Jacobian the linear solver finds singular (at dt = 1 and 0.5 s from
+    t = 2 s) is retried with the step halved and converges at 0.25 s; the run goes on
+    and ends at its end time.  With the step singular at every size the run stops after
+    all cutbacks, naming the cause."""
+    from jaxform import simulation
+
+    sc = scene("mesh.nr=3", "mesh.nz=3", "die.reduction=0.05", "solver.chunk_steps=1")
+    monkeypatch.setattr(simulation, "run_chunk", _singular_after(2.0, 0.3, until=2.1))
+    h = simulate(sc).history
+    k = int(np.argmin(np.abs(h["time_s"] - 2.25)))
+    assert h["time_s"][k] == pytest.approx(2.25) and h["dt_s"][k] == pytest.approx(0.25)
+    assert h["cutbacks"][k] == 2 and h["cutbacks"].sum() == 2
+    assert h["time_s"][-1] == pytest.approx(sc.t_end, rel=1e-12)
+    monkeypatch.setattr(simulation, "run_chunk", _singular_after(2.0, 0.0))
+    with pytest.raises(SimulationError, match="step 3 .*failed after 7 attempts.*singular") as e:
+        simulate(sc)
+    assert e.value.result.history["time_s"][-1] == pytest.approx(2.0)
+
+
 def test_impossible_scene_stops_with_message_and_state(tmp_path):
     code = main(
         [
