@@ -72,7 +72,7 @@ def methods(rows, cols, vals, b, n):
     import scipy.sparse.csgraph as csg
     import scipy.sparse.linalg as spl
 
-    from jaxform.linear import JaxSparseSolver
+    from jaxform.linear import JaxSparse
 
     a = sp.csc_matrix((vals, (rows, cols)), shape=(n, n))
     s = (a + a.T).tocsr()
@@ -109,7 +109,7 @@ def methods(rows, cols, vals, b, n):
         return f
 
     out["klujax"] = klu(rows, cols, vals, b)
-    js = JaxSparseSolver()
+    js = JaxSparse()
     jf = jax.jit(lambda r, c, v, bb: js.solve(r, c, v, bb, n))
     jargs = (
         jnp.asarray(rows, jnp.int32),

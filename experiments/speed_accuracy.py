@@ -221,7 +221,7 @@ def material_point_reference(scene_name: str) -> tuple[dict, list[str]]:
     """Homogeneous frictionless upsetting: force = axial stress x current area of the
     material point (jaxform.materialpoint, the ram-speed loading), Richardson-extrapolated
     over steps of 0.04, 0.02, 0.01 s; the side profile is straight at R0 lam_r."""
-    from jaxform.materialpoint import uniaxial_compression
+    from jaxform.materialpoint import Ram, uniaxial_compression
     from jaxform.materials import load_material
 
     cfg = config_for(scene_name, "q1q1", 1, 1.0)
@@ -238,8 +238,7 @@ def material_point_reference(scene_name: str) -> tuple[dict, list[str]]:
             params,
             final_strain=0.0,
             n_steps=0,
-            ram_speed_mm_s=d["speed_mm_s"],
-            height_mm=h0,
+            ram=Ram(d["speed_mm_s"], h0),
             alpha=cfg["time"]["alpha"],
             times_s=times,
         )

@@ -19,18 +19,15 @@ elements at once: it gives R and the new Gauss state, and the material's local s
 pass then differentiates the element function at that state (``solution``: each material
 update takes the converged point it is given instead of solving again, and differentiates
 there, :mod:`jaxform.materials.base`), so its forward-mode tangents run no solver loop.
-Same Jacobian as differentiating straight through the solving residual (tested at 1e-11,
-measured 1e-14).
+Same Jacobian as differentiating straight through the solving residual (tested at 1e-11).
 
 The Jacobian pass runs in chunks of ``Model.jacobian_chunk`` elements (a ``lax.map`` over
 chunks, each chunk vmapped; the element list is padded with copies of element 0 to a
 multiple of the chunk, so one body is compiled): the jacfwd intermediates of all elements
 at once (12 tangents x 4 Gauss points x 3 x 3 per element) fall out of cache, and tiny
-chunks pay a per-operation overhead.  Measured 2026-11-23 (100x100 seed mesh, two-pass, CPU
-programs compiled as in :mod:`jaxform.xla_options`, best of 10, interleaved): residual and
-Jacobian 212 / 193 / 184 / 195 ms in chunks of 128 / 256 / 512 / 1024; 160x160 637 / 610 /
-543 / 582 ms; 40x40 (1 600 elements) 55-68 ms for every chunk size and one vmap.  The values
-are the same up to summation order (1e-14 relative).
+chunks pay a per-operation overhead (the chunk size was chosen by measurement: the
+documentation's benchmarks page, "Measurements behind the code").  The values are the
+same as one vmap up to summation order.
 
 External (dead) loads enter as a given force vector: R = f_int + contact - f_ext
 (:mod:`jaxform.loads`).  A scene without contact candidates (n_contact = 0, e.g. a clamped
@@ -69,7 +66,7 @@ class Indices:
     slot: jax.Array  # (n_raw,) raw entry -> unique slot
     bottom_reaction_dofs: jax.Array  # (n,) u_z dofs on the symmetry plane (for checks)
     load_facets: jax.Array  # (n_lf, 2) node ids of the facets carrying a traction load
-    # uint64 handle of the pattern's KLU symbolic analysis (jaxform.linear.klu_symbolic),
+    # uint64 handle of the pattern's KLU symbolic analysis (jaxform.klu.symbolic),
     # set by the scene for the sparse backend; None: the solver analyses per solve
     lu_symbolic: jax.Array | None = None
 

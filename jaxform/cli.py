@@ -137,7 +137,7 @@ def _material_point(args) -> int:
     import jax.numpy as jnp
 
     from jaxform.io import write_csv
-    from jaxform.materialpoint import uniaxial_compression
+    from jaxform.materialpoint import Ram, uniaxial_compression
     from jaxform.materials import load_material
     from jaxform.plot import stress_strain
     from jaxform.xla_options import jit
@@ -150,11 +150,7 @@ def _material_point(args) -> int:
     out_dir.mkdir(parents=True, exist_ok=True)
 
     def one(load):
-        kw = (
-            dict(ram_speed_mm_s=load, height_mm=args.height_mm)
-            if by_speed
-            else dict(strain_rate_1_s=load)
-        )
+        kw = dict(ram=Ram(load, args.height_mm)) if by_speed else dict(strain_rate_1_s=load)
         return uniaxial_compression(law, params, final_strain=args.strain, n_steps=args.steps, **kw)
 
     t0 = time.perf_counter()

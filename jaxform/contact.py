@@ -53,40 +53,6 @@ class ContactStep:
     frictionless: jax.Array  # (n_c,) bool: tangential motion prescribed (e.g. on the axis)
 
 
-def _parts(friction, die, x, lam, t, c, step_x_old, step_t_old, shear_bound):
-    g, n, tan = die.gap(x, t)
-    die_move = die.offset(t) - die.offset(step_t_old)
-    slip = jnp.dot(x - step_x_old - die_move, tan)
-    lam_n, lam_t = lam[0], lam[1]
-    trial_n = lam_n - c * g
-    active = trial_n > 0.0
-    z = lam_t - c * slip
-    if friction == "coulomb":
-        bound = die.mu * jnp.maximum(0.0, trial_n)
-    elif friction == "shear":
-        bound = shear_bound
-    elif friction == "sticking":
-        bound = jnp.asarray(jnp.inf)  # only compared, never multiplied
-    else:
-        bound = 0.0
-    az = jnp.abs(z)
-    stick = az <= bound
-    return dict(
-        g=g,
-        n=n,
-        tan=tan,
-        slip=slip,
-        lam_n=lam_n,
-        lam_t=lam_t,
-        trial_n=trial_n,
-        active=active,
-        z=z,
-        az=az,
-        bound=bound,
-        stick=stick,
-    )
-
-
 @dataclass(frozen=True)
 class ContactLaw:
     """Strategy: the friction model (static); coefficients live in the die pytree."""
@@ -99,10 +65,45 @@ class ContactLaw:
                 f"friction.model = {self.friction!r}: must be one of {', '.join(FRICTION_MODELS)}"
             )
 
+    def _parts(self, die, x, lam, t, c, step: ContactStep, k):
+        """The quantities both the residual and the status read for candidate k."""
+        friction = self.friction
+        g, n, tan = die.gap(x, t)
+        die_move = die.offset(t) - die.offset(step.t_old)
+        slip = jnp.dot(x - step.x_old[k] - die_move, tan)
+        lam_n, lam_t = lam[0], lam[1]
+        trial_n = lam_n - c * g
+        active = trial_n > 0.0
+        z = lam_t - c * slip
+        if friction == "coulomb":
+            bound = die.mu * jnp.maximum(0.0, trial_n)
+        elif friction == "shear":
+            bound = step.shear_bound[k]
+        elif friction == "sticking":
+            bound = jnp.asarray(jnp.inf)  # only compared, never multiplied
+        else:
+            bound = 0.0
+        az = jnp.abs(z)
+        stick = az <= bound
+        return dict(
+            g=g,
+            n=n,
+            tan=tan,
+            slip=slip,
+            lam_n=lam_n,
+            lam_t=lam_t,
+            trial_n=trial_n,
+            active=active,
+            z=z,
+            az=az,
+            bound=bound,
+            stick=stick,
+        )
+
     def pair_terms(self, die, x, lam, t, c, step: ContactStep, k):
         """Candidate k at position x with multipliers lam = (lambda_n, lambda_t):
         (force residual on the node (2,), complementarity residuals (2,))."""
-        p = _parts(self.friction, die, x, lam, t, c, step.x_old[k], step.t_old, step.shear_bound[k])
+        p = self._parts(die, x, lam, t, c, step, k)
         r_u = -(p["lam_n"] * p["n"] + p["lam_t"] * p["tan"])
         c_n = p["lam_n"] - jnp.maximum(0.0, p["trial_n"])
         if self.friction == "none":
@@ -120,7 +121,7 @@ class ContactLaw:
 
     def pair_status(self, die, x, lam, t, c, step: ContactStep, k):
         """(status OPEN/STICK/SLIP, normal n, tangent t, slip increment) at convergence."""
-        p = _parts(self.friction, die, x, lam, t, c, step.x_old[k], step.t_old, step.shear_bound[k])
+        p = self._parts(die, x, lam, t, c, step, k)
         in_contact = p["lam_n"] > 0.0
         if self.friction == "none":
             sticks = jnp.asarray(False)

@@ -16,6 +16,8 @@ updated-Lagrangian one while the residual is written on the fixed initial mesh.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -41,18 +43,24 @@ N_GP = np.stack([shape_functions(x)[0] for x in GAUSS_POINTS])
 DN_GP = np.stack([shape_functions(x)[1] for x in GAUSS_POINTS])
 
 
-def gauss_geometry(x_ref: jax.Array, axisymmetric: bool):
-    """Reference geometry at the Gauss points of one element.
+class GaussGeometry(NamedTuple):
+    """Reference geometry at the Gauss points of one element."""
 
-    x_ref: (4, 2) nodal coordinates.  Returns dN/dX (4 gp, 4, 2), radius R (4,) (1 for
-    plane strain) and the reference volume weights dV0 (4,).
-    """
+    dndx: jax.Array  # dN/dX (4 gp, 4, 2)
+    radius: jax.Array  # R (4,) (1 for plane strain)
+    weight: jax.Array  # reference volume weights dV0 (4,)
+    det: jax.Array  # det dX/dxi (4,)
+
+
+def gauss_geometry(x_ref: jax.Array, axisymmetric: bool) -> GaussGeometry:
+    """Reference geometry at the Gauss points of one element; x_ref: (4, 2) nodal
+    coordinates."""
     jac = jnp.einsum("gai,aj->gji", DN_GP, x_ref)  # (g, j, i) = dX_j / dxi_i
     det = det2(jac)
     dndx = jnp.einsum("gai,gij->gaj", DN_GP, inv2(jac))
     radius = N_GP @ x_ref[:, 0] if axisymmetric else jnp.ones(4)
     weight = det * GAUSS_WEIGHTS * (2.0 * jnp.pi * radius if axisymmetric else 1.0)
-    return dndx, radius, weight, det
+    return GaussGeometry(dndx, radius, weight, det)
 
 
 def deformation_gradient(u: jax.Array, dndx: jax.Array, radius: jax.Array, axisymmetric: bool):

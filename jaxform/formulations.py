@@ -71,7 +71,8 @@ class Formulation:
         :mod:`jaxform.materials.base`); None solves."""
         axi = self.axisymmetric
         u = dofs[:, :2]
-        dndx, radius, weight, det_ref = el.gauss_geometry(x_ref, axi)
+        geom = el.gauss_geometry(x_ref, axi)
+        dndx, radius, weight, det_ref = geom
         f = el.deformation_gradient(u, dndx, radius, axi)
         det_f = det3(f)
         geom_ok = jnp.all(det_f > 0.0) & jnp.all(det_ref > 0.0)
@@ -97,14 +98,15 @@ class Formulation:
             mat_new = MaterialState(stress=sigma, s=mat_new.s, eqps=mat_new.eqps)
         r_u = el.virtual_work_residual(el.first_piola(sigma, f), dndx, radius, weight, axi)
         if self.mixed_pressure:
-            r_p = self._pressure_residual(law, params, f, dndx, weight, det_ref, p_mat, dofs[:, 2])
+            r_p = self._pressure_residual(law, params, f, geom, p_mat, dofs[:, 2])
             r = jnp.concatenate([r_u, r_p[:, None]], axis=1)
         else:
             r = r_u
         code = jnp.where(geom_ok, jnp.where(jnp.all(ok), OK, LOCAL_SOLVE_FAILED), INVERTED)
         return r, GaussState(F=f_mat, mat=mat_new), code
 
-    def _pressure_residual(self, law, params, f, dndx, weight, det_ref, p_mat, p_nodes):
+    def _pressure_residual(self, law, params, f, geom: el.GaussGeometry, p_mat, p_nodes):
+        dndx, weight, det_ref = geom.dndx, geom.weight, geom.det
         g = law.shear_modulus(params)
         k = params.K_MPa
         det_f = det3(f)

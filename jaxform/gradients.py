@@ -78,6 +78,9 @@ class Trajectory:
     coords: jax.Array  # (n_nodes, 2) initial nodal positions (mm)
     codes: jax.Array  # (n,) status code of each step (0 = converged)
     iterations: jax.Array  # (n,) Newton iterations of each step
+    # (n, n_c) contact status of each candidate after each step (0 open, 1 stick, 2 slip):
+    # the active set, whose changes bound where the run is differentiable
+    contact_status: jax.Array
     # klujax factorizations kept for the reverse pass ((n,) leading axis; None when none
     # were kept): handles the caller frees with release() once the reverse pass is done
     factorizations: Factorization | None = None
@@ -130,12 +133,14 @@ def _trajectory(stepper: Stepper, inputs: Inputs, times, state0, idx, n_kept=0):
             new.friction_work,
             code,
             its,
-            kept if linear.backend == "sparse" else None,
+            new.contact_status,
+            kept if linear.handles else None,  # handles for the owner to free
         )
         return new, out
 
     keep_steps = jnp.arange(n_steps) >= n_steps - n_kept  # the last n_kept steps
-    final, (t, force, fw, codes, its, kept) = jax.lax.scan(step, state0, (times, keep_steps))
+    scanned = jax.lax.scan(step, state0, (times, keep_steps))
+    final, (t, force, fw, codes, its, status, kept) = scanned
     zero = jnp.zeros((1,), dtype=t.dtype)
     t_all = jnp.concatenate([zero, t])
     f0 = die_force(model, state0.x, inputs, jnp.asarray(0.0, t.dtype), idx)
@@ -151,6 +156,7 @@ def _trajectory(stepper: Stepper, inputs: Inputs, times, state0, idx, n_kept=0):
         coords=inputs.coords,
         codes=codes,
         iterations=its,
+        contact_status=status,
         factorizations=kept,
     )
 
@@ -218,7 +224,7 @@ def kept_steps(scene: Scene, n_steps: int) -> int:
     """How many steps of an n_steps run may keep a factorization for the reverse pass:
     as many as ``scene.adjoint_memory_mb`` holds (:meth:`LinearSolver.factor_bytes`),
     none on a backend that cannot keep one (jax-sparse)."""
-    if scene.linear.backend not in ("dense", "sparse") or scene.adjoint_memory_mb <= 0:
+    if not scene.linear.keeps_factorization or scene.adjoint_memory_mb <= 0:
         return 0
     n = scene.model.layout.n_dofs
     size = scene.linear.factor_bytes(n, scene.idx.rows.shape[0], scene.idx.lu_symbolic)

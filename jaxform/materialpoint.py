@@ -42,6 +42,16 @@ class UniaxialResult:
     lateral_stretch: np.ndarray  # current radius / initial radius
 
 
+@jax.tree_util.register_dataclass
+@dataclass(frozen=True)
+class Ram:
+    """Compression by a ram at a constant speed (mm/s) on a specimen of height_mm (mm):
+    the strain rate grows as the height falls (the thesis' upsetting)."""
+
+    speed_mm_s: float | jax.Array
+    height_mm: float | jax.Array
+
+
 def _axial_stretch(t, rate, speed_mm_s, height_mm):
     """lam_z(t): exp(-rate t) for a true strain rate, or 1 - v t / H for a ram speed."""
     by_rate = jnp.exp(-rate * t)
@@ -85,21 +95,20 @@ def uniaxial_compression(
     final_strain: float,
     n_steps: int,
     strain_rate_1_s: float | jax.Array = 0.0,
-    ram_speed_mm_s: float | jax.Array = 0.0,
-    height_mm: float | jax.Array = 1.0,
+    ram: Ram | None = None,
     alpha: float = 0.5,
     times_s: jax.Array | None = None,
 ) -> dict:
     """Run the compression in n_steps equal time steps up to true strain final_strain.
 
-    Give either ``strain_rate_1_s`` (> 0) or ``ram_speed_mm_s`` (> 0, with height_mm).
+    Give either ``strain_rate_1_s`` (> 0, constant) or ``ram`` (:class:`Ram`).
     ``times_s`` (increasing, without 0) replaces the equal steps by these step end times
     (then final_strain and n_steps are ignored).
     Returns a dict of arrays (see UniaxialResult); jit- and vmap-friendly.
     """
     rate = jnp.asarray(strain_rate_1_s, dtype=jnp.float64)
-    speed = jnp.asarray(ram_speed_mm_s, dtype=jnp.float64)
-    height = jnp.asarray(height_mm, dtype=jnp.float64)
+    speed = jnp.asarray(0.0 if ram is None else ram.speed_mm_s, dtype=jnp.float64)
+    height = jnp.asarray(1.0 if ram is None else ram.height_mm, dtype=jnp.float64)
     # total time to reach the final true strain
     t_end_rate = final_strain / jnp.where(rate > 0, rate, 1.0)
     t_end_speed = height * (1.0 - jnp.exp(-final_strain)) / jnp.where(speed > 0, speed, 1.0)
@@ -155,4 +164,4 @@ def to_result(d: dict) -> UniaxialResult:
     return UniaxialResult(**{k: np.asarray(v) for k, v in d.items()})
 
 
-__all__ = ["MaterialState", "UniaxialResult", "uniaxial_compression", "to_result"]
+__all__ = ["MaterialState", "Ram", "UniaxialResult", "uniaxial_compression", "to_result"]

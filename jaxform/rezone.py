@@ -2,11 +2,10 @@
 
 A Lagrangian mesh cannot follow material that flows around a die corner: in the closed
 die (configs/closed_die.toml) the top-surface element at the hub's convex fillet is
-wrapped around the corner, one of its corners opens through 180 deg (non-convex quad at
-~83 % die fill on 10x10 and 20x20 alike, with friction or without), its tangent becomes
-nearly singular (Newton directions of 1e3-1e4 with line-search steps of 1e-3) and Newton
-stagnates.  Rezoning keeps the mesh *topology* (so the compiled program, the dofs and the
-sparsity pattern stay) and moves the nodes (:func:`smooth`):
+wrapped around the corner, one of its corners opens through 180 deg (a non-convex quad),
+its tangent becomes nearly singular and Newton stagnates.  Rezoning keeps the mesh
+*topology* (so the compiled program, the dofs and the sparsity pattern stay) and moves
+the nodes (:func:`smooth`):
 
 1. node by node, a quality-driven ("smart") smoothing: the node is offered the centre of
    its neighbours and short steps around it (nodes on a side of the logical grid: along
@@ -34,7 +33,7 @@ for the two edges a, b at an element corner (1 for a square; it falls with skew 
 aspect ratio, and is < 0 for a non-convex quad), its minimum over the mesh checked after
 every converged step inside the compiled chunk.
 
-Rezoning is host-side NumPy between load steps (2.8 s on 10x10): sensitivities
+Rezoning is host-side NumPy between load steps: sensitivities
 (jax.grad through a run) do not pass through it.  Only structured meshes (billet or ring
 sections, not ``mesh.file``) can be rezoned.
 """

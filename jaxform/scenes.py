@@ -36,7 +36,7 @@ from jaxform.dies import (
 )
 from jaxform.errors import ConfigError
 from jaxform.formulations import formulation
-from jaxform.linear import LinearSolver, choose_backend, klu_symbolic
+from jaxform.linear import LinearSolver, choose_backend
 from jaxform.loads import FacetLoad
 from jaxform.materials import load_material
 from jaxform.precision import require_x64
@@ -161,6 +161,52 @@ def membrane_load(cfg: Config, mesh: meshing.Mesh) -> FacetLoad:
     return FacetLoad(traction=jnp.asarray(traction), ramp_end_s=jnp.asarray(ld.ramp_time_s))
 
 
+def _indices(mesh: meshing.Mesh, n_fields: int, contact_sets: tuple[str, ...]):
+    """(Layout, Indices) of the mesh: Dirichlet dofs from the named sets
+    (:data:`FIXED_COMPONENTS`), the reaction dofs, the contact candidates and facets."""
+    sets = mesh.node_sets
+    fixed = [sets[s] * n_fields + k for s, comps in FIXED_COMPONENTS.items() if s in sets
+             for k in comps]  # fmt: skip
+    reaction = next(sets[s] * n_fields + 1 for s in REACTION_SETS if s in sets)
+    if contact_sets:
+        contact = np.unique(np.concatenate([sets[s] for s in contact_sets])).astype(np.int64)
+        facets = np.concatenate([mesh.facet_sets[s] for s in contact_sets if s in mesh.facet_sets])
+    else:
+        contact, facets = np.zeros(0, dtype=np.int64), np.zeros((0, 2), dtype=np.int64)
+    loaded = mesh.facet_sets.get("loaded")
+    return build_indices(mesh, n_fields, np.concatenate(fixed), contact, reaction_dofs=reaction,
+                         contact_facets=facets, load_facets=loaded)  # fmt: skip
+
+
+def _contact_scale(mesh: meshing.Mesh, shear_modulus: float, axisymmetric: bool) -> float:
+    """The complementarity scale (N/mm): G x the smallest element size x the
+    circumference at the outer radius (axisymmetric)."""
+    areas = meshing.element_areas(mesh.coords, mesh.elements)
+    if np.any(areas <= 0):
+        raise ConfigError(
+            "mesh: an element has non-positive area (check mesh.file or the billet profile)"
+        )
+    h = float(np.sqrt(areas.min()))
+    r_out = float(mesh.coords[:, 0].max())
+    return shear_modulus * h * (2.0 * np.pi * r_out if axisymmetric else 1.0)
+
+
+def _die_or_load(cfg: Config, piece: Workpiece, mesh: meshing.Mesh):
+    """(die, load, end time): the moving die of a pressed workpiece, checked clear of it
+    at t = 0, or the traction load of a membrane."""
+    if not piece.pressed:
+        return None, membrane_load(cfg, mesh), cfg.load.ramp_time_s
+    top_z = float(mesh.coords[mesh.node_sets["top"], 1].max())
+    profile = die_profile(cfg.die, top_z)
+    _check_clearance(profile, mesh, piece.contact_sets(mesh))
+    speed_factor = 0.5 if piece.half_height else 1.0
+    times, travel, t_end = die_path(cfg.die, cfg.die.reduction * top_z, speed_factor)
+    fr = cfg.friction
+    die = make_die(profile, times, travel, mu=fr.mu, m=fr.m,
+                   corner_radius=cfg.die.corner_radius_mm)  # fmt: skip
+    return die, None, t_end
+
+
 def build_scene(cfg: dict | Config) -> Scene:
     """Set-up of a scene from a validated config: mesh, material, die or load, solver.
 
@@ -183,57 +229,11 @@ def build_scene(cfg: dict | Config) -> Scene:
     mesh = piece.build_mesh()
     law, params = load_material(cfg.material.preset)
     form = formulation(m.element, axisymmetric=axi, theta=m.stabilization, alpha=tm.alpha)
-    nf = form.n_fields
-    fixed = [
-        mesh.node_sets[s] * nf + k
-        for s, comps in FIXED_COMPONENTS.items()
-        if s in mesh.node_sets
-        for k in comps
-    ]
-    reaction = next(mesh.node_sets[s] * nf + 1 for s in REACTION_SETS if s in mesh.node_sets)
-    sets = piece.contact_sets(mesh)
-    if sets:
-        contact = np.unique(np.concatenate([mesh.node_sets[s] for s in sets])).astype(np.int64)
-        facets = np.concatenate([mesh.facet_sets[s] for s in sets if s in mesh.facet_sets])
-    else:
-        contact, facets = np.zeros(0, dtype=np.int64), np.zeros((0, 2), dtype=np.int64)
-    layout, idx = build_indices(
-        mesh,
-        nf,
-        np.concatenate(fixed),
-        contact,
-        reaction_dofs=reaction,
-        contact_facets=facets,
-        load_facets=mesh.facet_sets.get("loaded"),
-    )
+    layout, idx = _indices(mesh, form.n_fields, piece.contact_sets(mesh))
     fr = cfg.friction
     model = Model(form, law, layout, ContactLaw(fr.model if fr is not None else "none"))
-    areas = meshing.element_areas(mesh.coords, mesh.elements)
-    if np.any(areas <= 0):
-        raise ConfigError(
-            "mesh: an element has non-positive area (check mesh.file or the billet profile)"
-        )
-    h = float(np.sqrt(areas.min()))
-    r_out = float(mesh.coords[:, 0].max())
-    c = float(law.shear_modulus(params)) * h * (2.0 * np.pi * r_out if axi else 1.0)
-    if piece.pressed:
-        top_z = float(mesh.coords[mesh.node_sets["top"], 1].max())
-        profile = die_profile(cfg.die, top_z)
-        _check_clearance(profile, mesh, sets)
-        times, travel, t_end = die_path(
-            cfg.die, cfg.die.reduction * top_z, 0.5 if piece.half_height else 1.0
-        )
-        die = make_die(
-            profile,
-            times,
-            travel,
-            mu=fr.mu,
-            m=fr.m,
-            corner_radius=cfg.die.corner_radius_mm,
-        )
-        load = None
-    else:
-        die, load, t_end = None, membrane_load(cfg, mesh), cfg.load.ramp_time_s
+    c = _contact_scale(mesh, float(law.shear_modulus(params)), axi)
+    die, load, t_end = _die_or_load(cfg, piece, mesh)
     if m.rezone_quality > 0.0 and piece.grid is None:
         raise ConfigError(
             f"mesh.rezone_quality > 0 needs a billet or ring scene on its "
@@ -241,11 +241,11 @@ def build_scene(cfg: dict | Config) -> Scene:
         )
     linear = choose_backend(so.linear, layout.n_dofs)
     try:
-        method = choose_method(so.newton, linear.backend, layout.n_dofs)
+        method = choose_method(so.newton, linear, layout.n_dofs)
     except ValueError as err:
         raise ConfigError(str(err)) from None
-    if linear.backend == "sparse":  # KLU's symbolic analysis once per pattern, outside jit
-        idx = replace(idx, lu_symbolic=klu_symbolic(idx.rows, idx.cols, layout.n_dofs))
+    # a symbolic analysis once per pattern, outside jit (KLU's; None for the others)
+    idx = replace(idx, lu_symbolic=linear.analyze(idx.rows, idx.cols, layout.n_dofs))
     return Scene(
         settings=cfg,
         workpiece=piece,

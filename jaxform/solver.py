@@ -13,8 +13,8 @@ Failures are status codes (see jaxform.formulations): the caller cuts the step b
 across iterations and load steps and refreshes it (assembly + factorization + an exact
 Newton step) when a step with it contracts ||R|| by less than 2x (that step is rejected)
 or by less than 10x (that step is kept).  On large sparse systems the triangular solves
-with a kept klujax factorization take 1/40 of a factorization (100 x 100 seed scene), so
-most iterations cost a residual and those solves; the root is the same to rtol.
+with a kept klujax factorization cost a small fraction of a factorization, so most
+iterations cost a residual and those solves; the root is the same to rtol.
 
 :func:`solve_implicit` is the same Newton solve, differentiated by the implicit function
 theorem instead of through its iterations: at the converged x*, R(x*, a) = 0 gives
@@ -34,13 +34,14 @@ piecewise smooth (contact and friction switch between branches at an active-set 
 the derivative is that of the branch active at x*: exact away from a switch, one-sided
 at it.
 
-Each call site of ``residual`` is compiled separately (~1-2 s of XLA time each on 2 cores),
+Each call site of ``residual`` is compiled separately (each costs seconds of XLA time),
 so the start (x0, else the fallback) and the line search each evaluate it from one site
 inside a while loop.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
 
@@ -56,17 +57,18 @@ STALE_PER_ITERATION = 3  # modified Newton: iterations with a kept factorization
 MODIFIED_MIN_UNKNOWNS = 5_000  # 'auto' picks modified Newton on the sparse backend from here
 
 
-def choose_method(name: str, backend: str, n_unknowns: int) -> str:
-    """The Newton method for ``solver.newton = name`` with the chosen linear ``backend``:
-    'modified' needs a factorization that can be kept (dense LU or klujax)."""
+def choose_method(name: str, linear, n_unknowns: int) -> str:
+    """The Newton method for ``solver.newton = name`` with the chosen linear solver
+    (:class:`jaxform.linear.LinearSolver`): 'modified' needs one that keeps a
+    factorization; 'auto' picks it from MODIFIED_MIN_UNKNOWNS unknowns where the solver
+    says it pays (klujax)."""
     if name == "auto":
-        return (
-            "modified" if backend == "sparse" and n_unknowns >= MODIFIED_MIN_UNKNOWNS else "newton"
-        )
-    if name == "modified" and backend not in ("dense", "sparse"):
+        big = n_unknowns >= MODIFIED_MIN_UNKNOWNS
+        return "modified" if big and linear.modified_when_large else "newton"
+    if name == "modified" and not linear.keeps_factorization:
         raise ValueError(
             f"solver.newton = 'modified' keeps a factorization, which the "
-            f"'{backend}' linear backend cannot: use solver.linear = 'dense' or "
+            f"'{linear.backend}' linear backend cannot: use solver.linear = 'dense' or "
             f"'sparse' (klujax, CPU), or solver.newton = 'newton'"
         )
     if name not in METHODS:
@@ -122,6 +124,16 @@ def _start(residual, x0, x_fallback):
     return x0, r0, aux0, code0, scale0
 
 
+@dataclass(frozen=True)
+class Kept:
+    """A factorization Newton keeps: ``factor(vals, old) -> fac`` makes a new one (freeing
+    ``old``), ``solve_factored(fac, b)`` solves with it, ``fac`` is the one to start from."""
+
+    factor: Callable
+    solve_factored: Callable
+    fac: object
+
+
 def newton(
     residual,
     residual_and_jacobian,
@@ -129,9 +141,7 @@ def newton(
     x0,
     settings: NewtonSettings,
     x_fallback=None,
-    factor=None,
-    solve_factored=None,
-    fac0=None,
+    kept: Kept | None = None,
 ):
     """Solve R(x) = 0 from x0 (or from x_fallback if x0 is not a valid state, e.g. a
     predictor that inverts an element).
@@ -140,11 +150,11 @@ def newton(
     scale); linear_solve(vals, b) -> solution.  Returns (x, aux, iterations, code,
     history, fac) with history[k] = ||R_k|| / scale_k (NaN-free; inf where not reached).
 
-    With ``factor(vals, old) -> fac`` (which frees ``old``), ``solve_factored(fac, b)`` and
-    ``fac0``, each iteration factors and then solves with the factors (the same work as
-    linear_solve), and the factorization of the last iteration is returned as ``fac``
-    (``fac0`` if there was none), for the caller to reuse: the Jacobian of the iterate
-    before the root, within one Newton step of it.  Without them ``fac`` is None.
+    With ``kept`` (:class:`Kept`), each iteration factors and then solves with the factors
+    (the same work as linear_solve), and the factorization of the last iteration is
+    returned as ``fac`` (``kept.fac`` if there was none), for the caller to reuse: the
+    Jacobian of the iterate before the root, within one Newton step of it.  Without it
+    ``fac`` is None.
     """
     s = settings
     x0, r0, aux0, code0, scale0 = _start(residual, x0, x_fallback)
@@ -159,11 +169,11 @@ def newton(
     def body(c):
         x, aux, it, code, rn, conv, hist, fac = c
         r, vals, _, code_j, scale = residual_and_jacobian(x)
-        if factor is None:
+        if kept is None:
             dx = linear_solve(vals, -r)
         else:
-            fac = factor(vals, fac)
-            dx = solve_factored(fac, -r)
+            fac = kept.factor(vals, fac)
+            dx = kept.solve_factored(fac, -r)
         rnorm = jnp.linalg.norm(r)
 
         def trial(alpha):
@@ -202,7 +212,7 @@ def newton(
         code = jnp.where(jnp.isfinite(dx).all(), codet, jnp.maximum(codet, 4))
         return xt, auxt, it + 1, code, rtn, conv, hist, fac
 
-    init = (x0, aux0, jnp.asarray(0), code0, n0, conv0, hist0, fac0)
+    init = (x0, aux0, jnp.asarray(0), code0, n0, conv0, hist0, None if kept is None else kept.fac)
     x, aux, it, code, rn, conv, hist, fac = jax.lax.while_loop(cond, body, init)
     code = jnp.where(conv, OK, jnp.where(code == OK, NEWTON_NOT_CONVERGED, code))
     return x, aux, it, code, hist, fac
@@ -211,32 +221,26 @@ def newton(
 def modified_newton(
     residual,
     residual_and_jacobian,
-    factor,
-    solve_factored,
+    kept: Kept,
     x0,
-    fac0,
     settings: NewtonSettings,
     x_fallback=None,
 ):
     """Modified Newton: solve R(x) = 0 with a factorization kept from earlier iterations
     (of this solve or of earlier load steps), refreshed only when it stops working.
 
-    An iteration solves J_old dx = -R(x) with the kept factorization (``fac0`` on entry,
-    possibly from another state).  The full step is accepted when ||R|| falls to
+    An iteration solves J_old dx = -R(x) with the kept factorization (``kept.fac`` on
+    entry, possibly from another state).  The full step is accepted when ||R|| falls to
     <= ``accept_ratio`` x its value; otherwise it is rejected (x unchanged, the iteration
     counts) and the next iteration refreshes: assembles the Jacobian at x, factors it
-    (``factor(vals, old) -> fac``, which frees the old one) and takes an exact Newton step
+    (``kept.factor(vals, old) -> fac``, which frees the old one) and takes an exact Newton step
     with the backtracking line search of :func:`newton`.  An accepted step that contracted
     by less than ``refresh_ratio`` also refreshes the next iteration.  Convergence and
     failure codes as in :func:`newton`; the converged x is the same root to ``rtol`` (the
     factorization only changes the path).  Returns (x, aux, iterations, code, history, fac).
-
-    Measured on the seed scene (``experiments/bench_scale.py --one 100``): the triangular
-    solves with a kept KLU factorization take 0.017 s against 0.68 s for a factorization,
-    so a stale iteration costs a residual and those solves (0.071 s) instead of an
-    assembly, a factorization and a residual (1.3 s).
     """
     s = settings
+    factor, solve_factored, fac0 = kept.factor, kept.solve_factored, kept.fac
     x0, r0, aux0, code0, scale0 = _start(residual, x0, x_fallback)
     count0 = fac0.count
     n0 = jnp.linalg.norm(r0)
@@ -404,13 +408,21 @@ def adjoint_solve(linear, vals, b, args, fac=None, use=None):
     return jax.lax.cond(ok, lambda: y, fresh)
 
 
-@partial(jax.custom_vjp, nondiff_argnums=(0, 1, 2, 3, 4))
+@dataclass(frozen=True)
+class ImplicitProblem:
+    """The static part of an implicitly differentiated solve (hashable): the functions and
+    the linear algebra of :func:`solve_implicit`, and the Newton settings."""
+
+    fn: Callable
+    fn_jac: Callable
+    fn_adj: Callable
+    linear: object
+    settings: NewtonSettings
+
+
+@partial(jax.custom_vjp, nondiff_argnums=(0,))
 def solve_implicit(
-    fn,
-    fn_jac,
-    fn_adj,
-    linear,
-    settings: NewtonSettings,
+    problem: ImplicitProblem,
     x0,
     x_fallback,
     args,
@@ -421,14 +433,15 @@ def solve_implicit(
     ``args`` by the implicit function theorem (x0, x_fallback and the factorizations get no
     derivative).
 
-    fn(x, args) -> (R, aux, code, scale); fn_jac(x, args) -> (R, vals, aux, code, scale);
-    fn_adj(x, args, aux_bar) -> (vals, (daux/dx)^T aux_bar), for the reverse pass;
+    ``problem`` (:class:`ImplicitProblem`): fn(x, args) -> (R, aux, code, scale);
+    fn_jac(x, args) -> (R, vals, aux, code, scale); fn_adj(x, args, aux_bar) -> (vals,
+    (daux/dx)^T aux_bar), for the reverse pass;
     linear(vals, b, args, transpose) -> solution of J y = b (or J^T y = b); where
     factorizations are kept also linear.factor(vals, args, old) -> a
     :class:`jaxform.linear.Factorization` (freeing ``old``), linear.solve_factored(fac, b,
     args, transpose) and linear.matvec(vals, y, args, transpose).
 
-    ``fac``: with ``settings.method = 'modified'`` the factorization to start from; with
+    ``fac``: with ``problem.settings.method = 'modified'`` the factorization to start from; with
     'newton', if given, each iteration factors and solves with the factors (freeing
     ``fac`` at the first) and the last iteration's factorization is returned (see
     :func:`newton`).  Either way the caller owns the one returned.
@@ -443,26 +456,23 @@ def solve_implicit(
     the method (refined to a componentwise backward error of a few ulps when it reuses a
     factorization).
     """
+    fn, fn_jac, linear, settings = problem.fn, problem.fn_jac, problem.linear, problem.settings
+    kept = None
+    if fac is not None:
+        kept = Kept(
+            lambda vals, old: linear.factor(vals, args, old),
+            lambda f, b: linear.solve_factored(f, b, args),
+            fac,
+        )
     if settings.method == "modified":
         return modified_newton(
             lambda x: fn(x, args),
             lambda x: fn_jac(x, args),
-            lambda vals, old: linear.factor(vals, args, old),
-            lambda f, b: linear.solve_factored(f, b, args),
+            kept,
             x0,
-            fac,
             settings,
             x_fallback=x_fallback,
         )
-    kept = (
-        {}
-        if fac is None
-        else dict(
-            factor=lambda vals, old: linear.factor(vals, args, old),
-            solve_factored=lambda f, b: linear.solve_factored(f, b, args),
-            fac0=fac,
-        )
-    )
     return newton(
         lambda x: fn(x, args),
         lambda x: fn_jac(x, args),
@@ -470,20 +480,16 @@ def solve_implicit(
         x0,
         settings,
         x_fallback=x_fallback,
-        **kept,
+        kept=kept,
     )
 
 
-def _solve_implicit_fwd(
-    fn, fn_jac, fn_adj, linear, settings, x0, x_fallback, args, fac=None, adjoint_fac=None
-):
-    out = solve_implicit(
-        fn, fn_jac, fn_adj, linear, settings, x0, x_fallback, args, fac, adjoint_fac
-    )
+def _solve_implicit_fwd(problem, x0, x_fallback, args, fac=None, adjoint_fac=None):
+    out = solve_implicit(problem, x0, x_fallback, args, fac, adjoint_fac)
     return out, (out[0], out[2], args, fac, adjoint_fac)
 
 
-def _solve_implicit_bwd(fn, fn_jac, fn_adj, linear, settings, res, cot):
+def _solve_implicit_bwd(problem, res, cot):
     """xbar_total = xbar + (dG/dx)^T auxbar;  J^T y = xbar_total;
     abar = (dG/da)^T auxbar - (dR/da)^T y.
 
@@ -492,6 +498,7 @@ def _solve_implicit_bwd(fn, fn_jac, fn_adj, linear, settings, res, cot):
     respect to ``args`` only, and once, with the cotangent (-y, auxbar): one
     linearization and one transposition instead of a linearization in (x, args) and two
     transpositions (measured on the seed scene: see experiments/bench_gradient.py)."""
+    fn, fn_adj, linear = problem.fn, problem.fn_adj, problem.linear
     x, its, args, fac, adjoint_fac = res
     x_bar, aux_bar = cot[0], cot[1]
     vals, xg_bar = fn_adj(x, args, aux_bar)

@@ -34,7 +34,7 @@ from jaxform.kinematics import deviator, safe_norm_eq
 from jaxform.linear import LinearSolver, matvec
 from jaxform.loads import external_forces, total_force
 from jaxform.rezone import min_quality
-from jaxform.solver import NewtonSettings, solve_implicit
+from jaxform.solver import ImplicitProblem, NewtonSettings, solve_implicit
 from jaxform.status import OK
 from jaxform.xla_options import jit
 
@@ -187,12 +187,15 @@ def solve_step(
     ctx = step_context(model, state, inp, idx, t_new, t_new - state.t)
     x_fallback = jax.lax.stop_gradient(state.x)
     x0 = x_fallback if x_guess is None else jax.lax.stop_gradient(x_guess)
-    x, g, its, code, hist, fac = solve_implicit(
+    problem = ImplicitProblem(
         partial(_step_residual, model),
         partial(_step_residual_and_jacobian, model),
         partial(_step_adjoint, model),
         StepLinear(model.layout.n_dofs, stepper.linear),
         stepper.newton,
+    )
+    x, g, its, code, hist, fac = solve_implicit(
+        problem,
         x0,
         x_fallback,
         ctx,

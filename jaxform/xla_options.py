@@ -8,11 +8,9 @@ program runs on, chosen when it is first called.
 CPU: YNNPACK fusions off (``xla_cpu_experimental_ynn_fusion_type`` empty).  Recent
 XLA:CPU hands small dot products and reductions to YNNPACK; in jaxform's element
 routines those are 3x3 tensor products batched over Gauss points and forward-mode
-tangents, where a library call per fusion costs more than XLA's own loop.  Measured
-2026-11-23 on the 100x100 seed mesh (2-core CPU, the two programs timed in turn, best of
-20): residual and Jacobian assembly 390 ms with YNNPACK fusions, 313 ms without (342 /
-294 ms in a second run); the residual alone unchanged (77 / 76 ms).  A jaxlib that does
-not know the option compiles without it (checked once per process).
+tangents, where a library call per fusion costs more than XLA's own loop (measured: the
+documentation's benchmarks page, "Measurements behind the code").  A jaxlib that does not
+know the option compiles without it (checked once per process).
 
 Other backends: plain ``jax.jit``.
 """

@@ -17,7 +17,8 @@ import pytest
 
 from jaxform.config import load_config
 from jaxform.gradients import kept_steps, trajectory
-from jaxform.linear import LinearSolver, klu_symbolic, matvec
+from jaxform.klu import symbolic as klu_symbolic
+from jaxform.linear import KLU, DenseLU, LinearSolver, matvec
 from jaxform.scenes import build_scene
 from jaxform.solver import REFINE_TARGET, adjoint_solve, refined_solve
 
@@ -70,7 +71,7 @@ def test_refined_with_a_nearby_factorization_equals_the_fresh_transposed_solve(b
     a, rows, cols, rng = _matrix()
     r_, c_ = np.asarray(rows), np.asarray(cols)
     sym = klu_symbolic(rows, cols, N) if backend == "sparse" else None
-    lin = Linear(LinearSolver(backend), rows, cols, sym)
+    lin = Linear({"dense": DenseLU, "sparse": KLU}[backend](), rows, cols, sym)
     vals = jnp.asarray(a[r_, c_])
     near = vals * (1.0 + 1e-5 * rng.standard_normal(vals.shape))  # J one Newton step away
     far = jnp.asarray(np.where(r_ == c_, 12.0, -3.0) * a[r_, c_])  # not a nearby matrix

@@ -256,7 +256,8 @@ def test_free_in_program_frees_exactly_the_valid_factorizations(monkeypatch):
     import klujax_cpp
     import numpy as np
 
-    from jaxform.linear import Factorization, LinearSolver, klu_symbolic
+    from jaxform.klu import symbolic as klu_symbolic
+    from jaxform.linear import KLU, Factorization
 
     closed = []
     real = klujax_cpp.KLUNumeric
@@ -273,7 +274,7 @@ def test_free_in_program_frees_exactly_the_valid_factorizations(monkeypatch):
     monkeypatch.setattr(klujax_cpp, "KLUNumeric", Recording)
     rows = jnp.array([0, 1, 2, 0], jnp.int32)
     cols = jnp.array([0, 1, 2, 2], jnp.int32)
-    lin = LinearSolver("sparse")
+    lin = KLU()
     sym = klu_symbolic(rows, cols, 3)
 
     @jax.jit

@@ -240,3 +240,17 @@ def test_config_sections_are_the_schema():
         assert [f.name for f in dataclasses.fields(cls)] == list(SCHEMA[name])
         assert all(f.doc for f in SCHEMA[name].values())
     assert {f.name for f in dataclasses.fields(Config)} == set(SECTIONS)
+
+
+def test_no_function_takes_more_than_8_parameters():
+    """Reference: the architecture issue's bound (self and keyword-only ones counted)."""
+    over = []
+    for path in PACKAGE.rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+                a = node.args
+                n = len(a.posonlyargs) + len(a.args) + len(a.kwonlyargs)
+                n += (a.vararg is not None) + (a.kwarg is not None)
+                if n > 8:
+                    over.append(f"{path.relative_to(ROOT)}:{node.name} ({n})")
+    assert not over, over

@@ -15,9 +15,10 @@ import pytest
 from jaxform.linear import (
     DENSE_LIMIT,
     GPU_DENSE_LIMIT,
-    JaxSparseSolver,
+    KLU,
+    DenseLU,
+    JaxSparse,
     LinearBackendWarning,
-    LinearSolver,
     _warn_once,
     choose_backend,
 )
@@ -48,7 +49,7 @@ def test_backend_selection_by_size_and_platform(name, n, platform, expected, war
         warnings.simplefilter("always")
         solver = choose_backend(name, n, platform=platform)
     assert solver.backend == expected
-    assert isinstance(solver, JaxSparseSolver if expected == "jax-sparse" else LinearSolver)
+    assert type(solver) is {"dense": DenseLU, "sparse": KLU, "jax-sparse": JaxSparse}[expected]
     msgs = [str(w.message) for w in caught if issubclass(w.category, LinearBackendWarning)]
     assert bool(msgs) == warns, msgs
     if warns:  # the message names the setting, the platform and the backend chosen

@@ -12,9 +12,9 @@ import pytest
 from test_upsetting import scene, seed_run
 
 from jaxform.config import ConfigError
-from jaxform.linear import LinearSolver
+from jaxform.linear import KLU, DenseLU
 from jaxform.simulation import simulate
-from jaxform.solver import NewtonSettings, choose_method, modified_newton, newton
+from jaxform.solver import Kept, NewtonSettings, choose_method, modified_newton, newton
 from jaxform.status import OK
 
 N = 6
@@ -41,10 +41,10 @@ def test_modified_newton_finds_the_newton_root_with_fewer_factorizations(backend
     """Same root as full Newton to 1e-13 (rtol 1e-14 of a unit force scale), fewer
     factorizations than iterations, and the last factorization handed back for reuse.
     Full Newton with factorizations kept takes full Newton's iterates."""
-    lin = LinearSolver(backend)
+    lin = {"dense": DenseLU, "sparse": KLU}[backend]()
     symbolic = None
     if backend == "sparse":
-        from jaxform.linear import klu_symbolic
+        from jaxform.klu import symbolic as klu_symbolic
 
         symbolic = klu_symbolic(ROWS, COLS, N)
     settings = NewtonSettings(rtol=1e-14, method="modified")
@@ -54,10 +54,12 @@ def test_modified_newton_finds_the_newton_root_with_fewer_factorizations(backend
         return modified_newton(
             residual,
             residual_and_jacobian,
-            lambda vals, old: lin.refactor(ROWS, COLS, vals, N, symbolic, old),
-            lambda f, b: lin.solve_factored(f, b, symbolic),
+            Kept(
+                lambda vals, old: lin.refactor(ROWS, COLS, vals, N, symbolic, old),
+                lambda f, b: lin.solve_factored(f, b, symbolic),
+                fac,
+            ),
             x0,
-            fac,
             settings,
         )
 
@@ -79,9 +81,11 @@ def test_modified_newton_finds_the_newton_root_with_fewer_factorizations(backend
             None,
             x0,
             NewtonSettings(rtol=1e-14),
-            factor=lambda vals, old: lin.refactor(ROWS, COLS, vals, N, symbolic, old),
-            solve_factored=lambda f, b: lin.solve_factored(f, b, symbolic),
-            fac0=fac,
+            kept=Kept(
+                lambda vals, old: lin.refactor(ROWS, COLS, vals, N, symbolic, old),
+                lambda f, b: lin.solve_factored(f, b, symbolic),
+                fac,
+            ),
         )
     )(jnp.zeros(N), lin.empty_factorization(N, B.dtype))
     assert int(code_k) == OK and int(its_k) == int(its_ref)
@@ -141,13 +145,13 @@ def test_backend_that_cannot_keep_a_factorization_is_refused():
     with pytest.raises(ConfigError, match="solver.newton = 'modified'.*jax-sparse"):
         scene("solver.linear=jax-sparse", "solver.newton=modified")
     with pytest.raises(ValueError, match="solver.newton = 'secant'"):
-        choose_method("secant", "sparse", 10)
+        choose_method("secant", KLU(), 10)
 
 
 def test_auto_picks_modified_newton_for_large_sparse_systems():
     from jaxform.solver import MODIFIED_MIN_UNKNOWNS as M
 
-    assert choose_method("auto", "sparse", M) == "modified"
-    assert choose_method("auto", "sparse", M - 1) == "newton"
-    assert choose_method("auto", "dense", 10 * M) == "newton"
-    assert choose_method("newton", "sparse", 10 * M) == "newton"
+    assert choose_method("auto", KLU(), M) == "modified"
+    assert choose_method("auto", KLU(), M - 1) == "newton"
+    assert choose_method("auto", DenseLU(), 10 * M) == "newton"
+    assert choose_method("newton", KLU(), 10 * M) == "newton"

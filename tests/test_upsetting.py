@@ -20,7 +20,7 @@ from jaxform.assembly import internal_forces
 from jaxform.cli import main
 from jaxform.config import load_config
 from jaxform.io import read_csv
-from jaxform.materialpoint import uniaxial_compression
+from jaxform.materialpoint import Ram, uniaxial_compression
 from jaxform.postprocess import contact_profile, nodal_fields
 from jaxform.scenes import build_scene
 from jaxform.simulation import SimulationError, simulate
@@ -60,7 +60,7 @@ def test_frictionless_upsetting_is_the_material_point(element):
     law, params = sc.model.law, sc.inputs.params
     mp = jax.jit(
         lambda t: uniaxial_compression(
-            law, params, final_strain=1.0, n_steps=1, ram_speed_mm_s=0.075, height_mm=7.5, times_s=t
+            law, params, final_strain=1.0, n_steps=1, ram=Ram(0.075, 7.5), times_s=t
         )
     )(jnp.asarray(h["time_s"][1:]))
     area = np.pi * (2.5 * np.asarray(mp["lateral_stretch"])) ** 2
