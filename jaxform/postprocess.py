@@ -156,6 +156,30 @@ def boundary_edges(elements: np.ndarray) -> np.ndarray:
     return np.array([ab for ab in edges.tolist() if (ab[1], ab[0]) not in keys])
 
 
+def overlap_depth(die_points: np.ndarray, pos: np.ndarray, edges: np.ndarray) -> float:
+    """How deep (mm) the die reaches into the material: the largest distance from the
+    material's boundary of a die point inside the material, 0 where none is.
+
+    die_points: (k, 2) a dense sampling of the die surface; pos: (n, 2) nodal positions;
+    edges: (n_b, 2) the material's boundary edges (:func:`boundary_edges`)."""
+    a, b = pos[edges[:, 0]], pos[edges[:, 1]]
+    inside = _inside(die_points, a, b)
+    if not inside.any():
+        return 0.0
+    return float(np.max(_distance_to(die_points[inside], a, b)))
+
+
+def die_overlap(scene, pos: np.ndarray, t: float) -> float:
+    """The die's overlap of the material at time t (mm): contact holds the workpiece
+    nodes on the die, so what remains is a convex die corner reaching between two
+    contact nodes into a facet.  The rounded profile is sampled at 64 points per arc
+    (the depth is then resolved to ~1e-3 of the arc's sagitta)."""
+    die = scene.inputs.die
+    pts = sample_rounded(die.points, die.corner_radius, per_arc=64)
+    pts = pts - np.array([0.0, float(die.travel(t))])
+    return overlap_depth(pts, pos, boundary_edges(scene.mesh.elements))
+
+
 def filled_volume(scene, pos: np.ndarray, t: float) -> float:
     """Volume of the cavity that the material occupies: the intersection of material and
     cavity, by Green's theorem over the material's boundary inside the cavity and the
@@ -178,8 +202,9 @@ def filled_volume(scene, pos: np.ndarray, t: float) -> float:
 
 def extra_history(scene, xs: np.ndarray, times: np.ndarray) -> dict[str, np.ndarray]:
     """The history columns a scene adds to every run: its workpiece's
-    (:meth:`jaxform.workpieces.Workpiece.extra_history`) and, for a closed die,
-    ``die_fill`` (0..1)."""
+    (:meth:`jaxform.workpieces.Workpiece.extra_history`), for a die scene
+    ``die_overlap_mm`` (:func:`die_overlap`), for a closed die ``die_fill`` (0..1) and,
+    with a part radius, ``flash_volume_mm3``."""
     coords = np.asarray(scene.inputs.coords)
     pos = np.stack([positions(scene, x) for x in xs])
     out = dict(scene.workpiece.extra_history(scene.mesh, pos, pos - coords))
@@ -191,6 +216,8 @@ def extra_history(scene, xs: np.ndarray, times: np.ndarray) -> dict[str, np.ndar
                 for p, t in zip(pos, times)
             ]
         )
+    if die is not None:
+        out["die_overlap_mm"] = np.array([die_overlap(scene, p, t) for p, t in zip(pos, times)])
     if die is not None and die.part_radius_mm > 0.0:
         halves = 2.0 if scene.symmetric_z else 1.0
         out["flash_volume_mm3"] = np.array(

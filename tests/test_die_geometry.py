@@ -153,7 +153,27 @@ def test_part_fill_and_flash_volume_split_at_the_part_radius():
     np.testing.assert_allclose(cols["die_fill"], [1.0, (1.0 / 1.5) ** 2], rtol=1e-12)
     np.testing.assert_allclose(cols["flash_volume_mm3"][0], 16.0 * np.pi, rtol=1e-12)
     assert cols["flash_volume_mm3"][1] == 0.0
+    assert np.all(cols["die_overlap_mm"] == 0.0)  # the die face lies on the material
     with pytest.raises(ConfigError, match="die.part_radius_mm = 1.5: needs die.closed"):
         die = {"speed_mm_s": 0.1, "reduction": 0.1, "part_radius_mm": 1.5}
         load_config({"billet": {"diameter_mm": 4.0, "height_mm": 2.0}, "time": {"dt_s": 1.0},
                      "die": die})  # fmt: skip
+
+
+@pytest.mark.parametrize("radius, half_width", [(1.0, 0.3), (5.0, 0.5), (0.5, 0.49)])
+def test_die_overlap_is_the_sagitta_of_a_convex_corner_between_two_nodes(radius, half_width):
+    """Reference, closed form: a convex die arc of radius R resting on the two top nodes of
+    a facet of length 2a (both nodes on the arc) reaches into the material by the sagitta
+    R - sqrt(R^2 - a^2) at the facet's middle.  Sampled with the apex among the points:
+    1e-12 mm.  The same arc lifted clear of the facet overlaps by 0."""
+    from jaxform.postprocess import boundary_edges, overlap_depth
+
+    a = half_width
+    pos = np.array([[-a, -2.0], [a, -2.0], [a, 0.0], [-a, 0.0]])  # one quad, top facet z = 0
+    edges = boundary_edges(np.array([[0, 1, 2, 3]]))
+    centre = np.sqrt(radius**2 - a**2)
+    ang = -0.5 * np.pi + np.linspace(-1.0, 1.0, 2001) * np.pi / 2
+    circle = np.column_stack([radius * np.cos(ang), centre + radius * np.sin(ang)])
+    expected = radius - centre
+    assert abs(overlap_depth(circle, pos, edges) - expected) <= 1e-12
+    assert overlap_depth(circle + np.array([0.0, expected + 1e-6]), pos, edges) == 0.0
