@@ -1,8 +1,9 @@
 """Degrees of freedom, the fixed sparsity pattern, and global residual/Jacobian assembly.
 
-Unknown vector x = [nodal fields (n_nodes * n_fields) | contact multipliers (2 n_contact)],
-node a's field k at a * n_fields + k (fields: u_r, u_z[, p]); candidate i's normal and
-tangential multipliers at n_nodes * n_fields + 2 i + (0, 1).
+Unknown vector x = [nodal fields (n_nodes * n_fields) | contact multipliers (2 n_contact)
+| corner multipliers (n_facets)], node a's field k at a * n_fields + k (fields: u_r, u_z[,
+p]); candidate i's normal and tangential multipliers at n_nodes * n_fields + 2 i + (0, 1);
+facet f's corner-contact multiplier (:func:`jaxform.contact.facet_terms`) after those.
 
 Set-up (NumPy, once per scene) builds :class:`Indices`: element dof maps, Dirichlet dofs,
 contact candidates, and the *unique* sparsity pattern holding every entry any element
@@ -43,7 +44,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxform.contact import ContactLaw, ContactStep
+from jaxform.contact import ContactLaw, ContactStep, facet_terms
 from jaxform.formulations import Formulation, GaussState
 from jaxform.status import NOT_FINITE
 
@@ -61,6 +62,8 @@ class Indices:
     mult_dofs: jax.Array  # (n_c, 2) normal and tangential multipliers
     contact_facets: jax.Array  # (n_f, 2) free-surface facets, as indices into contact_nodes
     contact_fixed_r: jax.Array  # (n_c,) bool: the candidate's u_r is a Dirichlet dof
+    facet_dofs: jax.Array  # (n_fc, 4) u dofs of the corner-contact facets' nodes a, b
+    facet_mult: jax.Array  # (n_fc,) their multipliers' dofs
     rows: jax.Array  # (n_nz,) unique pattern
     cols: jax.Array
     slot: jax.Array  # (n_raw,) raw entry -> unique slot
@@ -98,6 +101,17 @@ class Layout:
     n_contact: int
     n_elements: int
     n_nonzeros: int
+    n_facets: int = 0  # facets with a corner-contact multiplier
+
+    @property
+    def n_mult(self) -> int:
+        """Number of multipliers (node contact and corner contact)."""
+        return 2 * self.n_contact + self.n_facets
+
+    def node_multipliers(self, x):
+        """(n_contact, 2) normal and tangential multipliers of the contact candidates."""
+        start = self.n_node_dofs
+        return x[start : start + 2 * self.n_contact].reshape(self.n_contact, 2)
 
     @property
     def n_node_dofs(self) -> int:
@@ -105,7 +119,7 @@ class Layout:
 
     @property
     def n_dofs(self) -> int:
-        return self.n_node_dofs + 2 * self.n_contact
+        return self.n_node_dofs + self.n_mult
 
     def nodal(self, x):
         """The nodal block of x, (n_nodes, n_fields): u_r, u_z[, p] per node (a view for
@@ -121,30 +135,39 @@ def build_indices(
     reaction_dofs: np.ndarray | None = None,
     contact_facets: np.ndarray | None = None,
     load_facets: np.ndarray | None = None,
+    corner_contact: bool = False,
 ) -> tuple[Layout, Indices]:
-    """contact_facets: (n_f, 2) node pairs of the free surface (for contact areas);
-    load_facets: (n_lf, 2) node pairs of the boundary carrying a traction load."""
+    """contact_facets: (n_f, 2) node pairs of the free surface (for contact areas; with
+    ``corner_contact`` each also gets a corner-contact multiplier); load_facets: (n_lf, 2)
+    node pairs of the boundary carrying a traction load."""
     nf = n_fields
     n_nodes = mesh.n_nodes
     elements = np.asarray(mesh.elements, dtype=np.int64)
     edofs = (elements[:, :, None] * nf + np.arange(nf)[None, None, :]).reshape(len(elements), -1)
     n_c = len(contact_nodes)
     ndof_nodes = n_nodes * nf
-    n = ndof_nodes + 2 * n_c
     cdofs = contact_nodes[:, None] * nf + np.arange(2)[None, :]
     mdofs = ndof_nodes + np.arange(2 * n_c).reshape(n_c, 2)
+    corner = _oriented(elements, contact_facets) if corner_contact else np.zeros((0, 2), int)
+    n_fc = len(corner)
+    n = ndof_nodes + 2 * n_c + n_fc
+    fdofs = (corner[:, :, None] * nf + np.arange(2)[None, None, :]).reshape(n_fc, 4)
+    fmult = ndof_nodes + 2 * n_c + np.arange(n_fc)
     # raw entries: element blocks, contact 3x3 blocks (u_r, u_z, lambda), diagonal
     er = np.repeat(edofs[:, :, None], edofs.shape[1], axis=2).ravel()
     ec = np.repeat(edofs[:, None, :], edofs.shape[1], axis=1).ravel()
     cblock = np.column_stack([cdofs, mdofs])  # (n_c, 4): u_r, u_z, lambda_n, lambda_t
     cr = np.repeat(cblock[:, :, None], 4, axis=2).ravel()
     cc = np.repeat(cblock[:, None, :], 4, axis=1).ravel()
+    fblock = np.column_stack([fdofs, fmult])  # (n_fc, 5): u of a, u of b, mu
+    fr = np.repeat(fblock[:, :, None], 5, axis=2).ravel()
+    fc = np.repeat(fblock[:, None, :], 5, axis=1).ravel()
     dr = np.arange(n)
-    raw_r = np.concatenate([er, cr, dr])
-    raw_c = np.concatenate([ec, cc, dr])
+    raw_r = np.concatenate([er, cr, fr, dr])
+    raw_c = np.concatenate([ec, cc, fc, dr])
     keys = raw_r * n + raw_c
     uniq, slot = np.unique(keys, return_inverse=True)
-    layout = Layout(n_nodes, nf, n_c, len(elements), len(uniq))
+    layout = Layout(n_nodes, nf, n_c, len(elements), len(uniq), n_fc)
     idx = Indices(
         edofs=jnp.asarray(edofs, dtype=jnp.int32),
         elements=jnp.asarray(elements, dtype=jnp.int32),
@@ -154,6 +177,8 @@ def build_indices(
         mult_dofs=jnp.asarray(mdofs, dtype=jnp.int32),
         contact_facets=jnp.asarray(_local_facets(contact_nodes, contact_facets), jnp.int32),
         contact_fixed_r=jnp.asarray(np.isin(cdofs[:, 0], np.asarray(fixed_dofs))),
+        facet_dofs=jnp.asarray(fdofs, dtype=jnp.int32),
+        facet_mult=jnp.asarray(fmult, dtype=jnp.int32),
         rows=jnp.asarray(uniq // n, dtype=jnp.int32),
         cols=jnp.asarray(uniq % n, dtype=jnp.int32),
         slot=jnp.asarray(slot.ravel(), dtype=jnp.int32),
@@ -168,6 +193,16 @@ def build_indices(
         ),
     )
     return layout, idx
+
+
+def _oriented(elements: np.ndarray, facets) -> np.ndarray:
+    """The facets (node pairs) ordered as their element walks them (counter-clockwise:
+    the material on the left)."""
+    facets = np.asarray(facets if facets is not None else np.zeros((0, 2)), dtype=np.int64)
+    walked = set(map(tuple, np.stack([elements, np.roll(elements, -1, axis=1)], -1)
+                     .reshape(-1, 2).tolist()))  # fmt: skip
+    out = [(a, b) if (a, b) in walked else (b, a) for a, b in facets.tolist()]
+    return np.array(out, dtype=np.int64).reshape(-1, 2)
 
 
 def _local_facets(contact_nodes, facets) -> np.ndarray:
@@ -257,6 +292,19 @@ class Model:
         pos = self.nodal_positions(x, coords, idx)[idx.contact_nodes]
         return jnp.concatenate([pos, x[idx.mult_dofs]], axis=1)
 
+    def _facet_terms(self, x, ctx: StepContext, derivative: bool):
+        """Corner contact of every facet (:func:`jaxform.contact.facet_terms`): its (n_fc,
+        5) residual entries, or with ``derivative`` their (n_fc, 5, 5) Jacobian blocks."""
+        idx = ctx.idx
+        nodes = idx.facet_dofs[:, ::2] // self.layout.n_fields  # (n_fc, 2): a, b
+        pos = self.nodal_positions(x, ctx.coords, idx)[nodes].reshape(-1, 4)
+        v = jnp.concatenate([pos, x[idx.facet_mult][:, None]], axis=1)
+
+        def fn(vf):
+            return facet_terms(ctx.die, vf, ctx.t, ctx.c_contact)
+
+        return jax.vmap(jax.jacfwd(fn) if derivative else fn)(v)
+
     def contact_report(self, x, ctx: StepContext):
         """Per candidate at a converged x: (status 0/1/2, normal, tangent, slip increment)."""
         if self.layout.n_contact == 0:
@@ -312,8 +360,9 @@ class Model:
             )
         else:
             k_c = jnp.zeros((0, 4, 4), dtype=x.dtype)
+        k_f = self._facet_terms(x, ctx, True) if self.layout.n_facets else jnp.zeros(0, x.dtype)
         n = self.layout.n_dofs
-        raw = jnp.concatenate([k_e.ravel(), k_c.ravel(), jnp.zeros(n, dtype=x.dtype)])
+        raw = jnp.concatenate([k_e.ravel(), k_c.ravel(), k_f.ravel(), jnp.zeros(n, x.dtype)])
         vals = jax.ops.segment_sum(raw, idx.slot, num_segments=self.layout.n_nonzeros)
         # Dirichlet rows -> identity rows
         fixed_row = jnp.zeros(n, dtype=bool).at[idx.fixed].set(True)
@@ -331,6 +380,11 @@ class Model:
             )
             r = r.at[idx.contact_dofs].add(rc[:, :2])
             r = r.at[idx.mult_dofs].set(rc[:, 2:])
+        if self.layout.n_facets:
+            rf = self._facet_terms(x, ctx, False)
+            r = r.at[idx.facet_dofs].add(rf[:, :4])
+            r = r.at[idx.facet_mult].set(rf[:, 4])
+            lam = jnp.concatenate([lam.ravel(), x[idx.facet_mult]])
         if f_ext is not None:
             r = r - f_ext
         r = r.at[idx.fixed].set(x[idx.fixed])

@@ -336,6 +336,14 @@ class DieConfig:
         "where two segments are too short for it, the arc runs between their midpoints (so "
         "sampled fillets and splines keep their shape)",
     )
+    corner_contact: bool = key(
+        False,
+        doc="also hold the workpiece's free-surface facets off the die's convex arcs (one "
+        "normal multiplier per facet, frictionless; only where the profile turns convex): "
+        "without it a convex die corner reaches between two contact nodes into the "
+        "material (history die_overlap_mm). Straight facets cannot wrap a corner, so on a "
+        "coarse mesh it stiffens the response (docs: scenes)",
+    )
     closed: bool = key(
         False,
         doc="the profile closes a cavity with the mid-plane: report die_fill (cavity volume "
@@ -489,8 +497,10 @@ class DesignConfig:
         doc="design variable groups jaxform design optimizes",
     )
     material_params: tuple[str, ...] = key(
-        ["s0_MPa", "h0_MPa", "s_hat_MPa"],
-        doc="material parameters of the 'material' group (names of the law's parameters)",
+        [],
+        doc="material parameters of the 'material' group (names of the law's parameters); "
+        "empty: the law's own choice (anand: s0_MPa, h0_MPa, s_hat_MPa; j2: sigma_y0_MPa, "
+        "H_MPa; elastic: G_MPa, K_MPa)",
     )
     material_start_factor: float = key(
         1.0,

@@ -29,6 +29,11 @@ axisymmetric section, where the die tangent is radial) get C_t = lambda_t: the
 condition holds there already and a friction equation would make the system singular.
 
 Status of a converged node: 0 open, 1 stick, 2 slip (:func:`pair_status`).
+
+Convex die corners.  Node contact alone lets a convex arc of the die reach between two
+contact nodes into the facet that joins them (by the arc's sagitta over the facet).  With
+corner contact on (``die.corner_contact``), each free-surface facet also carries one
+normal multiplier against the die's convex arcs (:func:`facet_terms`), frictionless.
 """
 
 from __future__ import annotations
@@ -129,6 +134,30 @@ class ContactLaw:
             sticks = p["stick"] | step.frictionless[k]  # a fixed node cannot slip
         status = jnp.where(in_contact, jnp.where(sticks, STICK, SLIP), OPEN)
         return status, p["n"], p["tan"], p["slip"]
+
+
+def facet_terms(die, v, t, c):
+    """Corner contact of one workpiece facet, v = (x_a (2), x_b (2), mu): (force residual
+    on its two nodes (4,), complementarity residual (1,)).
+
+    The facet's gap to the die's convex arcs g(x_a, x_b) (:meth:`RigidDie.facet_gap`)
+    with a normal multiplier mu >= 0 (N, frictionless): C = mu - max(0, mu - c g), and the
+    nodes' residuals gain -mu dg/dx (the die pushes the facet back along the arc's normal,
+    shared between the nodes by where the arc touches)."""
+    mu = v[4]
+
+    def gap(xs):
+        return die.facet_gap(xs[:2], xs[2:], t)[0]
+
+    g, dg = jax.value_and_grad(gap)(v[:4])
+    c_n = mu - jnp.maximum(0.0, mu - c * g)
+    return jnp.concatenate([-mu * dg, c_n[None]])
+
+
+def facet_normal(xa, xb):
+    """Unit normal of the facet xa -> xb out of the material (on its right)."""
+    d = xb - xa
+    return jnp.stack([d[..., 1], -d[..., 0]], axis=-1) / jnp.linalg.norm(d, axis=-1, keepdims=True)
 
 
 def tributary_areas(pos, facets, axisymmetric: bool):

@@ -68,6 +68,11 @@ class RigidDie:
         """(g, n, tangent) of a node at current position x (2,) at time t."""
         return closest_point_gap(self.points + self.offset(t)[None, :], self.corner_radius, x)
 
+    def facet_gap(self, xa, xb, t):
+        """(g, engaged) of the workpiece facet xa -> xb against the convex arcs at time t
+        (:func:`corner_gap`)."""
+        return corner_gap(self.points + self.offset(t)[None, :], self.corner_radius, xa, xb)
+
 
 def _right_normals(t):
     """Unit normals on the workpiece side (right of the walk) of unit directions t."""
@@ -149,6 +154,63 @@ def closest_point_gap(points, corner_radius, x):
     g = jnp.sum((x - q[i]) * n)
     tangent = jnp.stack([-n[1], n[0]])
     return g, n, tangent
+
+
+def has_convex_corner(points, corner_radius) -> bool:
+    """Whether the rounded profile has a convex arc (a left turn: the die bulges into the
+    workpiece side), the only place a die can reach between two contact nodes."""
+    pr = rounded_profile(jnp.asarray(points, dtype=float), jnp.asarray(float(corner_radius)))
+    return bool(np.any(np.asarray(pr["turns"]) & (np.asarray(pr["sign"]) > 0)))
+
+
+def corner_gap(points, corner_radius, xa, xb):
+    """(g, engaged) of the workpiece facet xa -> xb (material on its left) against the
+    convex arcs of the rounded profile.
+
+    For each convex arc the point deepest into the facet's material side is the arc point
+    whose outward normal is minus the facet's (or, outside the arc's span, the nearer
+    end); g is its distance above the facet's line (mm, < 0: the die reaches into the
+    material), over the arcs whose deepest point lies strictly between the facet's nodes
+    (at a node the node's own contact condition holds it, and g equals that node's gap,
+    so taking an arc in or out changes nothing) and less than half a facet below it
+    (farther arcs belong to other parts of the surface).  ``engaged`` is False where no
+    arc qualifies; g is then the facet length (positive, inactive).  Over the arcs that
+    qualify g is a soft minimum (at most SOFT x length x log(n) below the least g, never
+    above it): under a facet parallel to a straight piece between two arcs, the two arc
+    ends lie at one depth and a hard minimum would move the facet's force from one node to
+    the other in a jump (Newton then cycles)."""
+    pr = rounded_profile(points, corner_radius)
+    d = xb - xa
+    length = jnp.sqrt(jnp.sum(d * d))
+    tau = d / length
+    n_f = jnp.stack([tau[1], -tau[0]])  # right of the facet: out of the material
+    c, rho = pr["centre"], pr["rho"]
+    deep = c - rho[:, None] * n_f[None, :]
+
+    def cross2(p, q):
+        return p[:, 0] * q[:, 1] - p[:, 1] * q[:, 0]
+
+    v = jnp.broadcast_to(-n_f, c.shape)
+    within = (cross2(pr["a"] - c, v) >= 0.0) & (cross2(v, pr["b"] - c) >= 0.0)
+    end = jnp.where((pr["a"] @ n_f <= pr["b"] @ n_f)[:, None], pr["a"], pr["b"])
+    p = jnp.where(within[:, None], deep, end)
+    xi = (p - xa) @ tau / length
+    g = (p - xa) @ n_f
+    # the die surface at p faces the facet (its normal within 60 deg of the facet's):
+    # an arc end round the workpiece's corner belongs to the neighbouring facet
+    safe_rho = jnp.where(pr["turns"], rho, 1.0)
+    faces = -((p - c) @ n_f) / safe_rho > 0.5
+    ok = pr["turns"] & (pr["sign"] > 0) & faces & (xi > 0.0) & (xi < 1.0) & (g > -0.5 * length)
+    engaged = jnp.any(ok)
+    scale = SOFT * length
+    g_ok = jnp.where(ok, g, length)
+    g_min = jnp.min(g_ok)
+    weights = jnp.where(ok, jnp.exp(-(g_ok - g_min) / scale), 0.0)
+    soft = g_min - scale * jnp.log(jnp.where(engaged, jnp.sum(weights), 1.0))
+    return jnp.where(engaged, soft, length), engaged
+
+
+SOFT = 1e-3  # width of the soft minimum over the arcs, as a fraction of the facet length
 
 
 def sample_rounded(points, corner_radius, per_arc: int = 16) -> np.ndarray:

@@ -33,7 +33,7 @@ def nodal_fields(scene, x: np.ndarray):
     lay = scene.model.layout
     nodal = lay.nodal(np.asarray(x))
     pressure = nodal[:, 2] if lay.n_fields == 3 else None
-    return nodal[:, :2], pressure, np.asarray(x[lay.n_node_dofs :])
+    return nodal[:, :2], pressure, np.asarray(lay.node_multipliers(np.asarray(x)))
 
 
 def material_volume(scene, pos: np.ndarray) -> float:
@@ -236,7 +236,7 @@ def contact_profile(scene, x: np.ndarray, slip_mm: np.ndarray, status: np.ndarra
     idx = scene.idx
     pos = positions(scene, x)[np.asarray(idx.contact_nodes)]
     lay = scene.model.layout
-    lam = np.asarray(x[lay.n_node_dofs :]).reshape(-1, 2)
+    lam = np.asarray(lay.node_multipliers(np.asarray(x)))
     # the contact area of a node: its shape function integrated over the facets in
     # contact (both ends touching); a facet of the free side below an edge node carries
     # no traction, and counting it made a uniform pressure read low at the edge

@@ -31,6 +31,7 @@ from jaxform.dies import (
     catmull_rom,
     check_clearance,
     check_profile,
+    has_convex_corner,
     make_die,
     time_at_travel,
 )
@@ -161,9 +162,10 @@ def membrane_load(cfg: Config, mesh: meshing.Mesh) -> FacetLoad:
     return FacetLoad(traction=jnp.asarray(traction), ramp_end_s=jnp.asarray(ld.ramp_time_s))
 
 
-def _indices(mesh: meshing.Mesh, n_fields: int, contact_sets: tuple[str, ...]):
+def _indices(mesh: meshing.Mesh, n_fields: int, contact_sets: tuple[str, ...], corner: bool):
     """(Layout, Indices) of the mesh: Dirichlet dofs from the named sets
-    (:data:`FIXED_COMPONENTS`), the reaction dofs, the contact candidates and facets."""
+    (:data:`FIXED_COMPONENTS`), the reaction dofs, the contact candidates and facets (with
+    a corner-contact multiplier each where ``corner``)."""
     sets = mesh.node_sets
     fixed = [sets[s] * n_fields + k for s, comps in FIXED_COMPONENTS.items() if s in sets
              for k in comps]  # fmt: skip
@@ -175,7 +177,8 @@ def _indices(mesh: meshing.Mesh, n_fields: int, contact_sets: tuple[str, ...]):
         contact, facets = np.zeros(0, dtype=np.int64), np.zeros((0, 2), dtype=np.int64)
     loaded = mesh.facet_sets.get("loaded")
     return build_indices(mesh, n_fields, np.concatenate(fixed), contact, reaction_dofs=reaction,
-                         contact_facets=facets, load_facets=loaded)  # fmt: skip
+                         contact_facets=facets, load_facets=loaded,
+                         corner_contact=corner and len(facets) > 0)  # fmt: skip
 
 
 def _contact_scale(mesh: meshing.Mesh, shear_modulus: float, axisymmetric: bool) -> float:
@@ -229,11 +232,16 @@ def build_scene(cfg: dict | Config) -> Scene:
     mesh = piece.build_mesh()
     law, params = load_material(cfg.material.preset)
     form = formulation(m.element, axisymmetric=axi, theta=m.stabilization, alpha=tm.alpha)
-    layout, idx = _indices(mesh, form.n_fields, piece.contact_sets(mesh))
+    die, load, t_end = _die_or_load(cfg, piece, mesh)
+    corner = (
+        die is not None
+        and cfg.die.corner_contact
+        and has_convex_corner(die.points, float(die.corner_radius))
+    )
+    layout, idx = _indices(mesh, form.n_fields, piece.contact_sets(mesh), corner)
     fr = cfg.friction
     model = Model(form, law, layout, ContactLaw(fr.model if fr is not None else "none"))
     c = _contact_scale(mesh, float(law.shear_modulus(params)), axi)
-    die, load, t_end = _die_or_load(cfg, piece, mesh)
     if m.rezone_quality > 0.0 and piece.grid is None:
         raise ConfigError(
             f"mesh.rezone_quality > 0 needs a billet or ring scene on its "

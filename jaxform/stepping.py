@@ -28,7 +28,13 @@ import jax
 import jax.numpy as jnp
 
 from jaxform.assembly import Indices, Model, StepContext
-from jaxform.contact import ContactStep, nodal_average, shear_bounds, tributary_areas
+from jaxform.contact import (
+    ContactStep,
+    facet_normal,
+    nodal_average,
+    shear_bounds,
+    tributary_areas,
+)
 from jaxform.formulations import GaussState, initial_gauss_state
 from jaxform.kinematics import deviator, safe_norm_eq
 from jaxform.linear import LinearSolver, matvec
@@ -362,7 +368,13 @@ def die_force(model: Model, x, inp: Inputs, t, idx: Indices):
     pos = model.nodal_positions(x, inp.coords, idx)[idx.contact_nodes]
     _, n, tan = jax.vmap(lambda p: inp.die.gap(p, t))(pos)
     lam = x[idx.mult_dofs]
-    return -jnp.sum(lam[:, 0] * n[:, 1] + lam[:, 1] * tan[:, 1])
+    force = -jnp.sum(lam[:, 0] * n[:, 1] + lam[:, 1] * tan[:, 1])
+    if model.layout.n_facets:  # corner contact: the die pushes a facet along -(its normal)
+        nodes = idx.facet_dofs[:, ::2] // model.layout.n_fields
+        ends = model.nodal_positions(x, inp.coords, idx)[nodes]
+        n_f = facet_normal(ends[:, 0], ends[:, 1])
+        force = force + jnp.sum(x[idx.facet_mult] * n_f[:, 1])
+    return force
 
 
 def step_outputs(model: Model, state: SimState, inp: Inputs, idx: Indices, symmetric_z: bool):

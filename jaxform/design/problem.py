@@ -121,15 +121,16 @@ def build_group(scene: Scene, name: str):
     cfg, d = scene.settings, scene.settings.design
     if name == "material":
         params = scene.inputs.params
-        for p in d.material_params:
+        names = d.material_params or scene.model.law.design_params
+        for p in names:
             if not hasattr(params, p):
                 raise ConfigError(
                     f"design.material_params: {p!r} is not a parameter of this "
                     f"material; allowed: {', '.join(vars(params))}"
                 )
         return par.MaterialParams(
-            tuple(d.material_params),
-            tuple(float(getattr(params, p)) for p in d.material_params),
+            tuple(names),
+            tuple(float(getattr(params, p)) for p in names),
             bound_log=float(np.log(d.bound_factor)),
         )
     if name == "friction":

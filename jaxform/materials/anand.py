@@ -35,6 +35,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import partial
+from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -138,6 +139,8 @@ class Anand:
     """Anand elasto-viscoplastic law (strategy: local-solve tolerances and caps)."""
 
     name: str = "anand"
+    # the parameters a design or identification run varies by default
+    design_params: ClassVar[tuple[str, ...]] = ("s0_MPa", "h0_MPa", "s_hat_MPa")
     max_outer: int = 100
     max_inner: int = 80
     rtol: float = 1e-13

@@ -6,6 +6,7 @@ Rate form (objective via the rotation-neutralized frame): T_{n+1} = R (T_n + l^e
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -26,6 +27,8 @@ class Hypoelastic:
     """Isotropic hypoelastic law (no internal variables)."""
 
     name: str = "elastic"
+    # the parameters a design or identification run varies by default
+    design_params: ClassVar[tuple[str, ...]] = ("G_MPa", "K_MPa")
 
     def initial_state(self, params: ElasticParams) -> MaterialState:
         z = jnp.zeros((), dtype=jnp.asarray(params.G_MPa).dtype)

@@ -10,6 +10,7 @@ State: ``s`` holds the current yield stress in MPa.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -36,6 +37,8 @@ class J2Params:
 @dataclass(frozen=True)
 class J2Plasticity:
     name: str = "j2"
+    # the parameters a design or identification run varies by default
+    design_params: ClassVar[tuple[str, ...]] = ("sigma_y0_MPa", "H_MPa")
 
     def initial_state(self, params: J2Params) -> MaterialState:
         y0 = jnp.asarray(params.sigma_y0_MPa)
