@@ -242,6 +242,27 @@ def test_corner_contact_holds_the_facets_off_a_convex_die():
     assert err <= 1e-6, err
 
 
+def test_run_command_notes_a_die_overlap(tmp_path, capsys):
+    """`jaxform run` on the convex spline die with node contact only (the scene of the
+    sliding test above, so its compiled program is shared) ends with one note naming the
+    largest overlap and the key that removes it; the history column holds the same value."""
+    import tomli_w
+
+    from jaxform.cli import main
+
+    cfg = tmp_path / "spline.toml"
+    cfg.write_bytes(tomli_w.dumps(BILLET).encode())
+    sets = ["mesh.nr=6", "mesh.nz=3", "mesh.element=q1p0", "time.dt_s=2.0",
+            "die.profile_kind=spline", "die.profile_mm=" + str(SPLINE_DIE)]  # fmt: skip
+    args = ["run", str(cfg), "--out", str(tmp_path / "out")]
+    assert main(args + [a for kv in sets for a in ("--set", kv)]) == 0
+    out = capsys.readouterr().out
+    note = [line for line in out.splitlines() if line.startswith("note:")]
+    h = np.genfromtxt(tmp_path / "out" / "history.csv", delimiter=",", names=True)
+    assert len(note) == 1 and "die.corner_contact = true" in note[0], out
+    assert f"{h['die_overlap_mm'].max():.3g} mm" in note[0]
+
+
 def closed_die(*overrides):
     return run("configs/closed_die.toml", "output.fields=false", "output.plots=false", *overrides)
 
