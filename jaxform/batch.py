@@ -11,8 +11,9 @@ differentiable run over its fixed step schedule (:func:`jaxform.gradients.trajec
 here that map, and its ``jax.value_and_grad``, are ``jax.vmap``-ed over a leading batch axis
 of the design and compiled once.  Per-sample gradients come for free: vmap of
 value_and_grad.  The batch is sharded with ``jax.shard_map`` over a 1-D device mesh (axis
-``"batch"``, :func:`batch_mesh`): each device runs the vmapped program on its slice, the
-same code on host CPU devices, GPUs or several hosts.  A batch whose size is not a
+``"batch"``, :func:`batch_mesh`): each device runs its slice one design after another (a
+vmapped slice deadlocked the CPU thread pool, :func:`_lanes`), the same code on host CPU
+devices, GPUs or several hosts.  A batch whose size is not a
 multiple of the device count is padded with copies of its last design and trimmed.
 
 Under vmap every Newton loop runs until its slowest lane has converged (the others are
@@ -64,10 +65,11 @@ class BatchProblem:
 
     def _program(self, fn):
         """fn(design, idx) vmapped over the designs (the scene's pattern ``idx`` shared,
-        an argument rather than a constant of the program), sharded over the mesh."""
-        batched = jax.vmap(fn, in_axes=(0, None))
+        an argument rather than a constant of the program), or, sharded over the mesh,
+        mapped one design after another on each device (see :func:`_lanes`)."""
         if self.mesh is None:
-            return jit(batched)
+            return jit(jax.vmap(fn, in_axes=(0, None)))
+        batched = _lanes(fn)
         spec = PartitionSpec(AXIS)
         # check_vma=False: the lanes are independent and the Newton/scan carries start from
         # replicated constants, which the varying-manual-axes check would reject
@@ -123,6 +125,24 @@ class BatchProblem:
         val, grad, traj = _trim(self._value_and_grad(placed, self.problem.scene.idx), n)
         check_batch(traj)
         return val, grad, traj
+
+
+def _lanes(fn):
+    """fn(design, idx) over a device's slice of the batch, one design after another
+    (``lax.map``), not vmapped.
+
+    Why: vmapped, the dense solver's LU becomes LAPACK's batched getrf, which splits its
+    batch over the CPU client's intra-op thread pool and waits for the parts.  With two
+    host devices each running its slice on a thread of that pool, on a 2-core machine both
+    threads wait for parts that no free thread can run: 16 designs on 2 host devices hung
+    with both threads in ``jax::ParallelBatchMap`` (gdb, jaxlib 0.10.2).  One design at a
+    time has no batched LU; the devices still run their slices in parallel, and on one CPU
+    device the vmapped batch bought no throughput anyway (docs: benchmarks)."""
+
+    def per_device(designs, idx):
+        return jax.lax.map(lambda d: fn(d, idx), designs)
+
+    return per_device
 
 
 def _trim(tree, n: int):

@@ -15,6 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 
 MUS = (0.05, 0.1, 0.2, 0.4)
+SHARDED_MUS = MUS[:3] + tuple(np.linspace(0.06, 0.45, 12))
 MATERIAL = """law = "elastic"
 description = "isotropic hypoelasticity, aluminium-like moduli (batched-design test)"
 [params]
@@ -62,7 +63,9 @@ def sharded_main(out: str) -> None:
     jaxform.enable_x64()
     mesh = batch_mesh()
     batch = BatchProblem(problem(), mesh)
-    d = designs(MUS[:3])  # 3 designs on 2 devices: padded to 4, trimmed back
+    # 15 designs on 2 devices: padded to 16, trimmed back; 8 a device is what hung when the
+    # slices were vmapped (the batched LU waited on the thread pool both devices held)
+    d = designs(SHARDED_MUS)
     placed, _ = batch._place(d)
     val, traj = batch.value(d)  # the forward program: half the compile time of the gradient
     np.savez(
