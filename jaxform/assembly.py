@@ -46,6 +46,7 @@ import numpy as np
 
 from jaxform.contact import ContactLaw, ContactStep, facet_terms
 from jaxform.formulations import Formulation, GaussState
+from jaxform.mesh import boundary_edges
 from jaxform.status import NOT_FINITE
 
 
@@ -196,11 +197,10 @@ def build_indices(
 
 
 def _oriented(elements: np.ndarray, facets) -> np.ndarray:
-    """The facets (node pairs) ordered as their element walks them (counter-clockwise:
-    the material on the left)."""
+    """The facets (node pairs) ordered as the boundary walks them (the material on the
+    left, :func:`jaxform.mesh.boundary_edges`)."""
     facets = np.asarray(facets if facets is not None else np.zeros((0, 2)), dtype=np.int64)
-    walked = set(map(tuple, np.stack([elements, np.roll(elements, -1, axis=1)], -1)
-                     .reshape(-1, 2).tolist()))  # fmt: skip
+    walked = set(map(tuple, boundary_edges(elements).tolist()))
     out = [(a, b) if (a, b) in walked else (b, a) for a, b in facets.tolist()]
     return np.array(out, dtype=np.int64).reshape(-1, 2)
 
@@ -292,12 +292,16 @@ class Model:
         pos = self.nodal_positions(x, coords, idx)[idx.contact_nodes]
         return jnp.concatenate([pos, x[idx.mult_dofs]], axis=1)
 
+    def facet_ends(self, x, coords, idx: Indices):
+        """(n_fc, 2, 2) current positions of the corner-contact facets' nodes a, b."""
+        nodes = idx.facet_dofs[:, ::2] // self.layout.n_fields
+        return self.nodal_positions(x, coords, idx)[nodes]
+
     def _facet_terms(self, x, ctx: StepContext, derivative: bool):
         """Corner contact of every facet (:func:`jaxform.contact.facet_terms`): its (n_fc,
         5) residual entries, or with ``derivative`` their (n_fc, 5, 5) Jacobian blocks."""
         idx = ctx.idx
-        nodes = idx.facet_dofs[:, ::2] // self.layout.n_fields  # (n_fc, 2): a, b
-        pos = self.nodal_positions(x, ctx.coords, idx)[nodes].reshape(-1, 4)
+        pos = self.facet_ends(x, ctx.coords, idx).reshape(-1, 4)
         v = jnp.concatenate([pos, x[idx.facet_mult][:, None]], axis=1)
 
         def fn(vf):

@@ -211,6 +211,15 @@ def billet_quarter(
     return Mesh(coords, mesh.elements, nodes, facets)
 
 
+def boundary_edges(elements: np.ndarray) -> np.ndarray:
+    """(n_b, 2) directed boundary edges of a mesh of counter-clockwise quads (the material
+    on their left)."""
+    e = np.asarray(elements)
+    edges = np.stack([e, np.roll(e, -1, axis=1)], axis=-1).reshape(-1, 2)
+    keys = set(map(tuple, edges.tolist()))
+    return np.array([ab for ab in edges.tolist() if (ab[1], ab[0]) not in keys])
+
+
 def element_areas(coords: np.ndarray, elements: np.ndarray) -> np.ndarray:
     """Signed areas (shoelace); positive for counter-clockwise quads."""
     return polygon_measure(coords[elements], axisymmetric=False)

@@ -18,6 +18,7 @@ import numpy as np
 
 from jaxform.dies import sample_rounded
 from jaxform.geometry import polygon_measure
+from jaxform.mesh import boundary_edges
 
 
 def positions(scene, x) -> np.ndarray:
@@ -147,21 +148,12 @@ def _clipped_boundary_integral(p0, p1, a, b, keep_on_boundary, tol, axisymmetric
     return total
 
 
-def boundary_edges(elements: np.ndarray) -> np.ndarray:
-    """(n_b, 2) directed boundary edges of a mesh of counter-clockwise quads (the material
-    on their left)."""
-    e = np.asarray(elements)
-    edges = np.stack([e, np.roll(e, -1, axis=1)], axis=-1).reshape(-1, 2)
-    keys = set(map(tuple, edges.tolist()))
-    return np.array([ab for ab in edges.tolist() if (ab[1], ab[0]) not in keys])
-
-
 def overlap_depth(die_points: np.ndarray, pos: np.ndarray, edges: np.ndarray) -> float:
     """How deep (mm) the die reaches into the material: the largest distance from the
     material's boundary of a die point inside the material, 0 where none is.
 
     die_points: (k, 2) a dense sampling of the die surface; pos: (n, 2) nodal positions;
-    edges: (n_b, 2) the material's boundary edges (:func:`boundary_edges`)."""
+    edges: (n_b, 2) the material's boundary edges (:func:`jaxform.mesh.boundary_edges`)."""
     a, b = pos[edges[:, 0]], pos[edges[:, 1]]
     inside = _inside(die_points, a, b)
     if not inside.any():

@@ -370,8 +370,7 @@ def die_force(model: Model, x, inp: Inputs, t, idx: Indices):
     lam = x[idx.mult_dofs]
     force = -jnp.sum(lam[:, 0] * n[:, 1] + lam[:, 1] * tan[:, 1])
     if model.layout.n_facets:  # corner contact: the die pushes a facet along -(its normal)
-        nodes = idx.facet_dofs[:, ::2] // model.layout.n_fields
-        ends = model.nodal_positions(x, inp.coords, idx)[nodes]
+        ends = model.facet_ends(x, inp.coords, idx)
         n_f = facet_normal(ends[:, 0], ends[:, 1])
         force = force + jnp.sum(x[idx.facet_mult] * n_f[:, 1])
     return force

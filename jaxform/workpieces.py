@@ -27,6 +27,7 @@ top die pressing down on it: the die travels half the ram stroke at half the ram
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -43,25 +44,25 @@ DIE_GROUPS = GRADIENT_GROUPS
 
 
 @dataclass(frozen=True)
-class Workpiece:
+class Workpiece(ABC):
     """What every workpiece answers (the defaults are those of a half-height model)."""
 
     name: ClassVar[str]
     half_height: ClassVar[bool] = True  # mid-plane z = 0 held: ram stroke = 2 x die travel
     pressed: ClassVar[bool] = True  # pressed by a die (a membrane is loaded instead)
 
+    @abstractmethod
     def build_mesh(self) -> meshing.Mesh:
         """The section mesh with its named node and facet sets."""
-        raise NotImplementedError
 
     def contact_sets(self, mesh: meshing.Mesh) -> tuple[str, ...]:
         """The sets whose nodes and facets a die may touch."""
         return tuple(s for s in FREE_SETS if s in mesh.node_sets)
 
     @property
+    @abstractmethod
     def reference_height_mm(self) -> float:
         """The height ``die.reduction`` refers to (mm)."""
-        raise NotImplementedError
 
     @property
     def grid(self) -> tuple[int, int] | None:

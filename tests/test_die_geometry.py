@@ -166,7 +166,8 @@ def test_die_overlap_is_the_sagitta_of_a_convex_corner_between_two_nodes(radius,
     a facet of length 2a (both nodes on the arc) reaches into the material by the sagitta
     R - sqrt(R^2 - a^2) at the facet's middle.  Sampled with the apex among the points:
     1e-12 mm.  The same arc lifted clear of the facet overlaps by 0."""
-    from jaxform.postprocess import boundary_edges, overlap_depth
+    from jaxform.mesh import boundary_edges
+    from jaxform.postprocess import overlap_depth
 
     a = half_width
     pos = np.array([[-a, -2.0], [a, -2.0], [a, 0.0], [-a, 0.0]])  # one quad, top facet z = 0

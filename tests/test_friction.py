@@ -142,6 +142,10 @@ def _quadratic_tail(res):
     return ratios
 
 
+# the billet of the die-sliding tests: every die of them shares one compiled program
+SLIDE_SETTINGS = ("mesh.nr=6", "mesh.nz=3", "mesh.element=q1p0", "time.dt_s=2.0")
+
+
 def _slides_across(profile, kind, r_cross):
     """Billet (6x3, q1p0) under a top die with ``profile`` (padded with collinear points
     to 65 points, the size of a 4-span sampled spline, so that every die of these tests
@@ -153,10 +157,7 @@ def _slides_across(profile, kind, r_cross):
         pts = _pad_collinear(pts, 65)
     sc, res = run(
         BILLET,
-        "mesh.nr=6",
-        "mesh.nz=3",
-        "mesh.element=q1p0",
-        "time.dt_s=2.0",
+        *SLIDE_SETTINGS,
         f"die.profile_kind={kind}",
         "die.profile_mm=" + str([[float(a), float(b)] for a, b in pts]),
     )
@@ -217,10 +218,7 @@ def test_corner_contact_holds_the_facets_off_a_convex_die():
     (1e-6) at a state where facets are active."""
     sc, res = run(
         BILLET,
-        "mesh.nr=6",
-        "mesh.nz=3",
-        "mesh.element=q1p0",
-        "time.dt_s=2.0",
+        *SLIDE_SETTINGS,
         "die.profile_kind=spline",
         "die.corner_contact=true",
         "die.profile_mm=" + str(SPLINE_DIE),
@@ -252,8 +250,7 @@ def test_run_command_notes_a_die_overlap(tmp_path, capsys):
 
     cfg = tmp_path / "spline.toml"
     cfg.write_bytes(tomli_w.dumps(BILLET).encode())
-    sets = ["mesh.nr=6", "mesh.nz=3", "mesh.element=q1p0", "time.dt_s=2.0",
-            "die.profile_kind=spline", "die.profile_mm=" + str(SPLINE_DIE)]  # fmt: skip
+    sets = [*SLIDE_SETTINGS, "die.profile_kind=spline", "die.profile_mm=" + str(SPLINE_DIE)]
     args = ["run", str(cfg), "--out", str(tmp_path / "out")]
     assert main(args + [a for kv in sets for a in ("--set", kv)]) == 0
     out = capsys.readouterr().out
