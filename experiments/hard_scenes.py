@@ -1,5 +1,6 @@
 """Hard scenes at their own time step: outcome, reduction reached, steps, cutbacks, Newton
-iterations per step and wall time, as a markdown table and a CSV.
+iterations per step, the largest node-to-node oscillation of the shear traction along the
+die and wall time, as a markdown table and a CSV.
 
     python experiments/hard_scenes.py [--only NAME ...] [--out docs/figures/hard_scenes.csv]
 
@@ -24,6 +25,10 @@ SCENES = {
     "ring m=0.5 24x12": (
         "configs/ring_compression.toml",
         ["friction.m=0.5", "mesh.nr=24", "mesh.nz=12"],
+    ),
+    "ring m=0.5 24x12 q1q1": (
+        "configs/ring_compression.toml",
+        ["friction.m=0.5", "mesh.nr=24", "mesh.nz=12", "mesh.element=q1q1"],
     ),
     "ring m=1.0 24x12": (
         "configs/ring_compression.toml",
@@ -51,6 +56,18 @@ SCENES = {
 QUIET = ["output.plots=false", "output.fields=false"]
 
 
+def shear_zigzag(res) -> float:
+    """The largest node-to-node oscillation of the shear traction along the die (MPa) over
+    the run's rows (jaxform.postprocess.zigzag)."""
+    from jaxform.postprocess import contact_profile, zigzag
+
+    f = res.fields
+    return max(
+        zigzag(contact_profile(res.scene, f["x"][k], f["slip_mm"][k], f["contact_status"][k]))
+        for k in range(len(f["x"]))
+    )
+
+
 def run_one(config: str, overrides: list[str]) -> dict:
     from jaxform.simulation import SimulationError
 
@@ -73,6 +90,7 @@ def run_one(config: str, overrides: list[str]) -> dict:
         cutbacks=int(h["cutbacks"].sum()),
         newton_per_step=float(h["newton_iterations"][1:].sum() / max(steps, 1)),
         min_dt_s=float(h["dt_s"][1:].min()) if steps else float("nan"),
+        zigzag_MPa=shear_zigzag(res),
         wall_s=wall,
         failure=failure,
     )
@@ -89,9 +107,9 @@ def main() -> None:
     rows = []
     print(
         "| scene | outcome | reduction % (target) | steps | cutbacks | Newton/step | "
-        "smallest dt (s) | wall (s) |"
+        "smallest dt (s) | shear zigzag (MPa) | wall (s) |"
     )
-    print("|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|")
     for name in names:
         config, over = SCENES[name]
         r = run_one(config, over)
@@ -99,7 +117,7 @@ def main() -> None:
         print(
             f"| {name} | {r['outcome']} | {r['reduction_pct']:.2f} ({r['target_pct']:.1f}) | "
             f"{r['steps']} | {r['cutbacks']} | {r['newton_per_step']:.2f} | "
-            f"{r['min_dt_s']:.3g} | {r['wall_s']:.1f} |",
+            f"{r['min_dt_s']:.3g} | {r['zigzag_MPa']:.2f} | {r['wall_s']:.1f} |",
             flush=True,
         )
         if r["failure"]:
@@ -114,6 +132,7 @@ def main() -> None:
         "cutbacks",
         "newton_per_step",
         "min_dt_s",
+        "zigzag_MPa",
         "wall_s",
     ]
     with open(out, "w") as fh:

@@ -262,7 +262,9 @@ class MeshConfig:
     stabilization: float = key(
         0.1,
         low=0.0,
-        doc="q1q1 pressure stabilization theta in tau = theta h^2/(2G) (the thesis used 1e-4)",
+        doc="q1q1 pressure stabilization theta in tau = theta h^2/(2 G_flow): G_flow is the "
+        "elastic G where the material is elastic and sigma_eq/(3 d_eqps) where it flows "
+        "(the thesis used 1e-4 with the elastic G)",
     )
     file: str = key(
         "",

@@ -160,13 +160,16 @@ def facet_normal(xa, xb):
     return jnp.stack([d[..., 1], -d[..., 0]], axis=-1) / jnp.linalg.norm(d, axis=-1, keepdims=True)
 
 
-def tributary_areas(pos, facets, axisymmetric: bool):
+def tributary_areas(pos, facets, axisymmetric: bool, counted=None):
     """Contact area (mm^2) of each candidate node: integral of its shape function over the
     adjacent free-surface facets (x 2 pi r for axisymmetry; per mm depth in plane strain).
 
-    pos: (n_c, 2) current positions; facets: (n_f, 2) local candidate indices."""
+    pos: (n_c, 2) current positions; facets: (n_f, 2) local candidate indices; counted:
+    optional (n_f,) 0/1 weights (which facets are in contact)."""
     a, b = pos[facets[:, 0]], pos[facets[:, 1]]
     length = jnp.sqrt(jnp.sum((b - a) ** 2, axis=1))
+    if counted is not None:
+        length = length * counted
     if axisymmetric:
         wa = 2.0 * jnp.pi * length * (2.0 * a[:, 0] + b[:, 0]) / 6.0
         wb = 2.0 * jnp.pi * length * (a[:, 0] + 2.0 * b[:, 0]) / 6.0
@@ -181,6 +184,16 @@ def nodal_average(values_el, elements, n_nodes: int):
     total = jnp.zeros(n_nodes, values_el.dtype).at[elements].add(values_el[:, None])
     count = jnp.zeros(n_nodes, values_el.dtype).at[elements].add(1.0)
     return total / jnp.maximum(count, 1.0)
+
+
+TOUCH_GAP_MM = 1e-3  # a candidate this close to the die at the step start counts as touching
+
+
+def touching_facets(gaps, facets):
+    """(n_f,) 1.0 for the candidate facets whose two nodes touch the die (gap <= 1 um),
+    else 0.0: the facets whose area carries friction."""
+    near = gaps <= TOUCH_GAP_MM
+    return (near[facets[:, 0]] & near[facets[:, 1]]).astype(gaps.dtype)
 
 
 def shear_bounds(m_factor, sigma_eq_nodes, areas):

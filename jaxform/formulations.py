@@ -19,8 +19,10 @@ switches of :class:`Formulation`, ``mean_dilatation`` and ``mixed_pressure``):
 * ``q1q1`` the seed's stabilized mixed u-p with equal-order (bilinear) pressure: the
   stress is dev(sigma_material) - p_hat I, and the weak constraint (thesis ch. 5)
       int q (p_material - p_hat)/K dv - int tau grad q . grad p_hat dv = 0,
-      tau = theta h^2 / (2 G),  h = sqrt(current element area)
-  (Brezzi-Pitkaranta stabilization) removes the spurious pressure modes. The material
+      tau = theta h^2 / (2 G_flow),  h = sqrt(current element area)
+  (Brezzi-Pitkaranta stabilization) removes the spurious pressure modes. G_flow
+  (:func:`flow_shear_modulus`) is the elastic G where the material is elastic and the
+  flow's incremental stiffness sigma_eq / (3 d_eqps) where it flows. The material
   stores the mixed stress, so p_material = p_hat_n - K tr(dE) in each step.
 """
 
@@ -91,6 +93,8 @@ class Formulation:
         sigma, mat_new, ok = jax.vmap(point)(f_rel, gstate.mat, converged)
         ok = ok > 0.5
         if self.mixed_pressure:
+            d_eqps = mat_new.eqps - gstate.mat.eqps
+            g_flow = flow_shear_modulus(law.shear_modulus(params), sigma, d_eqps)
             p_hat = el.N_GP @ dofs[:, 2]
             p_mat = -jnp.trace(sigma, axis1=1, axis2=2) / 3.0
             eye = jnp.eye(3, dtype=sigma.dtype)
@@ -98,30 +102,46 @@ class Formulation:
             mat_new = MaterialState(stress=sigma, s=mat_new.s, eqps=mat_new.eqps)
         r_u = el.virtual_work_residual(el.first_piola(sigma, f), dndx, radius, weight, axi)
         if self.mixed_pressure:
-            r_p = self._pressure_residual(law, params, f, geom, p_mat, dofs[:, 2])
+            r_p = self._pressure_residual(params, f, geom, g_flow, p_mat, dofs[:, 2])
             r = jnp.concatenate([r_u, r_p[:, None]], axis=1)
         else:
             r = r_u
         code = jnp.where(geom_ok, jnp.where(jnp.all(ok), OK, LOCAL_SOLVE_FAILED), INVERTED)
         return r, GaussState(F=f_mat, mat=mat_new), code
 
-    def _pressure_residual(self, law, params, f, geom: el.GaussGeometry, p_mat, p_nodes):
+    def _pressure_residual(self, params, f, geom: el.GaussGeometry, g_flow, p_mat, p_nodes):
         dndx, weight, det_ref = geom.dndx, geom.weight, geom.det
-        g = law.shear_modulus(params)
         k = params.K_MPa
         det_f = det3(f)
         dv = det_f * weight  # current volume weights
         area_cur = jnp.sum(jnp.abs(det_f * det_ref))  # in-plane current area (2x2 rule, w=1)
         h2 = area_cur
         h0 = jnp.sqrt(jnp.sum(det_ref))
-        tau = self.theta * h2 / (2.0 * g)
+        tau = self.theta * h2 / (2.0 * g_flow)  # (4,): one per Gauss point
         f2inv = inv2(f[:, :2, :2])
         grad_n = jnp.einsum("gaj,gji->gai", dndx, f2inv)  # current gradients of N
         p_hat = el.N_GP @ p_nodes
         grad_p = jnp.einsum("gai,a->gi", grad_n, p_nodes)
         r = jnp.einsum("ga,g,g->a", el.N_GP, (p_mat - p_hat) / k, dv)
-        r = r - tau * jnp.einsum("gai,gi,g->a", grad_n, grad_p, dv)
+        r = r - jnp.einsum("g,gai,gi,g->a", tau, grad_n, grad_p, dv)
         return r * (k / h0)
+
+
+def flow_shear_modulus(g, sigma, d_eqps):
+    """The shear stiffness the step's deformation meets at each Gauss point (MPa):
+    1/G_flow = 1/G + 3 d_eqps / sigma_eq.
+
+    Elastic points (d_eqps = 0) give the elastic G; flowing points give ~ sigma_eq /
+    (3 d_eqps), the incremental form of the flow viscosity sigma_eq / (3 eqps_rate) of
+    rigid-viscoplastic forging codes, which is 10-100x below G in a forging step. The q1q1
+    stabilization must scale with the stiffness of the problem it stabilizes: with the
+    elastic G alone, tau was 10-100x too small wherever the material flows, and the
+    checkerboard pressure mode came back under friction (zig-zag contact pressure and
+    shear traction in stick zones)."""
+    dev = sigma - jnp.trace(sigma, axis1=-2, axis2=-1)[..., None, None] * jnp.eye(3) / 3.0
+    # sqrt of a strictly positive argument: finite derivatives at zero stress
+    s_eq = jnp.sqrt(1.5 * jnp.sum(dev**2, axis=(-2, -1)) + (1e-9 * g) ** 2)
+    return g / (1.0 + 3.0 * g * jnp.maximum(d_eqps, 0.0) / s_eq)
 
 
 # -- the material point, with its tangent taken in the 5 components of f ------------------

@@ -250,6 +250,20 @@ def contact_profile(scene, x: np.ndarray, slip_mm: np.ndarray, status: np.ndarra
     )
 
 
+def zigzag(profile: dict, key: str = "shear_MPa") -> float:
+    """Node-to-node oscillation of a contact traction (MPa): the largest |t_i - (t_(i-1) +
+    t_(i+1))/2| over the nodes in contact, leaving out the two at the ends of the contact
+    zone (an edge carries the corner's stress concentration). A smooth profile scores
+    O(h^2 t''), a jump of J between two nodes J/2, an alternation of +-a about a smooth
+    profile 2a."""
+    order = np.argsort(profile["r_mm"])
+    on = np.asarray(profile["status"])[order] > 0
+    t = np.asarray(profile[key])[order][on][1:-1]
+    if len(t) < 3:
+        return 0.0
+    return float(np.abs(t[1:-1] - 0.5 * (t[:-2] + t[2:])).max())
+
+
 def patch_average(values: np.ndarray, elements: np.ndarray) -> np.ndarray:
     """Nodal values smoothed over their element patch: the mean over the elements around
     each node of the element means of the nodal values."""

@@ -33,6 +33,7 @@ from jaxform.contact import (
     facet_normal,
     nodal_average,
     shear_bounds,
+    touching_facets,
     tributary_areas,
 )
 from jaxform.formulations import GaussState, initial_gauss_state
@@ -87,7 +88,11 @@ def contact_step(model: Model, state: SimState, inp: Inputs, idx: Indices) -> Co
         eq_gp, _ = jnp.vectorize(lambda t: safe_norm_eq(deviator(t)), signature="(3,3)->(),()")(sig)
         eq_el = eq_gp.mean(axis=1)
         eq_nodes = nodal_average(eq_el, idx.elements, model.layout.n_nodes)[idx.contact_nodes]
-        areas = tributary_areas(pos, idx.contact_facets, model.formulation.axisymmetric)
+        # friction acts on the facets in contact only: counting a free facet below an edge
+        # node (the bore or the bulge) let the edge carry up to twice m k
+        gaps = jax.vmap(lambda p: inp.die.gap(p, state.t)[0])(pos)
+        counted = touching_facets(gaps, idx.contact_facets)
+        areas = tributary_areas(pos, idx.contact_facets, model.formulation.axisymmetric, counted)
         bound = shear_bounds(inp.die.m, eq_nodes, areas)
     else:
         bound = jnp.zeros(model.layout.n_contact, dtype=pos.dtype)
