@@ -322,7 +322,11 @@ def _check_closed_die(sc, res, min_fill, force_jump):
     fill (the cavity closes)."""
     h = res.history
     fill = h["die_fill"]
-    assert np.all(np.diff(fill) > 0) and min_fill <= fill[-1] <= 1.0, fill[-1]
+    # the fill is (cavity occupied) / (cavity): once the corners are all that is left, a
+    # step that fills them less than the descending die shrinks the filled cavity lowers
+    # the ratio slightly (configured scene: -4.4e-5 and -7.9e-5 near 99.3 %)
+    assert np.all(np.diff(fill) > -1e-4) and min_fill <= fill[-1] <= 1.0, fill[-1]
+    assert fill[-1] >= fill.max() - 1e-4
     assert h["rezoned"].sum() >= 1
     k90 = int(np.argmax(fill >= 0.9))
     assert h["force_N"][-1] >= force_jump * h["force_N"][k90], (h["force_N"][-1], h["force_N"][k90])
