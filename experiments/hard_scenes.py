@@ -26,9 +26,9 @@ SCENES = {
         "configs/ring_compression.toml",
         ["friction.m=0.5", "mesh.nr=24", "mesh.nz=12"],
     ),
-    "ring m=0.5 24x12 q1q1": (
+    "ring m=0.5 24x12 q1p0": (
         "configs/ring_compression.toml",
-        ["friction.m=0.5", "mesh.nr=24", "mesh.nz=12", "mesh.element=q1q1"],
+        ["friction.m=0.5", "mesh.nr=24", "mesh.nz=12", "mesh.element=q1p0"],
     ),
     "ring m=1.0 24x12": (
         "configs/ring_compression.toml",
