@@ -40,6 +40,7 @@ friction factor) so they are arguments of the compiled step and can be different
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import jax
@@ -60,6 +61,11 @@ class RigidDie:
     def travel(self, t):
         """Downward travel d(t) in mm (linear in the table; constant past its ends)."""
         return jnp.interp(t, self.path_time_s, self.path_travel_mm)
+
+    def travel_at(self, t) -> float:
+        """:meth:`travel` on the host (NumPy) for a time t (s): for post-processing, where
+        one JAX call per history row would dispatch (and first compile) a small program."""
+        return float(np.interp(t, np.asarray(self.path_time_s), np.asarray(self.path_travel_mm)))
 
     def offset(self, t):
         return jnp.stack([jnp.zeros_like(self.travel(t)), -self.travel(t)])
@@ -213,15 +219,23 @@ def corner_gap(points, corner_radius, xa, xb):
 SOFT = 1e-3  # width of the soft minimum over the arcs, as a fraction of the facet length
 
 
+_rounded_profile_jit = jax.jit(rounded_profile)
+
+
+@functools.lru_cache(maxsize=64)
+def _rounded_on_host(points_bytes: bytes, shape: tuple, corner_radius: float) -> dict:
+    """:func:`rounded_profile` of a profile as NumPy arrays, computed by one compiled call
+    (eagerly, its few dozen small operations would each compile) and kept per profile: the
+    post-processing asks for the same die once per history row."""
+    points = np.frombuffer(points_bytes, dtype=float).reshape(shape)
+    out = _rounded_profile_jit(jnp.asarray(points), jnp.asarray(corner_radius))
+    return {k: np.asarray(v) for k, v in out.items()}
+
+
 def sample_rounded(points, corner_radius, per_arc: int = 16) -> np.ndarray:
     """The rounded profile as a dense polyline (NumPy; for plots and cavity volumes)."""
-    pr = {
-        k: np.asarray(v)
-        for k, v in rounded_profile(
-            jnp.asarray(points, dtype=float), jnp.asarray(float(corner_radius))
-        ).items()
-    }
     p = np.asarray(points, dtype=float)
+    pr = _rounded_on_host(p.tobytes(), p.shape, float(corner_radius))
     out = [p[:1]]
     for i in range(len(pr["rho"])):
         if not pr["turns"][i]:

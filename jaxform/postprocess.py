@@ -76,7 +76,7 @@ def cavity_polygon(scene, t: float) -> np.ndarray:
     """The part's cavity at time t (die profile, mid-plane, axis; up to
     ``die.part_radius_mm`` where one is set) as a counter-clockwise polygon."""
     die = scene.inputs.die
-    pts = sample_rounded(die.points, die.corner_radius) - np.array([0.0, float(die.travel(t))])
+    pts = sample_rounded(die.points, die.corner_radius) - np.array([0.0, die.travel_at(t)])
     poly = _clip_above(np.vstack([[0.0, 0.0], pts, [pts[-1, 0], 0.0]]))
     r_part = scene.settings.die.part_radius_mm
     if r_part > 0.0 and len(poly):
@@ -168,7 +168,7 @@ def die_overlap(scene, pos: np.ndarray, t: float) -> float:
     (the depth is then resolved to ~1e-3 of the arc's sagitta)."""
     die = scene.inputs.die
     pts = sample_rounded(die.points, die.corner_radius, per_arc=64)
-    pts = pts - np.array([0.0, float(die.travel(t))])
+    pts = pts - np.array([0.0, die.travel_at(t)])
     return overlap_depth(pts, pos, boundary_edges(scene.mesh.elements))
 
 

@@ -116,9 +116,7 @@ PROGRESS_KEYS = ("time_s", "stroke_mm", "force_N", "iterations", "cutbacks", "dt
 
 def _initial_row(scene: Scene, state: SimState) -> dict:
     """History row 0: the initial state."""
-    out = jax.device_get(
-        step_outputs(scene.model, state, scene.inputs, scene.idx, scene.symmetric_z)
-    )
+    out = jax.device_get(_outputs(scene.model, state, scene.inputs, scene.idx, scene.symmetric_z))
     q = min_quality(np.asarray(scene.inputs.coords), np.asarray(scene.mesh.elements))
     return dict(out, iterations=0, factorizations=0, cutbacks=0, code=OK, rezoned=0,
                 dt_s=0.0, mesh_quality=float(q))  # fmt: skip
@@ -278,6 +276,9 @@ def init(scene: Scene) -> tuple[SimState, StepControl]:
 
 
 _attempt = jit(attempt_step, static_argnums=0)
+# one compiled program for a row's outputs (eagerly, the die force and the die's motion
+# would each dispatch, and on a cold start compile, dozens of small operations)
+_outputs = jit(step_outputs, static_argnums=(0, 4))
 
 
 def step(
@@ -303,7 +304,7 @@ def step(
     if int(info["code"]) != OK:
         row = {"cutbacks": info["cutbacks"], "code": info["code"]}
         raise SimulationError(_failure_message(scene, inp, state, None, row), None)
-    out = jax.device_get(step_outputs(scene.model, new, inp, scene.idx, scene.symmetric_z))
+    out = jax.device_get(_outputs(scene.model, new, inp, scene.idx, scene.symmetric_z))
     out.update(dt_s=float(info["h_used"]), iterations=int(info["iterations"]),
                cutbacks=int(info["cutbacks"]))  # fmt: skip
     return new, replace(control, h=info["h_next"]), out
