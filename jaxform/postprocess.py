@@ -14,6 +14,8 @@
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from jaxform.dies import sample_rounded
@@ -218,12 +220,25 @@ def extra_history(scene, xs: np.ndarray, times: np.ndarray) -> dict[str, np.ndar
     return out
 
 
+@functools.cache
+def _jitted_tributary_areas():
+    import jax
+
+    from jaxform.contact import tributary_areas
+
+    return jax.jit(tributary_areas, static_argnums=2)
+
+
+def _tributary_areas(pos, facets, axisymmetric: bool, counted):
+    """:func:`jaxform.contact.tributary_areas` as one compiled call with weights, not a
+    subset of the facets: the same shapes every row (one compile, no eager operations)."""
+    return _jitted_tributary_areas()(pos, facets, axisymmetric, counted)
+
+
 def contact_profile(scene, x: np.ndarray, slip_mm: np.ndarray, status: np.ndarray) -> dict:
     """Per candidate node (sorted along the die by arc position): position, pressure and
     shear traction (MPa), status, accumulated slip (mm)."""
     import jax.numpy as jnp
-
-    from jaxform.contact import tributary_areas
 
     idx = scene.idx
     pos = positions(scene, x)[np.asarray(idx.contact_nodes)]
@@ -234,9 +249,11 @@ def contact_profile(scene, x: np.ndarray, slip_mm: np.ndarray, status: np.ndarra
     # no traction, and counting it made a uniform pressure read low at the edge
     facets = np.asarray(idx.contact_facets)
     touching = np.asarray(status) > 0
-    facets = facets[touching[facets].all(axis=1)] if len(facets) else facets
+    counted = touching[facets].all(axis=1).astype(float)
     area = np.asarray(
-        tributary_areas(jnp.asarray(pos), jnp.asarray(facets), scene.model.formulation.axisymmetric)
+        _tributary_areas(
+            jnp.asarray(pos), jnp.asarray(facets), scene.model.formulation.axisymmetric, counted
+        )
     )
     safe = np.where(area > 0, area, 1.0)
     return dict(
