@@ -189,11 +189,12 @@ def nodal_average(values_el, elements, n_nodes: int):
 TOUCH_GAP_MM = 1e-3  # a candidate this close to the die at the step start counts as touching
 
 
-def touching_facets(gaps, facets):
-    """(n_f,) 1.0 for the candidate facets whose two nodes touch the die (gap <= 1 um),
-    else 0.0: the facets whose area carries friction."""
-    near = gaps <= TOUCH_GAP_MM
-    return (near[facets[:, 0]] & near[facets[:, 1]]).astype(gaps.dtype)
+def facets_in_contact(touching, facets):
+    """(n_f,) 1.0 for the candidate facets whose two nodes are touching (a (n_c,) bool
+    mask: gap <= TOUCH_GAP_MM at a step's start, or the converged contact status), else
+    0.0: the facets whose area carries the contact tractions (``counted`` of
+    :func:`tributary_areas`)."""
+    return (touching[facets[:, 0]] & touching[facets[:, 1]]).astype(float)
 
 
 def shear_bounds(m_factor, sigma_eq_nodes, areas):

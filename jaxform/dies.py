@@ -40,7 +40,6 @@ friction factor) so they are arguments of the compiled step and can be different
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
 
 import jax
@@ -219,23 +218,17 @@ def corner_gap(points, corner_radius, xa, xb):
 SOFT = 1e-3  # width of the soft minimum over the arcs, as a fraction of the facet length
 
 
+# one compiled call (eagerly, its few dozen small operations would each compile)
 _rounded_profile_jit = jax.jit(rounded_profile)
-
-
-@functools.lru_cache(maxsize=64)
-def _rounded_on_host(points_bytes: bytes, shape: tuple, corner_radius: float) -> dict:
-    """:func:`rounded_profile` of a profile as NumPy arrays, computed by one compiled call
-    (eagerly, its few dozen small operations would each compile) and kept per profile: the
-    post-processing asks for the same die once per history row."""
-    points = np.frombuffer(points_bytes, dtype=float).reshape(shape)
-    out = _rounded_profile_jit(jnp.asarray(points), jnp.asarray(corner_radius))
-    return {k: np.asarray(v) for k, v in out.items()}
 
 
 def sample_rounded(points, corner_radius, per_arc: int = 16) -> np.ndarray:
     """The rounded profile as a dense polyline (NumPy; for plots and cavity volumes)."""
     p = np.asarray(points, dtype=float)
-    pr = _rounded_on_host(p.tobytes(), p.shape, float(corner_radius))
+    pr = {
+        k: np.asarray(v)
+        for k, v in _rounded_profile_jit(jnp.asarray(p), jnp.asarray(float(corner_radius))).items()
+    }
     out = [p[:1]]
     for i in range(len(pr["rho"])):
         if not pr["turns"][i]:

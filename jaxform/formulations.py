@@ -36,7 +36,7 @@ import jax.numpy as jnp
 from jax.custom_derivatives import SymbolicZero
 
 from jaxform import element as el
-from jaxform.kinematics import step_kinematics
+from jaxform.kinematics import deviator, safe_norm_eq, step_kinematics
 from jaxform.materials.base import MaterialState
 from jaxform.smallmat import det3, inv2, inv3
 from jaxform.status import INVERTED, LOCAL_SOLVE_FAILED, OK
@@ -138,10 +138,10 @@ def flow_shear_modulus(g, sigma, d_eqps):
     elastic G alone, tau was 10-100x too small wherever the material flows, and the
     checkerboard pressure mode came back under friction (zig-zag contact pressure and
     shear traction in stick zones)."""
-    dev = sigma - jnp.trace(sigma, axis1=-2, axis2=-1)[..., None, None] * jnp.eye(3) / 3.0
-    # sqrt of a strictly positive argument: finite derivatives at zero stress
-    s_eq = jnp.sqrt(1.5 * jnp.sum(dev**2, axis=(-2, -1)) + (1e-9 * g) ** 2)
-    return g / (1.0 + 3.0 * g * jnp.maximum(d_eqps, 0.0) / s_eq)
+    s_eq, positive = jax.vmap(lambda t: safe_norm_eq(deviator(t)))(sigma)
+    # a stress-free point has not flowed: its ratio is 0 (double where: no NaN derivative)
+    ratio = jnp.where(positive, jnp.maximum(d_eqps, 0.0) / jnp.where(positive, s_eq, 1.0), 0.0)
+    return g / (1.0 + 3.0 * g * ratio)
 
 
 # -- the material point, with its tangent taken in the 5 components of f ------------------

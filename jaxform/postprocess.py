@@ -14,10 +14,10 @@
 
 from __future__ import annotations
 
-import functools
-
+import jax
 import numpy as np
 
+from jaxform.contact import facets_in_contact, tributary_areas
 from jaxform.dies import sample_rounded
 from jaxform.geometry import polygon_measure
 from jaxform.mesh import boundary_edges
@@ -220,19 +220,9 @@ def extra_history(scene, xs: np.ndarray, times: np.ndarray) -> dict[str, np.ndar
     return out
 
 
-@functools.cache
-def _jitted_tributary_areas():
-    import jax
-
-    from jaxform.contact import tributary_areas
-
-    return jax.jit(tributary_areas, static_argnums=2)
-
-
-def _tributary_areas(pos, facets, axisymmetric: bool, counted):
-    """:func:`jaxform.contact.tributary_areas` as one compiled call with weights, not a
-    subset of the facets: the same shapes every row (one compile, no eager operations)."""
-    return _jitted_tributary_areas()(pos, facets, axisymmetric, counted)
+# one compiled call per shape (the facets in contact as weights, not as a subset: the same
+# shapes every row), not a few dozen eager operations compiled again per contact set
+_tributary_areas = jax.jit(tributary_areas, static_argnums=2)
 
 
 def contact_profile(scene, x: np.ndarray, slip_mm: np.ndarray, status: np.ndarray) -> dict:
@@ -248,8 +238,7 @@ def contact_profile(scene, x: np.ndarray, slip_mm: np.ndarray, status: np.ndarra
     # contact (both ends touching); a facet of the free side below an edge node carries
     # no traction, and counting it made a uniform pressure read low at the edge
     facets = np.asarray(idx.contact_facets)
-    touching = np.asarray(status) > 0
-    counted = touching[facets].all(axis=1).astype(float)
+    counted = np.asarray(facets_in_contact(np.asarray(status) > 0, facets))
     area = np.asarray(
         _tributary_areas(
             jnp.asarray(pos), jnp.asarray(facets), scene.model.formulation.axisymmetric, counted

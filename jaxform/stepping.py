@@ -29,11 +29,12 @@ import jax.numpy as jnp
 
 from jaxform.assembly import Indices, Model, StepContext
 from jaxform.contact import (
+    TOUCH_GAP_MM,
     ContactStep,
     facet_normal,
+    facets_in_contact,
     nodal_average,
     shear_bounds,
-    touching_facets,
     tributary_areas,
 )
 from jaxform.formulations import GaussState, initial_gauss_state
@@ -91,7 +92,7 @@ def contact_step(model: Model, state: SimState, inp: Inputs, idx: Indices) -> Co
         # friction acts on the facets in contact only: counting a free facet below an edge
         # node (the bore or the bulge) let the edge carry up to twice m k
         gaps = jax.vmap(lambda p: inp.die.gap(p, state.t)[0])(pos)
-        counted = touching_facets(gaps, idx.contact_facets)
+        counted = facets_in_contact(gaps <= TOUCH_GAP_MM, idx.contact_facets)
         areas = tributary_areas(pos, idx.contact_facets, model.formulation.axisymmetric, counted)
         bound = shear_bounds(inp.die.m, eq_nodes, areas)
     else:
