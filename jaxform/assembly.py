@@ -44,10 +44,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxform import element as el
 from jaxform.contact import ContactLaw, ContactStep, facet_terms
-from jaxform.formulations import Formulation, GaussState
+from jaxform.formulations import Formulation, GaussState, PointGiven
+from jaxform.heat import ElementHeat, ThermalInputs, element_heat, plastic_work
 from jaxform.mesh import boundary_edges
-from jaxform.status import NOT_FINITE
+from jaxform.status import NO_TEMPERATURE, NOT_FINITE
 
 
 @jax.tree_util.register_dataclass
@@ -73,6 +75,9 @@ class Indices:
     # uint64 handle of the pattern's KLU symbolic analysis (jaxform.klu.symbolic),
     # set by the scene for the sparse backend; None: the solver analyses per solve
     lu_symbolic: jax.Array | None = None
+    # (n_el, 4) 1.0 where element edge k exchanges heat (jaxform.heat.exposed_edges);
+    # None without a temperature field
+    exposed_edges: jax.Array | None = None
 
 
 @jax.tree_util.register_dataclass
@@ -91,6 +96,8 @@ class StepContext:
     cstep: ContactStep | None  # contact constants of the step (None: no candidates)
     idx: Indices
     f_ext: jax.Array | None = None  # external nodal forces at t (N), or None
+    thermal: ThermalInputs | None = None  # None: isothermal (no temperature field)
+    heat: ElementHeat | None = None  # the step's thermal data per element (with thermal)
 
 
 @dataclass(frozen=True)
@@ -103,6 +110,17 @@ class Layout:
     n_elements: int
     n_nonzeros: int
     n_facets: int = 0  # facets with a corner-contact multiplier
+    temperature: bool = False  # the last nodal field is the temperature change (K)
+
+    @property
+    def pressure_column(self) -> int | None:
+        """The nodal field of the q1q1 pressure (MPa), or None."""
+        return 2 if self.n_fields - self.temperature == 3 else None
+
+    @property
+    def temperature_column(self) -> int | None:
+        """The nodal field of the temperature change from the billet's (K), or None."""
+        return self.n_fields - 1 if self.temperature else None
 
     @property
     def n_mult(self) -> int:
@@ -123,7 +141,7 @@ class Layout:
         return self.n_node_dofs + self.n_mult
 
     def nodal(self, x):
-        """The nodal block of x, (n_nodes, n_fields): u_r, u_z[, p] per node (a view for
+        """The nodal block of x, (n_nodes, n_fields): u_r, u_z[, p][, T] per node (a view for
         NumPy arrays).  The one place that knows the layout of x's nodal part."""
         return x[: self.n_node_dofs].reshape(self.n_nodes, self.n_fields)
 
@@ -227,33 +245,53 @@ class Model:
     jacobian_chunk: int = 512  # elements per chunk of the element Jacobians; 0: one vmap
 
     # -- element level --------------------------------------------------------------
-    def _element_fn(self, params, dt):
-        form, law = self.formulation, self.law
+    def _element_fn(self, ctx: StepContext):
+        """The element function of the step: (dofs, (x_ref, heat), Gauss state[,
+        solution]) -> (r_e, aux), aux = (r_e, new Gauss state, code, heat scale (4,))."""
+        form, law, lay = self.formulation, self.law, self.layout
+        params, dt, th = ctx.params, ctx.dt, ctx.thermal
 
-        def fn(dofs_flat, x_ref, gstate, solution=None):
-            dofs = dofs_flat.reshape(4, form.n_fields)
-            r, gnew, code = form.residual(law, params, dt, x_ref, dofs, gstate, solution)
-            return r.ravel(), (r.ravel(), gnew, code)
+        def fn(dofs_flat, elem, gstate, solution=None):
+            x_ref, heat = elem
+            dofs = dofs_flat.reshape(4, lay.n_fields)
+            if th is None:
+                given = PointGiven(solution)
+                r, gnew, code = form.residual(law, params, dt, x_ref, dofs, gstate, given)
+                return r.ravel(), (r.ravel(), gnew, code, jnp.zeros(4, dofs.dtype))
+            theta = dofs[:, -1]  # the change from the billet temperature (K)
+            temp = th.billet_temperature_K + theta
+            given = PointGiven(solution, el.N_GP @ temp)
+            r, gnew, code = form.residual(law, params, dt, x_ref, dofs[:, :-1], gstate, given)
+            work = plastic_work(gstate.mat, gnew.mat)
+            terms = element_heat(th, dt, x_ref, dofs[:, :2], theta, heat, work, form.axisymmetric)
+            # thermal rows: the heat of the step (mJ = N mm), like forces in N for mm parts
+            r = jnp.concatenate([r, dt * terms.residual()[:, None]], axis=1)
+            code = jnp.maximum(code, jnp.where(jnp.all(temp > 0.0), 0, NO_TEMPERATURE))
+            return r.ravel(), (r.ravel(), gnew, code, dt * terms.magnitude())
 
         return fn
 
-    def _element_residuals(self, fn, x, coords, gstate, idx: Indices):
-        """The residual pass: (dofs, reference coordinates, r_e, new Gauss state, codes)
-        of every element, one vmap (the material's local solves run vectorized over the
-        whole mesh)."""
-        xe, x_ref = self._gather(x, idx), coords[idx.elements]
-        r_e, (_, gnew, ok_e) = jax.vmap(fn)(xe, x_ref, gstate)
-        return xe, x_ref, r_e, gnew, ok_e
+    def _element_data(self, ctx: StepContext):
+        """What each element's function reads besides its dofs and Gauss state."""
+        return ctx.coords[ctx.idx.elements], ctx.heat
 
-    def _element_jacobians(self, fn, xe, x_ref, gstate, solution: GaussState):
+    def _element_residuals(self, fn, x, ctx: StepContext):
+        """The residual pass: (dofs, element data, r_e, new Gauss state, codes, heat
+        scales) of every element, one vmap (the material's local solves run vectorized
+        over the whole mesh)."""
+        xe, elem = self._gather(x, ctx.idx), self._element_data(ctx)
+        r_e, (_, gnew, ok_e, heat_e) = jax.vmap(fn)(xe, elem, ctx.gauss)
+        return xe, elem, r_e, gnew, ok_e, heat_e
+
+    def _element_jacobians(self, fn, xe, elem, gstate, solution: GaussState):
         """vmap(jacfwd(fn, has_aux=True)) over the elements, in chunks of
         ``jacobian_chunk`` (see the module docstring), at the new Gauss state
         ``solution`` of the residual pass (no local solve is repeated); returns what the
-        plain vmap returns (for the element function: (k_e, (r_e, gnew, ok_e)))."""
+        plain vmap returns (for the element function: (k_e, aux))."""
         jac = jax.vmap(jax.jacfwd(fn, has_aux=True))
         n_el, b = xe.shape[0], self.jacobian_chunk
         if b <= 0 or n_el <= b:
-            return jac(xe, x_ref, gstate, solution)
+            return jac(xe, elem, gstate, solution)
         n_pad = -n_el % b
 
         def chunked(a):  # pad with copies of element 0 (a valid element), split in chunks
@@ -262,9 +300,27 @@ class Model:
             return a.reshape((-1, b) + a.shape[1:])
 
         out = jax.lax.map(
-            lambda c: jac(*c), jax.tree_util.tree_map(chunked, (xe, x_ref, gstate, solution))
+            lambda c: jac(*c), jax.tree_util.tree_map(chunked, (xe, elem, gstate, solution))
         )
         return jax.tree_util.tree_map(lambda a: a.reshape((-1,) + a.shape[2:])[:n_el], out)
+
+    def heat_flows(self, x, ctx: StepContext, gnew: GaussState):
+        """(4,) the heat of a converged step (mJ): stored, generated by plastic work, given
+        to the dies, given to the air; stored = plastic - dies - air at convergence."""
+        if ctx.thermal is None:
+            return jnp.zeros(4, dtype=x.dtype)
+        lay, form = self.layout, self.formulation
+        nodal = lay.nodal(x)[ctx.idx.elements]  # (n_el, 4, n_fields)
+        x_ref, heat = self._element_data(ctx)
+
+        def one(x_e, u, theta, h, old, new):
+            work = plastic_work(old, new)
+            terms = element_heat(ctx.thermal, ctx.dt, x_e, u, theta, h, work, form.axisymmetric)
+            return jnp.stack([jnp.sum(terms.stored), jnp.sum(terms.plastic),
+                              jnp.sum(terms.die), jnp.sum(terms.air)])  # fmt: skip
+
+        per_el = jax.vmap(one)(x_ref, nodal[..., :2], nodal[..., -1], heat, ctx.gauss.mat, gnew.mat)
+        return ctx.dt * per_el.sum(axis=0)
 
     def _gather(self, x, idx: Indices):
         return x[idx.edofs]
@@ -275,9 +331,9 @@ class Model:
     # -- global ---------------------------------------------------------------------
     def residual(self, x, ctx: StepContext):
         """Global residual; returns (R, new Gauss state, status code, force scale)."""
-        fn = self._element_fn(ctx.params, ctx.dt)
-        _, _, r_e, gnew, ok_e = self._element_residuals(fn, x, ctx.coords, ctx.gauss, ctx.idx)
-        return self._finish_residual(x, r_e, gnew, ok_e, ctx)
+        fn = self._element_fn(ctx)
+        _, _, r_e, gnew, ok_e, heat_e = self._element_residuals(fn, x, ctx)
+        return self._finish_residual(x, r_e, gnew, ok_e, heat_e, ctx)
 
     def _contact_fn(self, ctx: StepContext):
         def fn(v, k):  # v = (x_r, x_z, lambda_n, lambda_t) of candidate k
@@ -324,10 +380,10 @@ class Model:
     def residual_and_jacobian(self, x, ctx: StepContext):
         """(R, Jacobian values on the pattern, new Gauss state, status code, force scale).
         A dead load ctx.f_ext adds nothing to the Jacobian."""
-        fn = self._element_fn(ctx.params, ctx.dt)
-        xe, x_ref, r_e, gnew, ok_e = self._element_residuals(fn, x, ctx.coords, ctx.gauss, ctx.idx)
-        k_e, _ = self._element_jacobians(fn, xe, x_ref, ctx.gauss, gnew)
-        r, gnew, ok, scale = self._finish_residual(x, r_e, gnew, ok_e, ctx)
+        fn = self._element_fn(ctx)
+        xe, elem, r_e, gnew, ok_e, heat_e = self._element_residuals(fn, x, ctx)
+        k_e, _ = self._element_jacobians(fn, xe, elem, ctx.gauss, gnew)
+        r, gnew, ok, scale = self._finish_residual(x, r_e, gnew, ok_e, heat_e, ctx)
         return r, self._jacobian_values(x, k_e, ctx), gnew, ok, scale
 
     def jacobian_and_state_vjp(self, x, ctx: StepContext, g_bar: GaussState):
@@ -338,14 +394,14 @@ class Model:
         new Gauss state in the same tangents; contracting it with the cotangent g_bar
         right away costs a few small products instead of a reverse pass through the
         local material solves."""
-        fn = self._element_fn(ctx.params, ctx.dt)
+        fn = self._element_fn(ctx)
 
-        def fn_state(dofs_flat, x_ref, gs, solution):
-            r, (_, gnew, code) = fn(dofs_flat, x_ref, gs, solution)
+        def fn_state(dofs_flat, elem, gs, solution):
+            r, (_, gnew, code, _) = fn(dofs_flat, elem, gs, solution)
             return (r, gnew), code
 
-        xe, x_ref, _, g_conv, _ = self._element_residuals(fn, x, ctx.coords, ctx.gauss, ctx.idx)
-        (k_e, dg_e), _ = self._element_jacobians(fn_state, xe, x_ref, ctx.gauss, g_conv)
+        xe, elem, _, g_conv, _, _ = self._element_residuals(fn, x, ctx)
+        (k_e, dg_e), _ = self._element_jacobians(fn_state, xe, elem, ctx.gauss, g_conv)
         n_e, n_d = k_e.shape[0], k_e.shape[-1]
         xg_e = sum(
             jnp.einsum("ek,ekd->ed", gb.reshape(n_e, -1), dg.reshape(n_e, -1, n_d))
@@ -373,7 +429,7 @@ class Model:
         is_fixed = fixed_row[idx.rows]
         return jnp.where(is_fixed, jnp.where(idx.rows == idx.cols, 1.0, 0.0), vals)
 
-    def _finish_residual(self, x, r_e, gnew, ok_e, ctx: StepContext):
+    def _finish_residual(self, x, r_e, gnew, ok_e, heat_e, ctx: StepContext):
         idx, f_ext = ctx.idx, ctx.f_ext
         n = self.layout.n_dofs
         r = jnp.zeros(n, dtype=x.dtype).at[idx.edofs].add(r_e)
@@ -397,13 +453,18 @@ class Model:
         scale = jnp.maximum(jnp.sqrt(jnp.sum(r_u_e**2)), jnp.linalg.norm(lam))
         if f_ext is not None:
             scale = jnp.maximum(scale, jnp.linalg.norm(f_ext))
+        if ctx.thermal is not None:  # the heat of the step (mJ): what the thermal rows carry
+            scale = jnp.maximum(scale, jnp.sqrt(jnp.sum(heat_e**2)))
         code = jnp.max(ok_e)
         code = jnp.where(jnp.all(jnp.isfinite(r)), code, NOT_FINITE)
         return r, gnew, code, scale
 
 
 def internal_forces(model: Model, x, gstate, coords, dt, params, idx: Indices):
-    """Assembled element force vector (no contact, no Dirichlet rows): for reactions."""
-    fn = model._element_fn(params, dt)
-    r_e, _ = jax.vmap(fn)(model._gather(x, idx), coords[idx.elements], gstate)
+    """Assembled element force vector (no contact, no Dirichlet rows, isothermal): for
+    reactions."""
+    zero = jnp.zeros((), dtype=x.dtype)
+    ctx = StepContext(gauss=gstate, coords=coords, t=zero, dt=dt, params=params, die=None,
+                      c_contact=zero, cstep=None, idx=idx)  # fmt: skip
+    _, _, r_e, _, _, _ = model._element_residuals(model._element_fn(ctx), x, ctx)
     return jnp.zeros(model.layout.n_dofs, dtype=x.dtype).at[idx.edofs].add(r_e)

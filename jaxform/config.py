@@ -24,6 +24,7 @@ from typing import Any
 import tomli_w
 
 from jaxform.errors import ConfigError
+from jaxform.material_files import load_thermal_properties
 
 __all__ = [
     "Config",
@@ -291,6 +292,24 @@ class MaterialConfig:
     preset: str = key(
         "al1100_673K", doc="material preset name (jaxform/materials/data) or a .toml path"
     )
+    density_kg_m3: float | None = key(
+        low=0.0,
+        low_open=True,
+        high=1e5,
+        doc="density (kg/m^3) for thermal.model = coupled; default: the preset's [thermal] value",
+    )
+    specific_heat_J_kgK: float | None = key(
+        low=0.0,
+        low_open=True,
+        high=1e5,
+        doc="specific heat (J/kg K) for thermal.model = coupled; default: the preset's",
+    )
+    conductivity_W_mK: float | None = key(
+        low=0.0,
+        low_open=True,
+        high=1e4,
+        doc="thermal conductivity (W/m K) for thermal.model = coupled; default: the preset's",
+    )
 
 
 @section("die")
@@ -376,6 +395,51 @@ class FrictionConfig:
         low=0.0,
         high=1.0,
         doc="shear friction factor, tau = m sigma_eq/sqrt(3) (friction.model = shear)",
+    )
+
+
+@section("thermal")
+@dataclass(frozen=True, kw_only=True)
+class ThermalConfig:
+    """[thermal]: heat conduction in the workpiece, coupled with the mechanics."""
+
+    model: str = key(
+        "none",
+        choices=("none", "coupled"),
+        doc="none: isothermal (the material at its preset temperature); coupled: a nodal "
+        "temperature solved in the same Newton as the mechanics",
+    )
+    billet_temperature_K: float = key(
+        673.0, low=1.0, high=5000.0, doc="initial workpiece temperature (K)"
+    )
+    die_temperature_K: float = key(673.0, low=1.0, high=5000.0, doc="die temperature (K)")
+    air_temperature_K: float = key(293.15, low=1.0, high=5000.0, doc="ambient temperature (K)")
+    htc_die_W_m2K: float = key(
+        10000.0, low=0.0, high=1e7, doc="contact heat transfer coefficient to the dies (W/m^2 K)"
+    )
+    htc_air_W_m2K: float = key(
+        20.0, low=0.0, high=1e7, doc="convection coefficient to the air (W/m^2 K)"
+    )
+    emissivity: float = key(0.1, low=0.0, high=1.0, doc="emissivity of the free surface")
+    taylor_quinney: float = key(
+        0.9, low=0.0, high=1.0, doc="fraction of the plastic work turned into heat"
+    )
+    die_path_time_s: tuple[float, ...] = key(
+        [],
+        doc="times (s) of a die temperature path, from 0, increasing ([] = constant die "
+        "temperature)",
+    )
+    die_path_change_K: tuple[float, ...] = key(
+        [],
+        doc="the die temperature's change (K) from thermal.die_temperature_K at those times "
+        "(linear between them, held after the last)",
+    )
+    dwell_s: float = key(
+        0.0,
+        low=0.0,
+        high=1e5,
+        doc="a first stage (s): the billet waits in air (the transfer to the press) before the "
+        "dies move; no heat flows to the dies during it (time.dt_s still bounds its steps)",
     )
 
 
@@ -487,15 +551,30 @@ class DesignConfig:
             "force_misfit",
             "eqps_spread",
             "die_fill",
+            "temperature_misfit",
         ),
         doc="design objective (jaxform design / taylor-test), a function of the run: force "
         "integral over stroke (N mm), peak ram force (N), mean squared deviation of the final"
         " side from straight (mm^2), of chosen nodes from target positions (mm^2), "
-        "force-stroke misfit against a target curve, variance of eqps, 1 - die fill",
+        "force-stroke misfit against a target curve, variance of eqps, 1 - die fill, mean "
+        "squared misfit of the mean temperature history against a target (K^2)",
+    )
+    max_temperature_K: float = key(
+        0.0,
+        low=0.0,
+        high=5000.0,
+        doc="a limit on the hottest node (K; coupled runs): the objective gains "
+        "design.temperature_penalty x sum over steps of max(0, T_max - limit)^2 (0: none)",
+    )
+    temperature_penalty: float = key(
+        1.0,
+        low=0.0,
+        low_open=True,
+        doc="weight of the temperature-limit penalty (objective units per K^2)",
     )
     variables: tuple[str, ...] = key(
         ["material"],
-        choices=("material", "friction", "speed", "preform", "nodes", "die"),
+        choices=("material", "friction", "speed", "preform", "nodes", "die", "thermal"),
         doc="design variable groups jaxform design optimizes",
     )
     material_params: tuple[str, ...] = key(
@@ -510,6 +589,11 @@ class DesignConfig:
         low_open=True,
         doc="the design starts from the material parameters times this (e.g. 0.7 to identify from"
         " 30 % off)",
+    )
+    thermal_params: tuple[str, ...] = key(
+        [],
+        doc="inputs of the 'thermal' group: any of billet_temperature_K, die_temperature_K, "
+        "htc_die_W_m2K, taylor_quinney (thermal.* keys); empty: all four",
     )
     preform_modes: int = key(3, low=1, high=20, doc="cosine modes of the preform profile")
     preform_amplitude_max: float = key(
@@ -540,7 +624,8 @@ class DesignConfig:
     )
     target_csv: str = key(
         "",
-        doc="target for force_misfit (CSV with stroke_mm, force_N) or shape_target (CSV with "
+        doc="target for temperature_misfit (CSV with time_s, mean_temperature_K), "
+        "force_misfit (CSV with stroke_mm, force_N) or shape_target (CSV with "
         "node, r_mm, z_mm)",
     )
     optimizer: str = key(
@@ -591,6 +676,7 @@ class Config:
     material: MaterialConfig
     die: DieConfig | None = None
     friction: FrictionConfig | None = None
+    thermal: ThermalConfig
     time: TimeConfig
     solver: SolverConfig
     output: OutputConfig
@@ -749,8 +835,38 @@ def _check_lengths(name: str, values: list) -> None:
         )
 
 
+def _thermal_properties(out: dict) -> None:
+    """Fill material.density_kg_m3, specific_heat_J_kgK and conductivity_W_mK from the
+    preset's [thermal] table where not given; a coupled run needs all three."""
+    mat = out["material"]
+    keys = ("density_kg_m3", "specific_heat_J_kgK", "conductivity_W_mK")
+    if any(mat[k] is None for k in keys):
+        preset = load_thermal_properties(mat["preset"])
+        for k in keys:
+            if mat[k] is None:
+                mat[k] = preset.get(k)
+    missing = [k for k in keys if mat[k] is None]
+    if out["thermal"]["model"] == "coupled" and missing:
+        raise ConfigError(
+            f"thermal.model = 'coupled' needs material.{missing[0]}: the preset "
+            f"{mat['preset']!r} has no [thermal] table; give "
+            + ", ".join(f"material.{k}" for k in missing)
+        )
+
+
 def _cross_checks(raw: dict, out: dict) -> None:
     """Rules that involve several keys."""
+    _thermal_properties(out)
+    th = out["thermal"]
+    if th["dwell_s"] > 0.0 and th["model"] != "coupled":
+        raise ConfigError("thermal.dwell_s > 0 needs thermal.model = 'coupled'")
+    times, change = th["die_path_time_s"], th["die_path_change_K"]
+    if len(times) != len(change):
+        raise ConfigError(
+            "thermal.die_path_time_s and thermal.die_path_change_K must have the same length"
+        )
+    if times and (times[0] != 0.0 or any(b <= a for a, b in zip(times, times[1:]))):
+        raise ConfigError("thermal.die_path_time_s: must start at 0 s and increase")
     if "membrane" in out:
         _membrane_checks(out)
         return
@@ -902,7 +1018,13 @@ def _end_time(out: dict) -> tuple[float | None, str]:
 
 
 # keys that may be left out even though they have no default (checked in _cross_checks)
-_CONDITIONAL = {("die", "speed_mm_s"), ("die", "reduction")}
+_CONDITIONAL = {
+    ("die", "speed_mm_s"),
+    ("die", "reduction"),
+    ("material", "density_kg_m3"),
+    ("material", "specific_heat_J_kgK"),
+    ("material", "conductivity_W_mK"),
+}
 
 
 def load_config(path_or_dict: str | PathLike | dict, overrides: Iterable[str] = ()) -> dict:
@@ -956,7 +1078,7 @@ def load_config(path_or_dict: str | PathLike | dict, overrides: Iterable[str] = 
         out[section] = {}
         for key, f in fields.items():
             name = f"{section}.{key}"
-            if key in given:
+            if key in given and not (given[key] is None and (section, key) in _CONDITIONAL):
                 out[section][key] = _check(name, f, given[key])
             elif f.default is None and (section, key) not in _CONDITIONAL:
                 raise ConfigError(
@@ -1056,12 +1178,21 @@ def check_gradient_run(
         raise ConfigError(
             "design.objective = 'side_straightness' needs a [billet] or [ring] scene (a free side)"
         )
-    if name in ("force_misfit", "shape_target"):
+    coupled = cfg["thermal"]["model"] == "coupled"
+    if name == "temperature_misfit" and not coupled:
+        raise ConfigError("design.objective = 'temperature_misfit' needs thermal.model = 'coupled'")
+    if d["max_temperature_K"] > 0.0 and not coupled:
+        raise ConfigError("design.max_temperature_K > 0 needs thermal.model = 'coupled'")
+    columns = {
+        "force_misfit": ("stroke_mm", "force_N"),
+        "shape_target": ("node", "r_mm", "z_mm"),
+        "temperature_misfit": ("time_s", "mean_temperature_K"),
+    }
+    if name in columns:
         target = d["target_csv"]
         if not target:
             raise ConfigError(f"design.objective = {name!r} needs design.target_csv")
-        needed = ("stroke_mm", "force_N") if name == "force_misfit" else ("node", "r_mm", "z_mm")
-        _check_target_csv(target, needed)
+        _check_target_csv(target, columns[name])
 
 
 def _check_target_csv(path: str, needed: tuple[str, ...]) -> None:
@@ -1113,6 +1244,11 @@ def _check_groups(cfg: dict, groups: list[str], where: str) -> None:
         raise ConfigError(
             f"{shown}: 'friction' needs friction.model = 'coulomb' or 'shear', "
             f"not {cfg['friction']['model']!r}"
+        )
+    th = cfg["thermal"]
+    if "thermal" in groups and (th["model"] != "coupled" or th["htc_die_W_m2K"] <= 0.0):
+        raise ConfigError(
+            f"{shown}: 'thermal' needs thermal.model = 'coupled' and thermal.htc_die_W_m2K > 0"
         )
     if "speed" in groups and cfg["die"]["path_time_s"]:
         raise ConfigError(

@@ -17,7 +17,7 @@ import numpy as np
 from jaxform.cache import enable_compilation_cache
 from jaxform.config import dump_config, load_config, typed
 from jaxform.io import write_csv, write_vtu_series
-from jaxform.postprocess import nodal_fields
+from jaxform.postprocess import nodal_fields, nodal_temperature
 from jaxform.precision import require_x64
 from jaxform.scenes import build_scene
 from jaxform.simulation import HISTORY_KEYS, Result, SimulationError, simulate
@@ -120,6 +120,17 @@ def write_outputs(out_dir: str | Path, result: Result) -> None:
             axes,
         )
         _contact_plot(out / "contact_profile.png", result)
+        temp = nodal_temperature(scene, result.fields["x"][-1])
+        if temp is not None:
+            plot.nodal_contours(
+                coords1,
+                el,
+                temp,
+                out / "temperature.png",
+                f"temperature, {red:.1f} % reduction",
+                "temperature [K]",
+                axes,
+            )
 
 
 def _membrane_plots(out: Path, result: Result, coords0, coords1, el, mesh_text: str, axes) -> None:

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import partial
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -51,6 +52,13 @@ class GaussState:
     mat: MaterialState
 
 
+class PointGiven(NamedTuple):
+    """What an element's material updates take as given instead of computing."""
+
+    solution: GaussState | None = None  # the converged new state (no local solves)
+    temperature: jax.Array | None = None  # (4,) Gauss-point temperatures at t_{n+1} (K)
+
+
 @dataclass(frozen=True)
 class Formulation:
     """An element formulation (static, hashable): the seed's q1q1 by default."""
@@ -65,12 +73,14 @@ class Formulation:
     def n_fields(self) -> int:
         return 3 if self.mixed_pressure else 2
 
-    def residual(
-        self, law, params, dt, x_ref, dofs, gstate: GaussState, solution: GaussState | None = None
-    ):
-        """``solution``: this element's new Gauss state from an earlier evaluation at the
-        same dofs (the material updates then skip their local solves: see
-        :mod:`jaxform.materials.base`); None solves."""
+    def residual(self, law, params, dt, x_ref, dofs, gstate: GaussState, given=None):
+        """``given`` (:class:`PointGiven`, optional): this element's new Gauss state from
+        an earlier evaluation at the same dofs (the material updates then skip their local
+        solves: see :mod:`jaxform.materials.base`), and the Gauss points' temperatures at
+        the end of the step (K), which the material sees (``law.at_temperature``); None:
+        solve, at the parameters' own temperature (isothermal)."""
+        given = PointGiven() if given is None else given
+        solution, temperature = given.solution, given.temperature
         axi = self.axisymmetric
         u = dofs[:, :2]
         geom = el.gauss_geometry(x_ref, axi)
@@ -86,11 +96,12 @@ class Formulation:
             f_mat = f
         f_rel = jnp.einsum("gij,gjk->gik", f_mat, inv3(gstate.F))
 
-        def point(fr, st, converged):
-            return planar_point_update(law, self.alpha, fr, st, params, dt, converged)
+        def point(fr, st, converged, temp):
+            p = params if temp is None else law.at_temperature(params, temp)
+            return planar_point_update(law, self.alpha, fr, st, p, dt, converged)
 
         converged = None if solution is None else solution.mat
-        sigma, mat_new, ok = jax.vmap(point)(f_rel, gstate.mat, converged)
+        sigma, mat_new, ok = jax.vmap(point)(f_rel, gstate.mat, converged, temperature)
         ok = ok > 0.5
         if self.mixed_pressure:
             d_eqps = mat_new.eqps - gstate.mat.eqps

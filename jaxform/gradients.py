@@ -84,6 +84,16 @@ class Trajectory:
     # klujax factorizations kept for the reverse pass ((n,) leading axis; None when none
     # were kept): handles the caller frees with release() once the reverse pass is done
     factorizations: Factorization | None = None
+    # (n+1, n_nodes) nodal temperatures (K) of each row (None: no temperature field)
+    temperature_K: jax.Array | None = None
+
+
+def nodal_temperature(model, x, inputs: Inputs):
+    """(n_nodes,) nodal temperatures (K) of unknowns x, or None without a temperature
+    field (the unknown is the change from the billet temperature)."""
+    if not model.layout.temperature:
+        return None
+    return inputs.thermal.billet_temperature_K + model.layout.nodal(x)[:, -1]
 
 
 class GradientRunError(RuntimeError):
@@ -135,12 +145,13 @@ def _trajectory(stepper: Stepper, inputs: Inputs, times, state0, idx, n_kept=0):
             its,
             new.contact_status,
             kept if linear.handles else None,  # handles for the owner to free
+            nodal_temperature(model, x, inputs),
         )
         return new, out
 
     keep_steps = jnp.arange(n_steps) >= n_steps - n_kept  # the last n_kept steps
     scanned = jax.lax.scan(step, state0, (times, keep_steps))
-    final, (t, force, fw, codes, its, status, kept) = scanned
+    final, (t, force, fw, codes, its, status, kept, temps) = scanned
     zero = jnp.zeros((1,), dtype=t.dtype)
     t_all = jnp.concatenate([zero, t])
     f0 = die_force(model, state0.x, inputs, jnp.asarray(0.0, t.dtype), idx)
@@ -158,6 +169,11 @@ def _trajectory(stepper: Stepper, inputs: Inputs, times, state0, idx, n_kept=0):
         iterations=its,
         contact_status=status,
         factorizations=kept,
+        temperature_K=(
+            None
+            if temps is None
+            else jnp.concatenate([nodal_temperature(model, state0.x, inputs)[None], temps])
+        ),
     )
 
 

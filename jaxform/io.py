@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxform.postprocess import contact_profile, nodal_fields
+from jaxform.postprocess import contact_profile, nodal_fields, nodal_temperature
 
 
 def write_csv(path: Path, columns: dict[str, np.ndarray], fmt: str = "%.10g") -> None:
@@ -48,9 +48,10 @@ def write_vtu_series(out_dir: Path, scene, result, every: int = 1) -> Path:
     """ParaView fields: one VTU per written step and a .pvd time series that indexes them.
 
     Point data: displacement (mm, 3 components, the third 0), pressure (MPa; nodal for
-    q1q1), contact pressure / shear traction (MPa), contact status and slip (mm). Cell data
-    (averages of the 4 Gauss points): Cauchy stress components (MPa),
-    pressure (MPa), equivalent plastic strain, deformation resistance s (MPa).
+    q1q1), temperature_K (K; coupled thermal runs), contact pressure / shear traction
+    (MPa), contact status and slip (mm). Cell data (averages of the 4 Gauss points):
+    Cauchy stress components (MPa), pressure (MPa), equivalent plastic strain,
+    deformation resistance s (MPa).
     """
     import meshio
 
@@ -69,6 +70,9 @@ def write_vtu_series(out_dir: Path, scene, result, every: int = 1) -> Path:
         point_data = {"displacement": np.column_stack([u, np.zeros(len(u))])}
         if p_nodes is not None:
             point_data["pressure"] = p_nodes
+        temp = nodal_temperature(scene, result.fields["x"][k])
+        if temp is not None:
+            point_data["temperature_K"] = temp
         point_data.update(_contact_point_data(scene, result, k, len(u)))
         cell_data = {
             "stress_11": [stress[:, 0, 0]],

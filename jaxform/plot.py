@@ -137,6 +137,45 @@ def cell_contours(
     return _save(fig, path)
 
 
+def nodal_contours(
+    coords, elements, values, path: Path, title: str, label: str, axes=("r [mm]", "z [mm]")
+) -> Figure:
+    """Filled contours of a nodal field (e.g. the temperature) on the deformed mesh, its
+    element edges drawn over them (each quad split into two triangles for the contours).
+
+    Arguments:
+        coords: (n_nodes, 2) node positions (mm); elements: (n_elements, 4) node ids.
+        values: (n_nodes,) one value per node.
+        path: the PNG to write; title, label: figure title and colour-bar label.
+        axes: the axis labels.
+
+    Returns:
+        the drawn Figure (already saved to ``path``).
+    """
+    from matplotlib.tri import Triangulation
+
+    coords, elements = np.asarray(coords), np.asarray(elements)
+    values = np.asarray(values, dtype=float)
+    tris = np.concatenate([elements[:, [0, 1, 2]], elements[:, [0, 2, 3]]])
+    fig, ax = _figure(figsize=(6, 5))
+    lo, hi = float(values.min()), float(values.max())
+    if hi - lo <= UNIFORM_RTOL * max(abs(hi), 1.0):  # one colour: its value on the bar
+        lo, hi = lo - 0.5, hi + 0.5
+    cs = ax.tricontourf(Triangulation(coords[:, 0], coords[:, 1], tris), values,
+                        levels=np.linspace(lo, hi, 21), cmap="inferno")  # fmt: skip
+    pc = _quads(coords, elements)
+    pc.set_facecolor("none")
+    pc.set_edgecolor("k")
+    pc.set_linewidth(0.2)
+    ax.add_collection(pc)
+    ax.set_aspect("equal")
+    ax.set_xlabel(axes[0])
+    ax.set_ylabel(axes[1])
+    ax.set_title(title)
+    fig.colorbar(cs, ax=ax, label=label)
+    return _save(fig, path)
+
+
 def _uniform_value(values: np.ndarray) -> float | None:
     """The field's mean when its spread is round-off (<= UNIFORM_RTOL x its magnitude),
     else None; None too when a value is not finite (drawn as it is)."""

@@ -35,8 +35,47 @@ def nodal_fields(scene, x: np.ndarray):
     the multipliers."""
     lay = scene.model.layout
     nodal = lay.nodal(np.asarray(x))
-    pressure = nodal[:, 2] if lay.n_fields == 3 else None
+    pressure = None if lay.pressure_column is None else nodal[:, lay.pressure_column]
     return nodal[:, :2], pressure, np.asarray(lay.node_multipliers(np.asarray(x)))
+
+
+def nodal_temperature(scene, x: np.ndarray) -> np.ndarray | None:
+    """(n_nodes,) nodal temperatures (K) of a coupled thermal run, else None (the unknown
+    is the change from the billet temperature)."""
+    col = scene.model.layout.temperature_column
+    if col is None:
+        return None
+    t0 = float(scene.inputs.thermal.billet_temperature_K)
+    return t0 + scene.model.layout.nodal(np.asarray(x))[:, col]
+
+
+def nodal_volumes(scene) -> np.ndarray:
+    """(n_nodes,) int N_a dV0 on the reference mesh (mm^3; plane strain mm^2): the nodes'
+    shares of the material, the weights of the lumped heat capacity."""
+    from jaxform import element as el
+
+    coords, elements = np.asarray(scene.inputs.coords), np.asarray(scene.mesh.elements)
+    axi = scene.model.formulation.axisymmetric
+    weights = np.stack([np.asarray(el.gauss_geometry(c, axi).weight) for c in coords[elements]])
+    return np.bincount(elements.ravel(), (weights @ el.N_GP).ravel(), len(coords))
+
+
+# the heat of a coupled run so far (mJ), the order of SimState.heat_mJ
+HEAT_COLUMNS = ("heat_stored_mJ", "heat_plastic_mJ", "heat_to_dies_mJ", "heat_to_air_mJ")
+
+
+def temperature_history(scene, xs: np.ndarray) -> dict[str, np.ndarray]:
+    """mean (weighted by the material each node carries), min and max nodal temperature
+    (K) of every row; {} without a temperature field."""
+    if scene.model.layout.temperature_column is None:
+        return {}
+    temps = np.stack([nodal_temperature(scene, x) for x in xs])
+    w = nodal_volumes(scene)
+    return dict(
+        mean_temperature_K=temps @ w / w.sum(),
+        min_temperature_K=temps.min(axis=1),
+        max_temperature_K=temps.max(axis=1),
+    )
 
 
 def material_volume(scene, pos: np.ndarray) -> float:
@@ -197,8 +236,9 @@ def filled_volume(scene, pos: np.ndarray, t: float) -> float:
 def extra_history(scene, xs: np.ndarray, times: np.ndarray) -> dict[str, np.ndarray]:
     """The history columns a scene adds to every run: its workpiece's
     (:meth:`jaxform.workpieces.Workpiece.extra_history`), for a die scene
-    ``die_overlap_mm`` (:func:`die_overlap`), for a closed die ``die_fill`` (0..1) and,
-    with a part radius, ``flash_volume_mm3``."""
+    ``die_overlap_mm`` (:func:`die_overlap`), for a closed die ``die_fill`` (0..1),
+    with a part radius ``flash_volume_mm3``, with a temperature field the mean, min and
+    max temperature (:func:`temperature_history`)."""
     coords = np.asarray(scene.inputs.coords)
     pos = np.stack([positions(scene, x) for x in xs])
     out = dict(scene.workpiece.extra_history(scene.mesh, pos, pos - coords))
@@ -217,6 +257,7 @@ def extra_history(scene, xs: np.ndarray, times: np.ndarray) -> dict[str, np.ndar
         out["flash_volume_mm3"] = np.array(
             [halves * material_beyond(scene, p, die.part_radius_mm) for p in pos]
         )
+    out.update(temperature_history(scene, xs))
     return out
 
 

@@ -453,8 +453,8 @@ def rezone(scene, state, inputs):
     rate_nodal = lay.nodal(rate)
     new_rate_nodal = _interpolate(rate_nodal, elements, e_nd, xi_nd)
     new_nodal = np.zeros_like(nodal)
-    if nf == 3:  # q1q1 nodal pressure
-        new_nodal[:, 2] = _interpolate(nodal[:, 2], elements, e_nd, xi_nd)
+    for k in range(2, nf):  # nodal scalars carried by the material: pressure, temperature
+        new_nodal[:, k] = _interpolate(nodal[:, k], elements, e_nd, xi_nd)
     x_new = np.concatenate([new_nodal.ravel(), x[lay.n_node_dofs :]])
     rate_new = np.concatenate([new_rate_nodal.ravel(), rate[lay.n_node_dofs :]])
     new_state = replace(state, x=jnp.asarray(x_new), gauss=gauss, x_rate=jnp.asarray(rate_new))

@@ -37,6 +37,7 @@ from jaxform.dies import (
 )
 from jaxform.errors import ConfigError
 from jaxform.formulations import formulation
+from jaxform.heat import ThermalInputs, exposed_edges
 from jaxform.linear import LinearSolver, choose_backend
 from jaxform.loads import FacetLoad
 from jaxform.materials import load_material
@@ -60,6 +61,7 @@ class Inputs:
     die: RigidDie | None  # profile, path and friction coefficients (None: no die)
     c_contact: jax.Array  # complementarity scale (N/mm), set-up constant
     load: FacetLoad | None = None  # traction load on idx.load_facets (None: no load)
+    thermal: ThermalInputs | None = None  # temperatures, conductances (None: isothermal)
 
 
 @dataclass(frozen=True)
@@ -162,11 +164,14 @@ def membrane_load(cfg: Config, mesh: meshing.Mesh) -> FacetLoad:
     return FacetLoad(traction=jnp.asarray(traction), ramp_end_s=jnp.asarray(ld.ramp_time_s))
 
 
-def _indices(mesh: meshing.Mesh, n_fields: int, contact_sets: tuple[str, ...], corner: bool):
+def _indices(mesh: meshing.Mesh, n_fields: int, contact_sets: tuple[str, ...], corner: bool,
+             temperature: bool = False):  # fmt: skip
     """(Layout, Indices) of the mesh: Dirichlet dofs from the named sets
     (:data:`FIXED_COMPONENTS`), the reaction dofs, the contact candidates and facets (with
-    a corner-contact multiplier each where ``corner``)."""
+    a corner-contact multiplier each where ``corner``); with ``temperature`` one more
+    nodal field (the last) and the edges that exchange heat."""
     sets = mesh.node_sets
+    n_fields = n_fields + temperature  # the temperature is the last nodal field
     fixed = [sets[s] * n_fields + k for s, comps in FIXED_COMPONENTS.items() if s in sets
              for k in comps]  # fmt: skip
     reaction = next(sets[s] * n_fields + 1 for s in REACTION_SETS if s in sets)
@@ -176,9 +181,42 @@ def _indices(mesh: meshing.Mesh, n_fields: int, contact_sets: tuple[str, ...], c
     else:
         contact, facets = np.zeros(0, dtype=np.int64), np.zeros((0, 2), dtype=np.int64)
     loaded = mesh.facet_sets.get("loaded")
-    return build_indices(mesh, n_fields, np.concatenate(fixed), contact, reaction_dofs=reaction,
-                         contact_facets=facets, load_facets=loaded,
-                         corner_contact=corner and len(facets) > 0)  # fmt: skip
+    layout, idx = build_indices(mesh, n_fields, np.concatenate(fixed), contact,
+                                reaction_dofs=reaction, contact_facets=facets,
+                                load_facets=loaded,
+                                corner_contact=corner and len(facets) > 0)  # fmt: skip
+    if temperature:  # the last nodal field (no Dirichlet rows) and the edges exchanging heat
+        layout = replace(layout, temperature=True)
+        edges = exposed_edges(mesh.elements, mesh.facet_sets)
+        idx = replace(idx, exposed_edges=jnp.asarray(edges))
+    return layout, idx
+
+
+def thermal_inputs(cfg: Config) -> ThermalInputs | None:
+    """The thermal inputs of a coupled run (None for thermal.model = 'none'): the
+    [thermal] section and the material's thermal properties, units as in the keys."""
+    th, mat = cfg.thermal, cfg.material
+    if th.model == "none":
+        return None
+    values = dict(
+        billet_temperature_K=th.billet_temperature_K,
+        die_temperature_K=th.die_temperature_K,
+        air_temperature_K=th.air_temperature_K,
+        htc_die_W_m2K=th.htc_die_W_m2K,
+        htc_air_W_m2K=th.htc_air_W_m2K,
+        emissivity=th.emissivity,
+        taylor_quinney=th.taylor_quinney,
+        density_kg_m3=mat.density_kg_m3,
+        specific_heat_J_kgK=mat.specific_heat_J_kgK,
+        conductivity_W_mK=mat.conductivity_W_mK,
+        dwell_s=th.dwell_s,
+    )
+    path = (th.die_path_time_s, th.die_path_change_K) if th.die_path_time_s else ((0.0,), (0.0,))
+    return ThermalInputs(
+        **{k: jnp.asarray(float(v)) for k, v in values.items()},
+        die_path_time_s=jnp.asarray(path[0], dtype=float),
+        die_path_change_K=jnp.asarray(path[1], dtype=float),
+    )
 
 
 def _contact_scale(mesh: meshing.Mesh, shear_modulus: float, axisymmetric: bool) -> float:
@@ -204,6 +242,9 @@ def _die_or_load(cfg: Config, piece: Workpiece, mesh: meshing.Mesh):
     _check_clearance(profile, mesh, piece.contact_sets(mesh))
     speed_factor = 0.5 if piece.half_height else 1.0
     times, travel, t_end = die_path(cfg.die, cfg.die.reduction * top_z, speed_factor)
+    dwell = cfg.thermal.dwell_s
+    if dwell > 0.0:  # the dies wait while the billet cools in air
+        times, travel, t_end = np.r_[0.0, times + dwell], np.r_[0.0, travel], t_end + dwell
     fr = cfg.friction
     die = make_die(profile, times, travel, mu=fr.mu, m=fr.m,
                    corner_radius=cfg.die.corner_radius_mm)  # fmt: skip
@@ -238,7 +279,10 @@ def build_scene(cfg: dict | Config) -> Scene:
         and cfg.die.corner_contact
         and has_convex_corner(die.points, float(die.corner_radius))
     )
-    layout, idx = _indices(mesh, form.n_fields, piece.contact_sets(mesh), corner)
+    thermal = thermal_inputs(cfg)
+    layout, idx = _indices(
+        mesh, form.n_fields, piece.contact_sets(mesh), corner, temperature=thermal is not None
+    )
     fr = cfg.friction
     model = Model(form, law, layout, ContactLaw(fr.model if fr is not None else "none"))
     c = _contact_scale(mesh, float(law.shear_modulus(params)), axi)
@@ -273,6 +317,7 @@ def build_scene(cfg: dict | Config) -> Scene:
             die=die,
             c_contact=jnp.asarray(c),
             load=load,
+            thermal=thermal,
         ),
         dt=tm.dt_s,
         t_end=t_end,

@@ -24,7 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.errors import JaxRuntimeError
 
-from jaxform.postprocess import extra_history
+from jaxform.postprocess import HEAT_COLUMNS, extra_history
 from jaxform.precision import require_x64
 from jaxform.rezone import RezoneError, corner_qualities, min_quality, rezone
 from jaxform.scenes import Inputs, Scene
@@ -243,6 +243,9 @@ def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Re
     history["newton_iterations"] = history.pop("iterations")
     fields = {k: np.stack([np.asarray(r[k]) for r in rows]) for k in FIELD_KEYS}
     history.update(extra_history(scene, fields["x"], history["time_s"]))
+    if scene.model.layout.temperature:
+        heat = np.array([np.asarray(r["heat_mJ"]) for r in rows])
+        history.update({k: heat[:, i] for i, k in enumerate(HEAT_COLUMNS)})
     hists = np.array([r["hist"] for r in rows[1:]])
     result = Result(history=history, fields=fields, scene=scene, final_state=state,
                     newton_histories=hists, failure=failure, inputs=inp,

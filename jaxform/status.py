@@ -12,6 +12,7 @@ LOCAL_SOLVE_FAILED = 2
 INVERTED = 3
 NOT_FINITE = 4
 SINGULAR = 5  # raised by a linear solver (klujax) on the host, not a code inside jit
+NO_TEMPERATURE = 6  # a nodal temperature at or below 0 K (a coupled thermal run)
 
 CAUSES = {
     OK: "converged",
@@ -20,4 +21,5 @@ CAUSES = {
     INVERTED: "an element inverted (det F <= 0)",
     NOT_FINITE: "the residual is not finite",
     SINGULAR: "the linear solver found the Jacobian singular",
+    NO_TEMPERATURE: "a nodal temperature fell to 0 K or below",
 }

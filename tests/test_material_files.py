@@ -40,12 +40,22 @@ def _bad_inputs(tmp: Path) -> dict[str, tuple[str, str]]:
             "missing key(s) ['xi']",
         ),
         "unknown parameter": (
-            write("extra.toml", ANAND + "foo_MPa = 1.0\n"),
+            write(
+                "extra.toml", ANAND.replace("K_MPa = 66000.0\n", "K_MPa = 66000.0\nfoo_MPa = 1.0\n")
+            ),
             "unknown key(s) ['foo_MPa']",
         ),
         "bad parameter": (
             write("negative.toml", ANAND.replace("s0_MPa = 29.7", "s0_MPa = -1")),
             "params.s0_MPa = -1.0: must lie in (0, inf)",
+        ),
+        "unknown thermal key": (
+            write("thermal.toml", ANAND + "foo_W = 1.0\n"),
+            "unknown key(s) ['foo_W'] in [thermal]",
+        ),
+        "bad thermal value": (
+            write("cold.toml", ANAND.replace("density_kg_m3 = 2710.0", "density_kg_m3 = 0.0")),
+            "thermal.density_kg_m3 = 0.0: must lie in (0, inf)",
         ),
         "non-number parameter": (
             write("text.toml", ANAND.replace("m = 0.23348", 'm = "x"')),

@@ -19,6 +19,12 @@ sets, targets) with ``__call__(traj, inputs) -> scalar`` (``inputs`` = the run's
   a set of elements.
 * :class:`UnfilledCavity`    1 - material volume / cavity volume at the end (0 = filled):
   the cavity enclosed by the die profile, the axis and the mid-plane.
+* :class:`TemperatureMisfit` mean squared difference (K^2) of the run's mean temperature
+  (weighted by the material each node carries) from a target history, interpolated in time
+  (coupled thermal runs: identification of a conductance).
+* :class:`TemperatureLimit`  another objective plus a quadratic penalty on the hottest node
+  above a limit: weight x sum over the rows of max(0, T_max - limit)^2 (an exterior penalty:
+  the limit holds approximately, better as the weight grows).
 """
 
 from __future__ import annotations
@@ -122,3 +128,32 @@ class UnfilledCavity(_Identity):
         vol = workpiece_volume(traj.positions, self.elements, self.axisymmetric)
         cav = cavity_volume(die.points, die.travel(traj.time_s[-1]), self.axisymmetric)
         return 1.0 - vol / cav
+
+
+@dataclass(frozen=True, eq=False)
+class TemperatureMisfit(_Identity):
+    time_s: np.ndarray  # target times (s)
+    temperature_K: np.ndarray  # target mean temperatures (K)
+    weights: np.ndarray  # (n_nodes,) the material each node carries (mm^3)
+    unit = "K^2"
+
+    def __call__(self, traj, inputs):
+        w = jnp.asarray(self.weights)
+        mean = traj.temperature_K @ w / jnp.sum(w)
+        at = jnp.interp(jnp.asarray(self.time_s), traj.time_s, mean)
+        return jnp.mean((at - jnp.asarray(self.temperature_K)) ** 2)
+
+
+@dataclass(frozen=True, eq=False)
+class TemperatureLimit(_Identity):
+    inner: object  # the objective to minimize
+    limit_K: float
+    weight: float  # objective units per K^2
+
+    @property
+    def unit(self):
+        return self.inner.unit
+
+    def __call__(self, traj, inputs):
+        over = jnp.maximum(jnp.max(traj.temperature_K, axis=1) - self.limit_K, 0.0)
+        return self.inner(traj, inputs) + self.weight * jnp.sum(over**2)

@@ -20,6 +20,9 @@ Groups compose left to right (:func:`apply_all`).  The design pytree is a dict
   cos(k pi z / H)), k = 1..n, every node moved radially in proportion, with c chosen so
   that the *discrete* volume of the mesh is that of the cylinder (constant volume).
 * :class:`DieProfile`      vertical offsets (mm) of chosen die profile points.
+* :class:`Thermal`         chosen thermal inputs of a coupled run: billet and die
+  temperatures (u in 100 K from the configured ones), log of the die contact conductance,
+  the Taylor-Quinney factor.
 """
 
 from __future__ import annotations
@@ -108,6 +111,54 @@ class RamSpeed:
 
     def physical(self, u):
         return {"speed_mm_s": float(self.speed0_mm_s * np.exp(float(u[0])))}
+
+
+# the inputs the 'thermal' group may vary, in the order of its variables
+THERMAL_VARIABLES = ("billet_temperature_K", "die_temperature_K", "htc_die_W_m2K", "taylor_quinney")
+
+
+@dataclass(frozen=True)
+class Thermal:
+    """Chosen thermal inputs (``names``, of :data:`THERMAL_VARIABLES`) from their
+    configured values ``start``: a temperature as u = (T - T_start) / 100 K (within
+    +-``temperature_max_K``), the die conductance as u = log(h / h_start) (within a factor
+    exp(bound_log)), the Taylor-Quinney factor as itself (in [0, 1])."""
+
+    names: tuple[str, ...]
+    start: tuple[float, ...]
+    bound_log: float = float(np.log(4.0))
+    temperature_max_K: float = 200.0
+    name: str = "thermal"
+
+    KELVIN_PER_UNIT = 100.0
+
+    def initial(self):
+        return jnp.asarray([v if n == "taylor_quinney" else 0.0
+                            for n, v in zip(self.names, self.start)])  # fmt: skip
+
+    def bounds(self):
+        t = self.temperature_max_K / self.KELVIN_PER_UNIT
+        box = {"htc_die_W_m2K": (-self.bound_log, self.bound_log), "taylor_quinney": (0.0, 1.0)}
+        lo, hi = zip(*(box.get(n, (-t, t)) for n in self.names))
+        return jnp.asarray(lo), jnp.asarray(hi)
+
+    def values(self, u):
+        """{name: value in the config's units} at u."""
+        out = {}
+        for i, (n, v0) in enumerate(zip(self.names, self.start)):
+            if n == "htc_die_W_m2K":
+                out[n] = v0 * jnp.exp(u[i])
+            elif n == "taylor_quinney":
+                out[n] = u[i]
+            else:
+                out[n] = v0 + self.KELVIN_PER_UNIT * u[i]
+        return out
+
+    def apply(self, u, inputs, times):
+        return replace(inputs, thermal=replace(inputs.thermal, **self.values(u))), times
+
+    def physical(self, u):
+        return {n: float(v) for n, v in self.values(u).items()}
 
 
 @dataclass(frozen=True)

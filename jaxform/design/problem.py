@@ -26,6 +26,7 @@ from jaxform.design import objectives as obj
 from jaxform.design import parametrize as par
 from jaxform.errors import ConfigError
 from jaxform.gradients import check, release, schedule, trajectory
+from jaxform.postprocess import nodal_volumes
 from jaxform.scenes import Scene
 from jaxform.workpieces import DIE_GROUPS
 from jaxform.xla_options import jit
@@ -113,8 +114,11 @@ def available_groups(scene: Scene) -> tuple[str, ...]:
         the group names, a subset of :data:`GROUPS` in that order.
     """
     check_design_scene(scene)
-    friction = scene.settings.friction.model in ("coulomb", "shear")
-    return tuple(g for g in scene.workpiece.design_groups() if g != "friction" or friction)
+    ok = {
+        "friction": scene.settings.friction.model in ("coulomb", "shear"),
+        "thermal": scene.inputs.thermal is not None,
+    }
+    return tuple(g for g in scene.workpiece.design_groups() if ok.get(g, True))
 
 
 def build_group(scene: Scene, name: str):
@@ -178,6 +182,22 @@ def build_group(scene: Scene, name: str):
                 f"indices in [0, {n_pts - 1}] of the die profile points"
             )
         return par.DieProfile(tuple(int(p) for p in pts), offset_max_mm=d.die_offset_max_mm)
+    if name == "thermal":
+        th = cfg.thermal
+        if th.model != "coupled" or th.htc_die_W_m2K <= 0.0:
+            raise ConfigError(
+                f"design.variables has 'thermal': needs thermal.model = 'coupled' (is "
+                f"{th.model!r}) and thermal.htc_die_W_m2K > 0 (is {th.htc_die_W_m2K!r})"
+            )
+        names = d.thermal_params or par.THERMAL_VARIABLES
+        bad = sorted(set(names) - set(par.THERMAL_VARIABLES))
+        if bad:
+            raise ConfigError(
+                f"design.thermal_params: {bad} are not thermal design variables; allowed: "
+                f"{', '.join(par.THERMAL_VARIABLES)}"
+            )
+        start = tuple(float(getattr(th, n)) for n in names)
+        return par.Thermal(tuple(names), start, bound_log=float(np.log(d.bound_factor)))
     raise ConfigError(f"design group {name!r}: must be one of {', '.join(GROUPS)}")
 
 
@@ -200,6 +220,17 @@ def side_nodes(scene: Scene) -> np.ndarray:
 
 
 def build_objective(scene: Scene):
+    """The design objective of the config (with its temperature limit, if one is set)."""
+    objective = _base_objective(scene)
+    d = scene.settings.design
+    if d.max_temperature_K > 0.0:
+        if scene.inputs.thermal is None:
+            raise ConfigError("design.max_temperature_K > 0 needs thermal.model = 'coupled'")
+        return obj.TemperatureLimit(objective, d.max_temperature_K, d.temperature_penalty)
+    return objective
+
+
+def _base_objective(scene: Scene):
     d = scene.settings.design
     name = d.objective
     axi = scene.model.formulation.axisymmetric
@@ -221,6 +252,13 @@ def build_objective(scene: Scene):
         c = _read_columns(d.target_csv, ("stroke_mm", "force_N"))
         keep = c["stroke_mm"] > 0
         return obj.ForceMisfit(c["stroke_mm"][keep], c["force_N"][keep])
+    if name == "temperature_misfit":
+        if scene.inputs.thermal is None:
+            raise ConfigError(
+                "design.objective = 'temperature_misfit' needs thermal.model = 'coupled'"
+            )
+        c = _read_columns(d.target_csv, ("time_s", "mean_temperature_K"))
+        return obj.TemperatureMisfit(c["time_s"], c["mean_temperature_K"], nodal_volumes(scene))
     c = _read_columns(d.target_csv, ("node", "r_mm", "z_mm"))
     nodes = c["node"].astype(int)
     if np.any(nodes < 0) or np.any(nodes >= scene.mesh.n_nodes):

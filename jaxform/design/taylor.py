@@ -45,6 +45,7 @@ SCALE = {
     "preform": 0.01,
     "nodes": 0.003,
     "die": 0.01,
+    "thermal": 0.01,
 }
 
 

@@ -33,7 +33,7 @@ root through the nesting.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import partial
 from typing import ClassVar
 
@@ -152,6 +152,11 @@ class Anand:
 
     def shear_modulus(self, params: AnandParams):
         return params.G_MPa
+
+    def at_temperature(self, params: AnandParams, temperature_K):
+        """The parameters at temperature_K (K): the Arrhenius factor exp(-Q/(R theta))
+        follows it (a lumped preset, Q/R = 0, does not depend on it)."""
+        return replace(params, temperature_K=temperature_K)
 
     # -- the local solve ------------------------------------------------------------
     def _s_of_y(self, y, s_n, log_dt, p: AnandParams):

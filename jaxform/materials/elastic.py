@@ -37,6 +37,11 @@ class Hypoelastic:
     def shear_modulus(self, params: ElasticParams):
         return params.G_MPa
 
+    def at_temperature(self, params: ElasticParams, temperature_K):
+        """Elastic moduli do not depend on the temperature here."""
+        del temperature_K
+        return params
+
     def update(
         self,
         kin: StepKinematics,

@@ -9,7 +9,7 @@ State: ``s`` holds the current yield stress in MPa.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import ClassVar
 
 import jax
@@ -32,6 +32,9 @@ class J2Params:
     K_MPa: jax.Array
     sigma_y0_MPa: jax.Array  # initial yield stress
     H_MPa: jax.Array  # linear hardening modulus d(sigma_y)/d(eqps); 0 = perfect plasticity
+    # the initial yield stress at temperature theta: sigma_y0 + yield_slope (theta - T_ref)
+    yield_slope_MPa_K: jax.Array = 0.0  # d(sigma_y0)/d(theta), negative: softer when hot
+    reference_temperature_K: jax.Array = 293.15  # where sigma_y0 is given
 
 
 @dataclass(frozen=True)
@@ -47,6 +50,13 @@ class J2Plasticity:
 
     def shear_modulus(self, params: J2Params):
         return params.G_MPa
+
+    def at_temperature(self, params: J2Params, temperature_K):
+        """The parameters at temperature_K (K): sigma_y0 moved along yield_slope_MPa_K
+        (the hardening modulus is kept)."""
+        shift = params.yield_slope_MPa_K * (temperature_K - params.reference_temperature_K)
+        return replace(params, sigma_y0_MPa=params.sigma_y0_MPa + shift,
+                       reference_temperature_K=temperature_K)  # fmt: skip
 
     def update(
         self,

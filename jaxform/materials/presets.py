@@ -1,7 +1,9 @@
 """Material presets and material files (TOML, units in the key names).
 
-A material file has ``law = "anand" | "j2" | "elastic"``, an optional ``description`` and
-a ``[params]`` table whose keys are exactly the fields of that law's parameter dataclass.
+A material file has ``law = "anand" | "j2" | "elastic"``, an optional ``description``, a
+``[params]`` table whose keys are the fields of that law's parameter dataclass (those in
+:data:`OPTIONAL` may be left out) and an optional ``[thermal]`` table (density_kg_m3,
+specific_heat_J_kgK, conductivity_W_mK) that coupled thermal runs need.
 The presets are such files shipped inside the package (``jaxform/materials/data``, read
 with :mod:`importlib.resources`, so an installed jaxform finds them from any directory).
 ``load_material(name)`` accepts a preset name or a path to a ``.toml`` file and returns
@@ -13,19 +15,21 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import tomllib
-from importlib import resources
 from pathlib import Path
 
 import jax.numpy as jnp
 
-from jaxform.errors import ConfigError
+from jaxform.material_files import (
+    MaterialError,
+    _document,
+    _number,
+    available_presets,
+    load_thermal_properties,
+    thermal_table,
+)
 from jaxform.materials.anand import Anand, AnandParams
 from jaxform.materials.elastic import ElasticParams, Hypoelastic
 from jaxform.materials.j2 import J2Params, J2Plasticity
-
-# the package-data folder of the presets (declared in pyproject.toml)
-PRESET_PACKAGE, PRESET_FOLDER = "jaxform.materials", "data"
 
 # law name -> (law class, params class, {key: (low, high, low_inclusive)})
 _POS = (0.0, math.inf, False)
@@ -52,36 +56,21 @@ LAWS = {
     "j2": (
         J2Plasticity,
         J2Params,
-        {"G_MPa": _POS, "K_MPa": _POS, "sigma_y0_MPa": _POS, "H_MPa": _NONNEG},
+        {
+            "G_MPa": _POS,
+            "K_MPa": _POS,
+            "sigma_y0_MPa": _POS,
+            "H_MPa": _NONNEG,
+            "yield_slope_MPa_K": (-math.inf, math.inf, False),
+            "reference_temperature_K": _POS,
+        },
     ),
     "elastic": (Hypoelastic, ElasticParams, {"G_MPa": _POS, "K_MPa": _POS}),
 }
 
 
-class MaterialError(ConfigError):
-    """A material preset, file or table is invalid; the message names the key and what is
-    allowed (a config error: the command line reports it in one line and exits 2)."""
-
-
-def _preset_files() -> dict:
-    """Preset name -> importlib.resources Traversable of its TOML file."""
-    folder = resources.files(PRESET_PACKAGE) / PRESET_FOLDER
-    return {p.name[:-5]: p for p in folder.iterdir() if p.name.endswith(".toml")}
-
-
-def available_presets() -> list[str]:
-    """Names of the material presets shipped with jaxform.
-
-    Returns:
-        the preset names, sorted (e.g. ``al1100_673K``).
-    """
-    return sorted(_preset_files())
-
-
-def _range_text(lo, hi, lo_incl):
-    left = "[" if lo_incl else "("
-    right = ")"
-    return f"{left}{lo:g}, {hi:g}{right}"
+# parameters a material file may leave out (law -> {key: default})
+OPTIONAL = {"j2": {"yield_slope_MPa_K": 0.0, "reference_temperature_K": 293.15}}
 
 
 def material_from_table(law_name: str, params: dict, where: str = "material.params"):
@@ -103,34 +92,13 @@ def material_from_table(law_name: str, params: dict, where: str = "material.para
         raise MaterialError(
             f"{where}: unknown key(s) {unknown} for law {law_name!r}; allowed: {sorted(ranges)}"
         )
+    params = {**OPTIONAL.get(law_name, {}), **params}
     missing = sorted(set(ranges) - set(params))
     if missing:
         raise MaterialError(f"{where}: missing key(s) {missing} for law {law_name!r}")
-    values = {}
-    for key, (lo, hi, lo_incl) in ranges.items():
-        v = params[key]
-        if isinstance(v, bool) or not isinstance(v, (int, float)):
-            raise MaterialError(
-                f"{where}.{key} = {v!r}: must be a number in {_range_text(lo, hi, lo_incl)}"
-            )
-        v = float(v)
-        ok_lo = v >= lo if lo_incl else v > lo
-        if not (math.isfinite(v) and ok_lo and v < hi):
-            raise MaterialError(
-                f"{where}.{key} = {v!r}: must lie in {_range_text(lo, hi, lo_incl)}"
-            )
-        values[key] = jnp.asarray(v)
+    values = {key: jnp.asarray(_number(params[key], f"{where}.{key}", *r))
+              for key, r in ranges.items()}  # fmt: skip
     return law_cls(), params_cls(**values)
-
-
-_FORMAT = (
-    f"a material file is TOML with law = one of {sorted(LAWS)}, an optional "
-    f"description and a [params] table"
-)
-
-
-def _allowed(names) -> str:
-    return f"allowed: a preset name ({', '.join(names)}) or the path of a .toml material file"
 
 
 def load_material(name_or_path: str | Path, key: str = "material.preset"):
@@ -148,37 +116,7 @@ def load_material(name_or_path: str | Path, key: str = "material.preset"):
         MaterialError: unknown preset, missing or unreadable file, not TOML, unknown
             law or a parameter missing, unknown or out of range (one line).
     """
-    text = str(name_or_path)
-    head = f"{key} = {text!r}"
-    presets = _preset_files()
-    if text in presets:
-        return _from_bytes(presets[text].read_bytes(), head)
-    path = Path(text)
-    if not (text.endswith(".toml") or "/" in text or path.exists()):
-        raise MaterialError(f"{head}: no such preset; {_allowed(sorted(presets))}")
-    if not path.is_file():
-        what = "is a directory" if path.is_dir() else "no such file"
-        raise MaterialError(f"{head}: {what}; {_allowed(sorted(presets))}")
-    try:
-        data = path.read_bytes()
-    except OSError as err:
-        raise MaterialError(
-            f"{head}: cannot read the file ({err.strerror}); {_allowed(sorted(presets))}"
-        ) from err
-    return _from_bytes(data, head)
-
-
-def _from_bytes(data: bytes, head: str):
-    """(law, params) from the bytes of a material file; errors start with ``head``."""
-    try:
-        table = tomllib.loads(data.decode("utf-8"))
-    except UnicodeDecodeError as err:
-        raise MaterialError(f"{head}: not a text (UTF-8) file; {_FORMAT}") from err
-    except tomllib.TOMLDecodeError as err:
-        raise MaterialError(f"{head}: invalid TOML ({err}); {_FORMAT}") from err
-    unknown = sorted(set(table) - {"law", "description", "params"})
-    if unknown:
-        raise MaterialError(f"{head}: unknown key(s) {unknown}; allowed: law, description, params")
+    table, head = _document(name_or_path, key)
     law = table.get("law")
     if not isinstance(law, str) or law not in LAWS:
         raise MaterialError(f"{head}: law = {law!r}: must be one of {sorted(LAWS)}")
@@ -188,8 +126,20 @@ def _from_bytes(data: bytes, head: str):
             f"{head}: needs a [params] table with the keys of law {law!r}: "
             f"{', '.join(LAWS[law][2])}"
         )
+    thermal_table(table, head)  # a bad [thermal] table is an error even for isothermal runs
     return material_from_table(law, params, where=f"{head}: params")
 
 
 def params_as_dict(params) -> dict[str, float]:
     return {f.name: float(getattr(params, f.name)) for f in dataclasses.fields(params)}
+
+
+__all__ = [
+    "LAWS",
+    "MaterialError",
+    "available_presets",
+    "load_material",
+    "load_thermal_properties",
+    "material_from_table",
+    "params_as_dict",
+]
