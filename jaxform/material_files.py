@@ -52,7 +52,7 @@ def _range_text(lo, hi, lo_incl):
     return f"{left}{lo:g}, {hi:g}{right}"
 
 
-def _number(v, name: str, lo: float, hi: float, lo_incl: bool) -> float:
+def checked_number(v, name: str, lo: float, hi: float, lo_incl: bool) -> float:
     """v as a float, or MaterialError naming ``name`` and the allowed range."""
     if isinstance(v, bool) or not isinstance(v, (int, float)):
         raise MaterialError(f"{name} = {v!r}: must be a number in {_range_text(lo, hi, lo_incl)}")
@@ -76,7 +76,7 @@ def _allowed(names) -> str:
 def load_thermal_properties(name_or_path: str | Path, key: str = "material.preset") -> dict:
     """The [thermal] table of a preset or material file, validated: density_kg_m3,
     specific_heat_J_kgK, conductivity_W_mK (floats); {} if the file has none."""
-    table, head = _document(name_or_path, key)
+    table, head = read_material_file(name_or_path, key)
     return thermal_table(table, head)
 
 
@@ -96,11 +96,11 @@ def thermal_table(table: dict, head: str) -> dict:
             f"{head}: [thermal] needs all of {', '.join(THERMAL_KEYS)} "
             f"(missing {sorted(set(THERMAL_KEYS) - set(th))})"
         )
-    return {k: _number(th[k], f"{head}: thermal.{k}", *r) for k, r in THERMAL_KEYS.items()
+    return {k: checked_number(th[k], f"{head}: thermal.{k}", *r) for k, r in THERMAL_KEYS.items()
             if k in th}  # fmt: skip
 
 
-def _document(name_or_path: str | Path, key: str) -> tuple[dict, str]:
+def read_material_file(name_or_path: str | Path, key: str) -> tuple[dict, str]:
     """(the TOML table of a preset or material file, the head of its error messages)."""
     text = str(name_or_path)
     head = f"{key} = {text!r}"

@@ -21,10 +21,10 @@ import jax.numpy as jnp
 
 from jaxform.material_files import (
     MaterialError,
-    _document,
-    _number,
     available_presets,
+    checked_number,
     load_thermal_properties,
+    read_material_file,
     thermal_table,
 )
 from jaxform.materials.anand import Anand, AnandParams
@@ -96,7 +96,7 @@ def material_from_table(law_name: str, params: dict, where: str = "material.para
     missing = sorted(set(ranges) - set(params))
     if missing:
         raise MaterialError(f"{where}: missing key(s) {missing} for law {law_name!r}")
-    values = {key: jnp.asarray(_number(params[key], f"{where}.{key}", *r))
+    values = {key: jnp.asarray(checked_number(params[key], f"{where}.{key}", *r))
               for key, r in ranges.items()}  # fmt: skip
     return law_cls(), params_cls(**values)
 
@@ -116,7 +116,7 @@ def load_material(name_or_path: str | Path, key: str = "material.preset"):
         MaterialError: unknown preset, missing or unreadable file, not TOML, unknown
             law or a parameter missing, unknown or out of range (one line).
     """
-    table, head = _document(name_or_path, key)
+    table, head = read_material_file(name_or_path, key)
     law = table.get("law")
     if not isinstance(law, str) or law not in LAWS:
         raise MaterialError(f"{head}: law = {law!r}: must be one of {sorted(LAWS)}")
