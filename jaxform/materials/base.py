@@ -5,6 +5,9 @@ caps) with two pure functions of one material point:
 
 ``law.initial_state(params) -> MaterialState``
 ``law.update(kin, state_old, params, dt, solution=None) -> (stress, state_new, ok)``
+``law.at_temperature(params, temperature_K) -> params``: the parameters at a point's
+temperature (coupled thermal runs; Anand's Arrhenius factor, J2's yield slope; the
+elastic law ignores it), so temperature enters the update as one more input.
 
 * ``kin`` is a :class:`jaxform.kinematics.StepKinematics` (rotation R and
   rotation-neutralized strain increment dE of the step);
