@@ -88,18 +88,12 @@ def main():
     )
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    cols = {
-        "iteration": np.arange(len(hist.objective)),
-        "objective": np.array(hist.objective),
-        "grad_norm": np.array(hist.grad_norm),
-    }
-    phys = [problem.physical(u) for u in hist.designs]
-    for key in phys[0]:
-        cols[key] = np.array([p[key] for p in phys])
+    cols = hist.columns(problem)
     _, traj = problem.value(hist.designs[-1])
-    cols["peak_force_N"] = np.full(len(phys), np.nan)
+    n = len(hist.designs)
+    cols["peak_force_N"] = np.full(n, np.nan)
     cols["peak_force_N"][-1] = float(np.max(np.asarray(traj.force_N)))
-    cols["max_temperature_K"] = np.full(len(phys), np.nan)
+    cols["max_temperature_K"] = np.full(n, np.nan)
     cols["max_temperature_K"][-1] = float(np.max(np.asarray(traj.temperature_K)))
     write_csv(out / f"hot_{args.study}_history.csv", cols)
     design_objective(hist.objective, out / f"hot_{args.study}_design.png",
@@ -107,7 +101,7 @@ def main():
     print(f"done in {time.perf_counter() - t0:.1f} s ({hist.stop_reason}): "
           f"{len(hist.objective) - 1} iterations, {hist.evaluations} evaluations")  # fmt: skip
     print(f"objective {hist.objective[0]:.6e} -> {hist.objective[-1]:.6e}")
-    print(f"start {phys[0]}\nfound {phys[-1]}")
+    print(f"start {problem.physical(hist.designs[0])}\nfound {problem.physical(hist.designs[-1])}")
     print(f"peak force {cols['peak_force_N'][-1]:.2f} N, "
           f"max temperature {cols['max_temperature_K'][-1]:.2f} K")  # fmt: skip
     if truth is not None:

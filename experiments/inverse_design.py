@@ -111,14 +111,7 @@ def main():
     )
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    cols = {
-        "iteration": np.arange(len(hist.objective)),
-        "objective": np.array(hist.objective),
-        "grad_norm": np.array(hist.grad_norm),
-    }
-    phys = [problem.physical(u) for u in hist.designs]
-    for key in phys[0]:
-        cols[key] = np.array([p[key] for p in phys])
+    cols = hist.columns(problem)
     write_csv(out / f"{args.study}_history.csv", cols)
     design_objective(
         hist.objective,
@@ -126,8 +119,8 @@ def main():
         f"{args.study}: twin experiment (L-BFGS)",
         problem.objective.unit,
     )
-    true_phys, found = problem.physical(truth), phys[-1]
-    start_phys = phys[0]
+    true_phys, found = problem.physical(truth), problem.physical(hist.designs[-1])
+    start_phys = problem.physical(hist.designs[0])
     print(
         f"done in {time.perf_counter() - t0:.1f} s ({hist.stop_reason}): "
         f"{len(hist.objective) - 1} iterations, {hist.evaluations} gradient evaluations"

@@ -140,6 +140,13 @@ class Layout:
     def n_dofs(self) -> int:
         return self.n_node_dofs + self.n_mult
 
+    def temperatures(self, x, billet_temperature_K):
+        """(n_nodes,) nodal temperatures (K) of x (NumPy or JAX), or None without a
+        temperature field: the unknown is the change from the billet temperature."""
+        if not self.temperature:
+            return None
+        return billet_temperature_K + self.nodal(x)[:, -1]
+
     def nodal(self, x):
         """The nodal block of x, (n_nodes, n_fields): u_r, u_z[, p][, T] per node (a view for
         NumPy arrays).  The one place that knows the layout of x's nodal part."""

@@ -206,14 +206,7 @@ def run_design(config, overrides=(), out_dir: str | Path = "out/design", progres
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     dump_config(cfg.to_dict(), out / "config.toml")
-    cols = {
-        "iteration": np.arange(len(hist.objective)),
-        "objective": np.array(hist.objective),
-        "grad_norm": np.array(hist.grad_norm),
-    }
-    phys = [problem.physical(u) for u in hist.designs]
-    for key in phys[0]:
-        cols[key] = np.array([p[key] for p in phys])
+    cols = hist.columns(problem)
     write_csv(out / "design_history.csv", cols)
     unit = getattr(problem.objective, "unit", "-")
     design_objective(hist.objective, out / "objective.png", f"{d.objective} ({d.optimizer})", unit)

@@ -88,12 +88,9 @@ class Trajectory:
     temperature_K: jax.Array | None = None
 
 
-def nodal_temperature(model, x, inputs: Inputs):
-    """(n_nodes,) nodal temperatures (K) of unknowns x, or None without a temperature
-    field (the unknown is the change from the billet temperature)."""
-    if not model.layout.temperature:
-        return None
-    return inputs.thermal.billet_temperature_K + model.layout.nodal(x)[:, -1]
+def _temperatures(model, x, inputs: Inputs):
+    th = inputs.thermal
+    return None if th is None else model.layout.temperatures(x, th.billet_temperature_K)
 
 
 class GradientRunError(RuntimeError):
@@ -145,7 +142,7 @@ def _trajectory(stepper: Stepper, inputs: Inputs, times, state0, idx, n_kept=0):
             its,
             new.contact_status,
             kept if linear.handles else None,  # handles for the owner to free
-            nodal_temperature(model, x, inputs),
+            _temperatures(model, x, inputs),
         )
         return new, out
 
@@ -172,7 +169,7 @@ def _trajectory(stepper: Stepper, inputs: Inputs, times, state0, idx, n_kept=0):
         temperature_K=(
             None
             if temps is None
-            else jnp.concatenate([nodal_temperature(model, state0.x, inputs)[None], temps])
+            else jnp.concatenate([_temperatures(model, state0.x, inputs)[None], temps])
         ),
     )
 

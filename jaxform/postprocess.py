@@ -42,11 +42,10 @@ def nodal_fields(scene, x: np.ndarray):
 def nodal_temperature(scene, x: np.ndarray) -> np.ndarray | None:
     """(n_nodes,) nodal temperatures (K) of a coupled thermal run, else None (the unknown
     is the change from the billet temperature)."""
-    col = scene.model.layout.temperature_column
-    if col is None:
+    lay = scene.model.layout
+    if not lay.temperature:
         return None
-    t0 = float(scene.inputs.thermal.billet_temperature_K)
-    return t0 + scene.model.layout.nodal(np.asarray(x))[:, col]
+    return lay.temperatures(np.asarray(x), float(scene.inputs.thermal.billet_temperature_K))
 
 
 def nodal_volumes(scene) -> np.ndarray:

@@ -29,6 +29,10 @@ SEED = {
 }
 # no heat leaves: the billet keeps its plastic work
 ADIABATIC = ("thermal.htc_die_W_m2K=0.0", "thermal.htc_air_W_m2K=0.0", "thermal.emissivity=0.0")
+# die chill at forging speed, shear friction, radiation: every heat term at work
+CHILL = ("material.preset=al1100_coupled", "thermal.die_temperature_K=473.0",
+         "friction.model=shear", "friction.m=0.3", "die.speed_mm_s=7.5", "time.dt_s=0.01",
+         "die.reduction=0.2", "thermal.emissivity=0.5")  # fmt: skip
 
 
 def scene(base, *overrides):
@@ -76,11 +80,7 @@ def test_energy_balance_every_step():
     """Die chill with friction, convection and radiation: in every step the heat stored
     equals the plastic heat minus what the dies and the air take, to 1e-8 of the largest
     term (the assembled thermal rows sum to that balance; Newton stops at rtol 1e-10)."""
-    sc, res = run(
-        "material.preset=al1100_coupled", "thermal.die_temperature_K=473.0",
-        "friction.model=shear", "friction.m=0.3", "die.speed_mm_s=7.5", "time.dt_s=0.01",
-        "die.reduction=0.2", "thermal.emissivity=0.5",
-    )  # fmt: skip
+    sc, res = run(*CHILL)
     h = res.history
     d = {k: np.diff(h[k]) for k in HEAT_COLUMNS}
     balance = d["heat_stored_mJ"] - (
@@ -136,11 +136,7 @@ def test_thermal_jacobian_against_finite_differences():
     """The assembled Jacobian with the thermal rows and the thermo-mechanical coupling
     (Arrhenius material, plastic heating, die chill, radiation) against 4-point central
     differences: relative error (Frobenius) <= 1e-6."""
-    sc, res = run(
-        "material.preset=al1100_coupled", "thermal.die_temperature_K=473.0",
-        "friction.model=shear", "friction.m=0.3", "die.speed_mm_s=7.5", "time.dt_s=0.01",
-        "die.reduction=0.2", "thermal.emissivity=0.5",
-    )  # fmt: skip
+    sc, res = run(*CHILL)
     st = res.final_state
     rng = np.random.default_rng(2)
     x = st.x + 1e-4 * jnp.asarray(rng.standard_normal(st.x.shape)) * (st.x != 0)

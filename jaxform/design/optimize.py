@@ -62,6 +62,18 @@ class DesignHistory:
     rejected: int = 0
     stop_reason: str = ""
 
+    def columns(self, problem) -> dict[str, np.ndarray]:
+        """Per iteration: iteration, objective, grad_norm and the design's physical values
+        (``problem.physical``), as CSV columns."""
+        cols = {
+            "iteration": np.arange(len(self.objective)),
+            "objective": np.array(self.objective),
+            "grad_norm": np.array(self.grad_norm),
+        }
+        phys = [problem.physical(u) for u in self.designs]
+        cols.update({key: np.array([p[key] for p in phys]) for key in phys[0]})
+        return cols
+
 
 def _flat(tree):
     return np.concatenate([np.ravel(np.asarray(v)) for v in jax.tree_util.tree_leaves(tree)])
