@@ -44,10 +44,11 @@ class Progress:
 
     @staticmethod
     def describe(p: dict) -> str:
+        new_mesh = f" remeshed: {p['remeshed']} nodes" if p.get("remeshed") else ""
         return (
             f"t={p['time_s']:.3f} s dt={p['dt_s']:.4g} s stroke={p['stroke_mm']:.4f} mm "
             f"force={p['force_N']:.3f} N newton={int(p['iterations'])} "
-            f"cutbacks={int(p['cutbacks'])}"
+            f"cutbacks={int(p['cutbacks'])}{new_mesh}"
         )
 
     def __call__(self, p: dict) -> None:
@@ -61,7 +62,7 @@ class Progress:
             self.bar.total = p["n_steps"]
             self.bar.set_postfix_str(self.describe(p), refresh=False)
             self.bar.update(p["step"] - self.bar.n)
-        elif p["chunk_end"]:
+        elif p["chunk_end"] or p.get("remeshed"):
             print(f"step {p['step']}/{p['n_steps']}: {self.describe(p)}", file=self.stream,
                   flush=True)  # fmt: skip
 
@@ -217,6 +218,7 @@ def _run(args) -> int:
     print(
         f"done: {len(h['time_s']) - 1} steps, {int(h['newton_iterations'].sum())} Newton "
         f"iterations, {int(h['cutbacks'].sum())} cutbacks, {int(h['rezoned'].sum())} rezonings, "
+        f"{len(result.remeshes)} remeshes, "
         f"final force {h['force_N'][-1]:.2f} N, "
         f"{time.perf_counter() - t0:.1f} s wall (first chunk incl. compile "
         f"{first or 0:.1f} s)"

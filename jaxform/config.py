@@ -284,6 +284,42 @@ class MeshConfig:
     )
 
 
+@section("remesh")
+@dataclass(frozen=True, kw_only=True)
+class RemeshConfig:
+    """[remesh]: a new all-quad mesh of the deformed section (gmsh) when a trigger fires."""
+
+    quality_below: float = key(
+        0.0,
+        low=0.0,
+        high=1.0,
+        high_open=True,
+        doc="remesh after a step whose worst element corner quality (1 for squares, 0 for a "
+        "degenerate corner) falls below this (0 = never)",
+    )
+    every_steps: int = key(
+        0, low=0, high=100_000, doc="remesh after every this many converged steps (0 = never)"
+    )
+    element_size_mm: float = key(
+        0.0,
+        low=0.0,
+        doc="element size of the new mesh in the bulk (mm; 0 = the initial mesh's mean "
+        "element size)",
+    )
+    die_size_ratio: float = key(
+        0.5,
+        low=0.05,
+        high=1.0,
+        doc="element size where the workpiece touches a die and at sharp boundary corners, "
+        "as a fraction of remesh.element_size_mm",
+    )
+
+    @property
+    def on(self) -> bool:
+        """Whether a trigger is set."""
+        return self.quality_below > 0.0 or self.every_steps > 0
+
+
 @section("material")
 @dataclass(frozen=True, kw_only=True)
 class MaterialConfig:
@@ -673,6 +709,7 @@ class Config:
     membrane: MembraneConfig | None = None
     load: LoadConfig | None = None
     mesh: MeshConfig
+    remesh: RemeshConfig
     material: MaterialConfig
     die: DieConfig | None = None
     friction: FrictionConfig | None = None
@@ -867,6 +904,18 @@ def _cross_checks(raw: dict, out: dict) -> None:
         )
     if times and (times[0] != 0.0 or any(b <= a for a, b in zip(times, times[1:]))):
         raise ConfigError("thermal.die_path_time_s: must start at 0 s and increase")
+    rm = out["remesh"]
+    if rm["quality_below"] > 0.0 or rm["every_steps"] > 0:
+        if out["mesh"]["rezone_quality"] > 0.0:
+            raise ConfigError(
+                "mesh.rezone_quality > 0 and [remesh] both set: choose one (remeshing "
+                "replaces the mesh, rezoning moves its nodes); set mesh.rezone_quality = 0"
+            )
+        if "membrane" in out:
+            raise ConfigError(
+                "[remesh]: a [membrane] scene cannot be remeshed (its load is given per "
+                "initial edge); set remesh.quality_below = 0 and remesh.every_steps = 0"
+            )
     if "membrane" in out:
         _membrane_checks(out)
         return
@@ -1167,6 +1216,12 @@ def check_gradient_run(
         raise ConfigError(
             f"mesh.rezone_quality = {q!r}: gradient runs need 0 (a rezoned "
             f"history has no gradient); --set mesh.rezone_quality=0"
+        )
+    rm = cfg["remesh"]
+    if rm["quality_below"] > 0.0 or rm["every_steps"] > 0:
+        raise ConfigError(
+            "[remesh]: gradient runs cannot remesh yet (the gradient through a new mesh is "
+            "not built); set remesh.quality_below = 0 and remesh.every_steps = 0"
         )
     if groups is not None:
         _check_groups(cfg, list(groups), where)

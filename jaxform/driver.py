@@ -17,7 +17,7 @@ import numpy as np
 from jaxform.cache import enable_compilation_cache
 from jaxform.config import dump_config, load_config, typed
 from jaxform.io import write_csv, write_vtu_series
-from jaxform.postprocess import nodal_fields, nodal_temperature
+from jaxform.postprocess import nodal_temperature, positions
 from jaxform.precision import require_x64
 from jaxform.scenes import build_scene
 from jaxform.simulation import HISTORY_KEYS, Result, SimulationError, simulate
@@ -78,18 +78,22 @@ def write_outputs(out_dir: str | Path, result: Result) -> None:
     cols.update({k: v for k, v in h.items() if k not in HISTORY_KEYS and k not in cols})
     if scene.rezone_quality > 0:  # worst element corner quality; 1 where the mesh was rezoned
         cols.update({k: h[k] for k in ("mesh_quality", "rezoned")})
+    if scene.remesh is not None:  # 1 on the steps after which the section was remeshed
+        cols.update({k: h[k] for k in ("mesh_quality", "remeshed")})
     write_csv(out / "history.csv", cols)
     dump_config(cfg.to_dict(), out / "config.toml")
     if result.failure:
         (out / "FAILED.txt").write_text(result.failure + "\n")
     if cfg.output.fields:
-        write_vtu_series(out, scene, result)
+        write_vtu_series(out, result)
     if cfg.output.plots:
+        final = result.final_scene  # the last mesh (the first one without remeshing)
         coords0 = np.asarray(scene.inputs.coords)
-        u, _, _ = nodal_fields(scene, result.fields["x"][-1])
-        coords1 = coords0 + u
-        el = np.asarray(scene.mesh.elements)
+        coords1 = positions(final, result.fields["x"][-1])
+        el, el1 = np.asarray(scene.mesh.elements), np.asarray(final.mesh.elements)
         mesh_text = f"{cfg.mesh.element}, {cfg.mesh.nr}x{cfg.mesh.nz}"
+        if result.remeshes:
+            mesh_text += f", {len(result.remeshes)} remeshes"
         axi = scene.model.formulation.axisymmetric
         axes = ("r [mm]", "z [mm]") if axi else ("x [mm]", "y [mm]")
         if not scene.workpiece.pressed:
@@ -109,10 +113,11 @@ def write_outputs(out_dir: str | Path, result: Result) -> None:
             out / "deformed_mesh.png",
             f"initial and deformed mesh, {red:.1f} % reduction",
             axes,
+            elements1=el1,
         )
         plot.cell_contours(
             coords1,
-            el,
+            el1,
             result.fields["eqps"][-1].mean(axis=1),
             out / "eqps.png",
             f"equivalent plastic strain, {red:.1f} % reduction",
@@ -120,11 +125,11 @@ def write_outputs(out_dir: str | Path, result: Result) -> None:
             axes,
         )
         _contact_plot(out / "contact_profile.png", result)
-        temp = nodal_temperature(scene, result.fields["x"][-1])
+        temp = nodal_temperature(final, result.fields["x"][-1])
         if temp is not None:
             plot.nodal_contours(
                 coords1,
-                el,
+                el1,
                 temp,
                 out / "temperature.png",
                 f"temperature, {red:.1f} % reduction",
@@ -177,7 +182,7 @@ def _contact_plot(path: Path, result: Result) -> None:
     for s in strokes:
         k = int(np.argmin(np.abs(h["stroke_mm"] - s)))
         profiles[float(h["stroke_mm"][k])] = contact_profile(
-            result.scene, f["x"][k], f["slip_mm"][k], f["contact_status"][k]
+            result.scene_at(k), f["x"][k], f["slip_mm"][k], f["contact_status"][k]
         )
     plot.contact_profiles(profiles, path)
 

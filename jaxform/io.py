@@ -44,8 +44,11 @@ def _contact_point_data(scene, result, k: int, n_nodes: int) -> dict:
     return out
 
 
-def write_vtu_series(out_dir: Path, scene, result, every: int = 1) -> Path:
+def write_vtu_series(out_dir: Path, result, every: int = 1) -> Path:
     """ParaView fields: one VTU per written step and a .pvd time series that indexes them.
+    Each row is written on its own mesh (:meth:`jaxform.simulation.Result.scene_at`):
+    after a remesh the points are the new mesh's (the deformed shape when it was made)
+    and the displacement counts from there.
 
     Point data: displacement (mm, 3 components, the third 0), pressure (MPa; nodal for
     q1q1), temperature_K (K; coupled thermal runs), contact pressure / shear traction
@@ -58,12 +61,13 @@ def write_vtu_series(out_dir: Path, scene, result, every: int = 1) -> Path:
     out_dir = Path(out_dir)
     fields_dir = out_dir / "fields"
     fields_dir.mkdir(parents=True, exist_ok=True)
-    coords = np.asarray(scene.inputs.coords)
-    pts = np.column_stack([coords, np.zeros(len(coords))])
-    cells = [("quad", np.asarray(scene.mesh.elements))]
     entries = []
-    n_rows = result.fields["x"].shape[0]
+    n_rows = len(result.fields["x"])
     for k in list(range(0, n_rows, every)) + ([n_rows - 1] if (n_rows - 1) % every else []):
+        scene = result.scene_at(k)  # after a remesh: the new mesh, u from where it was made
+        coords = np.asarray(scene.inputs.coords)
+        pts = np.column_stack([coords, np.zeros(len(coords))])
+        cells = [("quad", np.asarray(scene.mesh.elements))]
         u, p_nodes, _ = nodal_fields(scene, result.fields["x"][k])
         stress = result.fields["stress"][k].mean(axis=1)  # (n_el, 3, 3)
         p_cell = -np.trace(stress, axis1=1, axis2=2) / 3.0

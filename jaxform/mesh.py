@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxform.geometry import polygon_measure
+from jaxform.geometry import min_quality, polygon_measure
 
 
 @dataclass(frozen=True)
@@ -332,3 +332,97 @@ def write_mesh(path: str | Path, mesh: Mesh) -> None:
         file_format="gmsh22",
         binary=False,
     )
+
+
+# gmsh's 2-D algorithms tried in turn (Frontal-Delaunay, Frontal-Delaunay for quads,
+# Delaunay), each recombined by Blossom: the first whose worst corner quality reaches
+# QUAD_QUALITY is taken, else the best of them
+QUAD_ALGORITHMS = (6, 8, 5)
+QUAD_QUALITY = 0.3
+
+
+def polygon_quads(points, labels, sizes) -> Mesh:
+    """All-quadrilateral mesh of a simple polygon by gmsh (2-D algorithms of
+    :data:`QUAD_ALGORITHMS` with Blossom recombination), keeping every polygon vertex as a
+    node.
+
+    Arguments:
+        points: (n, 2) the polygon's vertices, counter-clockwise (mm).
+        labels: n set names, ``labels[i]`` for the edge points[i] -> points[i + 1] ("" for
+            none): each name becomes a facet set (and the node set of its nodes).
+        sizes: (n,) the element size wanted at each vertex (mm); the interior takes the
+            size gmsh spreads from the boundary.
+
+    Each edge is split into round(length / size) segments (at least one), one more on the
+    edge whose segments are longest when the total is odd: Blossom recombination gives an
+    all-quad mesh for an even number of boundary segments.  Raises MeshError when no
+    algorithm gives an all-quad mesh."""
+    pts = np.asarray(points, dtype=float)
+    sizes = np.asarray(sizes, dtype=float)
+    if polygon_measure(pts[None], axisymmetric=False)[0] <= 0.0:
+        raise MeshError("polygon_quads: the polygon must be counter-clockwise")
+    length = np.linalg.norm(np.roll(pts, -1, axis=0) - pts, axis=1)
+    h_edge = 0.5 * (sizes + np.roll(sizes, -1))
+    segments = np.maximum(1, np.round(length / h_edge)).astype(int)
+    if segments.sum() % 2:
+        segments[np.argmax(length / segments)] += 1
+    best, errors = None, []
+    for algorithm in QUAD_ALGORITHMS:
+        try:
+            mesh = _gmsh_quads(pts, labels, sizes, segments, algorithm)
+        except MeshError as err:
+            errors.append(f"algorithm {algorithm}: {err}")
+            continue
+        q = float(min_quality(mesh.coords, mesh.elements))
+        if best is None or q > best[0]:
+            best = (q, mesh)
+        if q >= QUAD_QUALITY:
+            break
+    if best is None:
+        raise MeshError("gmsh gave no all-quad mesh of the section (" + "; ".join(errors) + ")")
+    return best[1]
+
+
+def _gmsh_quads(pts, labels, sizes, segments, algorithm: int) -> Mesh:
+    """One gmsh run of :func:`polygon_quads` with the 2-D ``algorithm``."""
+    import gmsh
+
+    gmsh.initialize(readConfigFiles=False)
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.model.add("section")
+        geo = gmsh.model.geo
+        tags = [geo.addPoint(x, y, 0.0, h) for (x, y), h in zip(pts, sizes)]
+        lines = [geo.addLine(tags[i], tags[(i + 1) % len(tags)]) for i in range(len(tags))]
+        for line, k in zip(lines, segments):
+            geo.mesh.setTransfiniteCurve(line, int(k) + 1)
+        geo.addPlaneSurface([geo.addCurveLoop(lines)])
+        geo.synchronize()
+        options = {"Mesh.RecombineAll": 1, "Mesh.Algorithm": algorithm,
+                   "Mesh.RecombinationAlgorithm": 1, "Mesh.Smoothing": 10}  # fmt: skip
+        for name, value in options.items():
+            gmsh.option.setNumber(name, value)
+        gmsh.model.mesh.generate(2)
+        node_tags, xyz, _ = gmsh.model.mesh.getNodes()
+        types, _, conn = gmsh.model.mesh.getElements(2)
+        edges = [gmsh.model.mesh.getElements(1, line)[2] for line in lines]
+    except Exception as err:  # gmsh raises a bare Exception with its last error
+        raise MeshError(f"gmsh failed: {err}") from None
+    finally:
+        gmsh.finalize()
+    if [int(t) for t in types] != [3]:
+        raise MeshError(f"gmsh left non-quadrilateral elements (types {list(map(int, types))})")
+    renum = np.zeros(int(node_tags.max()) + 1, dtype=np.int64)
+    renum[node_tags.astype(np.int64)] = np.arange(len(node_tags))
+    coords = xyz.reshape(-1, 3)[:, :2].copy()
+    coords[renum[tags]] = pts  # the vertices exactly
+    elements = renum[conn[0].astype(np.int64)].reshape(-1, 4)
+    flip = element_areas(coords, elements) < 0
+    elements[flip] = elements[flip][:, ::-1]
+    facet_sets: dict[str, list] = {}
+    for name, e in zip(labels, edges):
+        if name:
+            facet_sets.setdefault(name, []).append(renum[e[0].astype(np.int64)].reshape(-1, 2))
+    facets = {k: np.concatenate(v) for k, v in facet_sets.items()}
+    nodes = {k: np.unique(v) for k, v in facets.items()}
+    return Mesh(coords, elements, nodes, facets)

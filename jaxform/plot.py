@@ -70,14 +70,18 @@ def _quads(coords, elements):
     return PolyCollection(coords[elements], closed=True)
 
 
-def deformed_mesh(coords0, coords1, elements, path: Path, title: str, axes=("r [mm]", "z [mm]")):
-    """Deformed mesh (blue) over the initial mesh (grey), as thesis Fig. 6.4."""
+def deformed_mesh(
+    coords0, coords1, elements, path: Path, title: str, axes=("r [mm]", "z [mm]"), elements1=None
+):
+    """Deformed mesh (blue) over the initial mesh (grey), as thesis Fig. 6.4; ``elements1``:
+    the deformed mesh's elements where it is another mesh (after remeshing)."""
     fig, ax = _figure(figsize=(6, 5))
-    for c, style in (
-        (coords0, dict(edgecolor="0.6", facecolor="none", lw=0.8)),
-        (coords1, dict(edgecolor="tab:blue", facecolor="none", lw=1.0)),
-    ):
-        pc = _quads(c, elements)
+    for c, e, style in (
+        (coords0, elements, dict(edgecolor="0.6", facecolor="none", lw=0.8)),
+        (coords1, elements if elements1 is None else elements1,
+         dict(edgecolor="tab:blue", facecolor="none", lw=1.0)),
+    ):  # fmt: skip
+        pc = _quads(c, e)
         pc.set(**style)
         ax.add_collection(pc)
     allc = np.vstack([coords0, coords1])

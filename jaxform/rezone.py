@@ -46,36 +46,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxform import element as el
-from jaxform.geometry import polygon_measure
+from jaxform.geometry import corner_qualities, min_quality, polygon_measure
+from jaxform.transfer import Transfer
 
 
 class RezoneError(RuntimeError):
     pass
-
-
-_NEXT = np.array([1, 2, 3, 0])
-_PREV = np.array([3, 0, 1, 2])
-
-
-def corner_qualities(pos, elements):
-    """(..., 4) quality of each element corner: 2 det[a, b] / (|a|^2 + |b|^2) with a, b
-    the two edges leaving the corner (1 for a square, sin(angle) for a rhombus, 2k/(1+k^2)
-    for a 1:k rectangle, 0 for a degenerate corner, < 0 for a non-convex quad).  ``pos``
-    (n, 2) with ``elements`` (..., 4), or element corner positions (..., 4, 2) with
-    ``elements`` None.  Works on NumPy and JAX arrays."""
-    xp = jnp if isinstance(pos, jax.Array) else np
-    p = pos if elements is None else pos[elements]
-    a = p[..., _NEXT, :] - p
-    b = p[..., _PREV, :] - p
-    cross = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
-    norm2 = xp.sum(a * a, axis=-1) + xp.sum(b * b, axis=-1)
-    return 2.0 * cross / xp.maximum(norm2, 1e-300)
-
-
-def min_quality(pos, elements):
-    """The mesh quality that triggers rezoning: the worst corner of any element."""
-    return corner_qualities(pos, elements).min()
 
 
 # ----------------------------------------------------------------------------------
@@ -241,6 +217,23 @@ def rezoned_positions(
     pos: np.ndarray, nr: int, nz: int, die, t: float, axisymmetric: bool = True, pinned=()
 ) -> np.ndarray:
     """New nodal positions (n, 2) for the current positions ``pos`` of the grid."""
+    gap_fn = gap_function(die, t)
+    pinned = set(int(a) for a in pinned)
+    elements = _grid_elements(_grid_ids(nr, nz))
+    v_old = polygon_measure(pos[elements], axisymmetric).sum()
+    # nodes on the die slide freely first; where the free surface cannot take back what
+    # that cut off (a die nearly filled), they slide under the side nodes' volume limit
+    for settings in (Smoothing(), Smoothing(die_volume_free=False)):
+        new = smooth(pos, nr, nz, gap_fn, axisymmetric, pinned, settings)
+        new = restore_volume(new, nr, nz, v_old, gap_fn, axisymmetric, pinned)
+        if abs(polygon_measure(new[elements], axisymmetric).sum() / v_old - 1.0) <= 1e-10:
+            break
+    return new
+
+
+def gap_function(die, t: float):
+    """``gap_fn(points (m, 2)) -> (g (m,), n (m, 2))``: the die's gap and outward normal at
+    points (host NumPy in and out) at time t."""
     t = jnp.asarray(t)
 
     def gap_fn(points):
@@ -254,17 +247,7 @@ def rezoned_positions(
         g, n = (np.concatenate([np.asarray(o[i]) for o in out]) for i in (0, 1))
         return g[:m], n[:m]
 
-    pinned = set(int(a) for a in pinned)
-    elements = _grid_elements(_grid_ids(nr, nz))
-    v_old = polygon_measure(pos[elements], axisymmetric).sum()
-    # nodes on the die slide freely first; where the free surface cannot take back what
-    # that cut off (a die nearly filled), they slide under the side nodes' volume limit
-    for settings in (Smoothing(), Smoothing(die_volume_free=False)):
-        new = smooth(pos, nr, nz, gap_fn, axisymmetric, pinned, settings)
-        new = restore_volume(new, nr, nz, v_old, gap_fn, axisymmetric, pinned)
-        if abs(polygon_measure(new[elements], axisymmetric).sum() / v_old - 1.0) <= 1e-10:
-            break
-    return new
+    return gap_fn
 
 
 def _boundary_loop(nr: int, nz: int) -> np.ndarray:
@@ -335,76 +318,6 @@ def _gaps_at(die, points, t):
     return jax.vmap(lambda p: die.gap(p, t)[:2])(points)
 
 
-# ----------------------------------------------------------------------------------
-# transfer
-
-
-def _locate(points: np.ndarray, pos: np.ndarray, elements: np.ndarray):
-    """Element and natural coordinates (clamped to [-1, 1]^2) of each point in the mesh
-    (pos, elements): the element for which the point is least outside."""
-    xe = pos[elements]  # (ne, 4, 2)
-    corners = el._CORNERS
-    best_e = np.zeros(len(points), dtype=np.int64)
-    best_xi = np.zeros((len(points), 2))
-    best_out = np.full(len(points), np.inf)
-    for e0 in range(0, len(elements), 256):
-        x = xe[e0 : e0 + 256]  # (m, 4, 2)
-        xi = np.zeros((len(points), len(x), 2))
-        for _ in range(12):
-            a, b = corners[:, 0], corners[:, 1]
-            n = 0.25 * (1 + a * xi[..., :1]) * (1 + b * xi[..., 1:])  # (p, m, 4)
-            dn_dxi = 0.25 * a * (1 + b * xi[..., 1:])
-            dn_deta = 0.25 * b * (1 + a * xi[..., :1])
-            r = np.einsum("pma,mai->pmi", n, x) - points[:, None, :]
-            j = np.stack(
-                [np.einsum("pma,mai->pmi", dn_dxi, x), np.einsum("pma,mai->pmi", dn_deta, x)],
-                axis=-1,
-            )  # (p,m,i,k)
-            det = j[..., 0, 0] * j[..., 1, 1] - j[..., 0, 1] * j[..., 1, 0]
-            det = np.where(np.abs(det) > 1e-300, det, 1e-300)
-            d0 = (j[..., 1, 1] * r[..., 0] - j[..., 0, 1] * r[..., 1]) / det
-            d1 = (-j[..., 1, 0] * r[..., 0] + j[..., 0, 0] * r[..., 1]) / det
-            xi = np.clip(xi - np.stack([d0, d1], axis=-1), -3.0, 3.0)
-        n = 0.25 * (1 + a * xi[..., :1]) * (1 + b * xi[..., 1:])
-        miss = np.linalg.norm(np.einsum("pma,mai->pmi", n, x) - points[:, None, :], axis=-1)
-        size = np.linalg.norm(x[:, 2] - x[:, 0], axis=-1)[None, :]
-        out = np.maximum(np.abs(xi).max(axis=-1) - 1.0, 0.0) + miss / size
-        k = np.argmin(out, axis=1)
-        o = out[np.arange(len(points)), k]
-        better = o < best_out
-        best_out[better] = o[better]
-        best_e[better] = e0 + k[better]
-        best_xi[better] = xi[np.arange(len(points)), k][better]
-    return best_e, np.clip(best_xi, -1.0, 1.0)
-
-
-def _interpolate(nodal: np.ndarray, elements: np.ndarray, e: np.ndarray, xi: np.ndarray):
-    a, b = el._CORNERS[:, 0], el._CORNERS[:, 1]
-    n = 0.25 * (1 + a * xi[:, :1]) * (1 + b * xi[:, 1:])  # (p, 4)
-    vals = nodal[elements[e]]  # (p, 4, ...)
-    return np.einsum("pa,pa...->p...", n, vals)
-
-
-def gauss_to_nodes(values: np.ndarray, elements: np.ndarray, n_nodes: int) -> np.ndarray:
-    """Gauss-point values (ne, 4, ...) to nodal values (n, ...): bilinear extrapolation in
-    each element, averaged over the elements at a node, limited to the range of the Gauss
-    values of those elements (no new extrema)."""
-    extrap = np.einsum("ag,eg...->ea...", np.linalg.inv(el.N_GP), values)
-    shape = values.shape[2:]
-    total = np.zeros((n_nodes,) + shape)
-    np.add.at(total, elements, extrap)
-    count = np.zeros(n_nodes)
-    np.add.at(count, elements, 1.0)
-    avg = total / count.reshape((-1,) + (1,) * len(shape))
-    lo = np.full((n_nodes,) + shape, np.inf)
-    hi = np.full((n_nodes,) + shape, -np.inf)
-    emin, emax = values.min(axis=1), values.max(axis=1)
-    for c in range(4):
-        np.minimum.at(lo, elements[:, c], emin)
-        np.maximum.at(hi, elements[:, c], emax)
-    return np.clip(avg, lo, hi)
-
-
 @dataclass(frozen=True)
 class RezoneReport:
     time_s: float
@@ -436,25 +349,17 @@ def rezone(scene, state, inputs):
     if not q_new > q_old:  # nothing to gain: the caller goes on with the mesh as it is
         return state, inputs, RezoneReport(t, q_old, q_old, 0.0, improved=False)
     # new Gauss points and nodes, located in the old (current) mesh
-    gp_new = np.einsum("ga,eai->egi", el.N_GP, new_pos[elements]).reshape(-1, 2)
-    e_gp, xi_gp = _locate(gp_new, pos, elements)
-    e_nd, xi_nd = _locate(new_pos, pos, elements)
-
-    def gauss_field(v):
-        v = np.asarray(v)
-        nod = gauss_to_nodes(v, elements, lay.n_nodes)
-        return jnp.asarray(_interpolate(nod, elements, e_gp, xi_gp).reshape(v.shape))
-
-    mat = jax.tree_util.tree_map(gauss_field, state.gauss.mat)
+    move = Transfer(pos, elements, new_pos, elements)
+    mat = jax.tree_util.tree_map(lambda v: jnp.asarray(move.gauss(v)), state.gauss.mat)
     eye = jnp.broadcast_to(jnp.eye(3), state.gauss.F.shape)
     gauss = replace(state.gauss, F=eye, mat=mat)
 
     rate = np.asarray(state.x_rate)
     rate_nodal = lay.nodal(rate)
-    new_rate_nodal = _interpolate(rate_nodal, elements, e_nd, xi_nd)
+    new_rate_nodal = move.nodal(rate_nodal)
     new_nodal = np.zeros_like(nodal)
     for k in range(2, nf):  # nodal scalars carried by the material: pressure, temperature
-        new_nodal[:, k] = _interpolate(nodal[:, k], elements, e_nd, xi_nd)
+        new_nodal[:, k] = move.nodal(nodal[:, k])
     x_new = np.concatenate([new_nodal.ravel(), x[lay.n_node_dofs :]])
     rate_new = np.concatenate([new_rate_nodal.ravel(), rate[lay.n_node_dofs :]])
     new_state = replace(state, x=jnp.asarray(x_new), gauss=gauss, x_rate=jnp.asarray(rate_new))

@@ -23,7 +23,7 @@ import numpy as np
 
 from jaxform import mesh as meshing
 from jaxform.assembly import Indices, Model, build_indices
-from jaxform.config import Config, DieConfig, typed
+from jaxform.config import Config, DieConfig, RemeshConfig, typed
 from jaxform.contact import ContactLaw
 from jaxform.dies import (
     DieError,
@@ -89,6 +89,8 @@ class Scene:
     grid: tuple[int, int] | None = None  # (nr, nz) of a structured mesh (rezoning needs it)
     adjoint_memory_mb: float = 0.0  # forward factorizations a gradient run may keep (MB)
     dt_growth: float = 1.5  # an easy step lets the next one grow by this factor (to dt)
+    # when and how to remesh (element_size_mm resolved); None: never
+    remesh: RemeshConfig | None = None
 
     @property
     def n_steps(self) -> int:
@@ -251,6 +253,30 @@ def _die_or_load(cfg: Config, piece: Workpiece, mesh: meshing.Mesh):
     return die, None, t_end
 
 
+def scene_on_mesh(scene: Scene, mesh: meshing.Mesh) -> Scene:
+    """The scene on a new mesh of its workpiece (a remesh, :mod:`jaxform.remesh`): the
+    mesh's coordinates become the reference (``inputs.coords``), its sets give the
+    Dirichlet conditions, contact candidates and heat-exchanging edges as in
+    :func:`build_scene`, with the pattern analysed anew; the rest of the scene stays."""
+    model = scene.model
+    layout, idx = _indices(
+        mesh,
+        model.formulation.n_fields,
+        scene.workpiece.contact_sets(mesh),
+        model.layout.n_facets > 0,
+        temperature=model.layout.temperature,
+    )
+    idx = replace(idx, lu_symbolic=scene.linear.analyze(idx.rows, idx.cols, layout.n_dofs))
+    return replace(
+        scene,
+        mesh=mesh,
+        model=replace(model, layout=layout),
+        idx=idx,
+        inputs=replace(scene.inputs, coords=jnp.asarray(mesh.coords)),
+        grid=None,
+    )
+
+
 def build_scene(cfg: dict | Config) -> Scene:
     """Set-up of a scene from a validated config: mesh, material, die or load, solver.
 
@@ -286,6 +312,12 @@ def build_scene(cfg: dict | Config) -> Scene:
     fr = cfg.friction
     model = Model(form, law, layout, ContactLaw(fr.model if fr is not None else "none"))
     c = _contact_scale(mesh, float(law.shear_modulus(params)), axi)
+    remesh = None
+    if cfg.remesh.on:
+        size = cfg.remesh.element_size_mm or float(
+            np.sqrt(np.mean(np.abs(meshing.element_areas(mesh.coords, mesh.elements))))
+        )
+        remesh = replace(cfg.remesh, element_size_mm=size)
     if m.rezone_quality > 0.0 and piece.grid is None:
         raise ConfigError(
             f"mesh.rezone_quality > 0 needs a billet or ring scene on its "
@@ -328,4 +360,5 @@ def build_scene(cfg: dict | Config) -> Scene:
         rezone_quality=m.rezone_quality,
         grid=piece.grid,
         adjoint_memory_mb=so.adjoint_memory_mb,
+        remesh=remesh,
     )

@@ -26,6 +26,7 @@ from jax.errors import JaxRuntimeError
 
 from jaxform.postprocess import HEAT_COLUMNS, extra_history
 from jaxform.precision import require_x64
+from jaxform.remesh import RemeshError, remesh
 from jaxform.rezone import RezoneError, corner_qualities, min_quality, rezone
 from jaxform.scenes import Inputs, Scene
 from jaxform.status import CAUSES, OK, SINGULAR
@@ -49,6 +50,15 @@ class SimulationError(RuntimeError):
         self.result = result
 
 
+@dataclass(frozen=True)
+class Segment:
+    """The rows of a run on one mesh: from ``first_row`` to the next segment's first row,
+    on ``scene`` (its mesh, sets, dofs and reference coordinates)."""
+
+    first_row: int
+    scene: Scene
+
+
 @dataclass
 class Result:
     """History (one row per converged load step, row 0 = initial state) and fields."""
@@ -61,6 +71,22 @@ class Result:
     failure: str | None = None
     inputs: Inputs | None = None  # the inputs final_state refers to (coords change on rezoning)
     rezones: list = field(default_factory=list)  # jaxform.rezone.RezoneReport per rezoning
+    # the meshes of the run: segments[k] holds from row segments[k].first_row on (one
+    # segment without remeshing); jaxform.remesh.RemeshReport per remesh
+    segments: list = field(default_factory=list)
+    remeshes: list = field(default_factory=list)
+
+    def scene_at(self, row: int) -> Scene:
+        """The scene (mesh, sets, reference coordinates) of history row ``row``."""
+        if not self.segments:
+            return self.scene
+        row = row % len(self.history["time_s"])
+        return next(s.scene for s in reversed(self.segments) if s.first_row <= row)
+
+    @property
+    def final_scene(self) -> Scene:
+        """The scene of the last row (the last mesh) that ``final_state`` refers to."""
+        return self.segments[-1].scene if self.segments else self.scene
 
 
 def _absolute(scene: Scene, inp: Inputs, x: np.ndarray) -> np.ndarray:
@@ -109,6 +135,7 @@ HISTORY_KEYS = (
     "friction_work_Nmm",
     "mesh_quality",
     "rezoned",
+    "remeshed",
 )
 FIELD_KEYS = ("x", "stress", "s", "eqps", "slip_mm", "contact_status")
 PROGRESS_KEYS = ("time_s", "stroke_mm", "force_N", "iterations", "cutbacks", "dt_s")
@@ -119,7 +146,7 @@ def _initial_row(scene: Scene, state: SimState) -> dict:
     out = jax.device_get(_outputs(scene.model, state, scene.inputs, scene.idx, scene.symmetric_z))
     q = min_quality(np.asarray(scene.inputs.coords), np.asarray(scene.mesh.elements))
     return dict(out, iterations=0, factorizations=0, cutbacks=0, code=OK, rezoned=0,
-                dt_s=0.0, mesh_quality=float(q))  # fmt: skip
+                remeshed=0, new_nodes=0, dt_s=0.0, mesh_quality=float(q))  # fmt: skip
 
 
 def _progress(scene: Scene, step: int, row: dict, chunk_end: bool) -> dict:
@@ -128,7 +155,7 @@ def _progress(scene: Scene, step: int, row: dict, chunk_end: bool) -> dict:
     of its compiled chunk, and the row's scalars."""
     left = max(scene.t_end - float(row["time_s"]), 0.0)
     n_steps = step + int(math.ceil(left / scene.dt - 1e-9))
-    return dict(step=step, n_steps=n_steps, chunk_end=chunk_end,
+    return dict(step=step, n_steps=n_steps, chunk_end=chunk_end, remeshed=int(row["new_nodes"]),
                 **{k: row[k] for k in PROGRESS_KEYS})  # fmt: skip
 
 
@@ -179,6 +206,32 @@ def _rezone_after(scene: Scene, state: SimState, inp: Inputs, control: StepContr
     return state, inp, replace(control, rezone_quality=jnp.asarray(trigger)), report
 
 
+def _fields(rows: list[dict], one_mesh: bool) -> dict:
+    """The fields of every row: arrays stacked over the rows on one mesh, else a list per
+    field with one array per row (each on its row's mesh)."""
+    if one_mesh:
+        return {k: np.stack([np.asarray(r[k]) for r in rows]) for k in FIELD_KEYS}
+    return {k: [np.asarray(r[k]) for r in rows] for k in FIELD_KEYS}
+
+
+def _history(segments: list[Segment], rows: list[dict], fields: dict) -> dict:
+    """The history columns: the step's scalars, then per mesh the scene's extra columns."""
+    history = {k: np.array([float(r[k]) for r in rows]) for k in HISTORY_KEYS}
+    history["newton_iterations"] = history.pop("iterations")
+    ends = [seg.first_row for seg in segments[1:]] + [len(rows)]
+    parts = [
+        extra_history(
+            seg.scene, fields["x"][seg.first_row : end], history["time_s"][seg.first_row : end]
+        )  # fmt: skip
+        for seg, end in zip(segments, ends)
+    ]
+    history.update({k: np.concatenate([p[k] for p in parts]) for k in parts[0]})
+    if segments[0].scene.model.layout.temperature:
+        heat = np.array([np.asarray(r["heat_mJ"]) for r in rows])
+        history.update({k: heat[:, i] for i, k in enumerate(HEAT_COLUMNS)})
+    return history
+
+
 def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Result:
     """Run the scene to its end; raises SimulationError (with .result) on failure.
 
@@ -187,28 +240,43 @@ def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Re
     (column ``dt_s``), and the run ends exactly at ``scene.t_end``.  With
     ``scene.rezone_quality`` > 0, a step after which an element's worst corner quality
     is below it ends the compiled chunk; the mesh is rezoned (:mod:`jaxform.rezone`) and
-    the run goes on from there (history column ``rezoned`` = 1 on that step).
+    the run goes on from there (history column ``rezoned`` = 1 on that step).  With
+    ``scene.remesh`` on, such a step (or every ``remesh.every_steps``-th) is followed by a
+    new mesh (:mod:`jaxform.remesh`): the run goes on from the transferred state on it,
+    a new :class:`Segment` of the result (history column ``remeshed`` = 1 on that step).
 
     Arguments:
         scene: a scene built by :func:`jaxform.scenes.build_scene`.
         progress: called after each converged step with a dict (step, n_steps estimate,
-            chunk_end, time_s, stroke_mm, force_N, iterations, cutbacks, dt_s), or None.
+            chunk_end, time_s, stroke_mm, force_N, iterations, cutbacks, dt_s, and
+            remeshed: the nodes of the new mesh after a remesh, else 0), or None.
 
     Returns:
         A :class:`Result`: the history (one row per converged step, row 0 the initial
-        state), the fields, the final state and the rezoning reports."""
+        state), the fields, the final state and the rezoning and remeshing reports."""
     state, control = init(scene)
-    control = replace(control, rezone_quality=jnp.asarray(scene.rezone_quality))
-    inp, stepper = scene.inputs, stepper_of(scene)
-    rows, rezones, failure = [_initial_row(scene, state)], [], None
+    settings = scene.remesh
+    remeshing = settings is not None and settings.on
+    trigger = settings.quality_below if remeshing else scene.rezone_quality
+    control = replace(control, rezone_quality=jnp.asarray(trigger))
+    current, inp, stepper = scene, scene.inputs, stepper_of(scene)
+    rows, rezones, remeshes, failure = [_initial_row(scene, state)], [], [], None
+    segments, since = [Segment(0, scene)], 0
     t_stop = scene.t_end - 1e-9 * scene.dt
     modified = scene.newton.method == "modified"
-    n = scene.model.layout.n_dofs
-    owned = [scene.linear.empty_factorization(n, state.x.dtype) if modified else None]
+
+    def new_factorization():
+        n = current.model.layout.n_dofs
+        return current.linear.empty_factorization(n, state.x.dtype) if modified else None
+
+    owned = [new_factorization()]
     try:
         while float(state.t) < t_stop and failure is None:
+            every = settings.every_steps if remeshing else 0
+            control = replace(control, pause_steps=jnp.asarray(every - since if every else 0,
+                                                               jnp.int32))  # fmt: skip
             fac, owned[0] = owned[0], None  # the chunk frees it when it refactors
-            state_new, control, outs, owned[0] = _chunk(scene, stepper, state, control, inp, fac)
+            state_new, control, outs, owned[0] = _chunk(current, stepper, state, control, inp, fac)
             outs = jax.device_get(outs)
             first = len(rows)
             for j in range(len(outs["active"])):
@@ -216,40 +284,55 @@ def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Re
                 if not row["active"]:
                     break
                 if int(row["code"]) != OK:
-                    failure = _failure_message(scene, inp, state_new, len(rows), row)
+                    failure = _failure_message(current, inp, state_new, len(rows), row)
                     break
-                row.update(x=_absolute(scene, inp, row["x"]), dt_s=float(row["h_used"]),
-                           rezoned=int(bool(row["paused"])))  # fmt: skip
+                paused = int(bool(row["paused"]))
+                row.update(x=_absolute(current, inp, row["x"]), dt_s=float(row["h_used"]),
+                           rezoned=paused * (not remeshing), remeshed=0,
+                           new_nodes=0)  # fmt: skip
                 rows.append(row)
-            for k in range(first, len(rows) if progress is not None else first):
-                progress(_progress(scene, k, rows[k], k == len(rows) - 1))
+            since += len(rows) - first
             state = state_new
-            if rows[-1]["rezoned"] and float(state.t) >= t_stop:
-                rows[-1]["rezoned"] = 0  # the run ends here: nothing to rezone for
-            if rows[-1]["rezoned"] and failure is None:
+            pause = bool(outs["paused"][len(rows) - first - 1]) if len(rows) > first else False
+            if pause and float(state.t) >= t_stop:
+                pause, rows[-1]["rezoned"] = False, 0  # the run ends here: nothing to do
+            if pause and failure is None and remeshing:
                 try:
-                    state, inp, control, report = _rezone_after(scene, state, inp, control)
+                    current, state, report = remesh(current, state, settings)
+                except RemeshError as err:
+                    failure = f"step {len(rows) - 1}: remeshing failed: {err}"
+                else:
+                    if owned[0] is not None:
+                        jax.block_until_ready(current.linear.release(owned[0]))
+                    owned[0] = new_factorization()
+                    inp, stepper, since = current.inputs, stepper_of(current), 0
+                    segments.append(Segment(len(rows), current))
+                    remeshes.append(report)
+                    rows[-1].update(remeshed=1, new_nodes=report.nodes_after)
+                    q = settings.quality_below  # a new mesh already below it: wait for worse
+                    q = q if report.quality_after > q else 0.9 * report.quality_after
+                    control = replace(control, rezone_quality=jnp.asarray(q))
+            elif pause and failure is None:
+                try:
+                    state, inp, control, report = _rezone_after(current, state, inp, control)
                 except RezoneError as err:
                     failure = f"step {len(rows) - 1}: {err}"
                 else:
                     rezones.append(report)
                     rows[-1]["rezoned"] = int(report.improved)
+            for k in range(first, len(rows) if progress is not None else first):
+                progress(_progress(current, k, rows[k], k == len(rows) - 1))
     finally:
         # the last factorization modified Newton kept is freed here; one a raising chunk
         # held is lost, never freed twice
         if owned[0] is not None:
-            jax.block_until_ready(scene.linear.release(owned[0]))
-    history = {k: np.array([float(r[k]) for r in rows]) for k in HISTORY_KEYS}
-    history["newton_iterations"] = history.pop("iterations")
-    fields = {k: np.stack([np.asarray(r[k]) for r in rows]) for k in FIELD_KEYS}
-    history.update(extra_history(scene, fields["x"], history["time_s"]))
-    if scene.model.layout.temperature:
-        heat = np.array([np.asarray(r["heat_mJ"]) for r in rows])
-        history.update({k: heat[:, i] for i, k in enumerate(HEAT_COLUMNS)})
+            jax.block_until_ready(current.linear.release(owned[0]))
+    fields = _fields(rows, len(segments) == 1)
+    history = _history(segments, rows, fields)
     hists = np.array([r["hist"] for r in rows[1:]])
     result = Result(history=history, fields=fields, scene=scene, final_state=state,
                     newton_histories=hists, failure=failure, inputs=inp,
-                    rezones=rezones)  # fmt: skip
+                    rezones=rezones, segments=segments, remeshes=remeshes)  # fmt: skip
     if failure:
         raise SimulationError(failure, result)
     return result
@@ -273,8 +356,8 @@ def init(scene: Scene) -> tuple[SimState, StepControl]:
     """
     require_x64()
     control = StepControl(h=jnp.asarray(scene.dt), dt_max=jnp.asarray(scene.dt),
-                          t_end=jnp.asarray(scene.t_end),
-                          rezone_quality=jnp.asarray(0.0))  # fmt: skip
+                          t_end=jnp.asarray(scene.t_end), rezone_quality=jnp.asarray(0.0),
+                          pause_steps=jnp.asarray(0, jnp.int32))  # fmt: skip
     return initial_state(scene.model, scene.inputs), control
 
 

@@ -309,12 +309,16 @@ class Stepper:
 @dataclass(frozen=True)
 class StepControl:
     """The traced part of the time stepping: the step size to try next, the largest
-    step (``time.dt_s``), the end time, and the rezoning trigger (0: never)."""
+    step (``time.dt_s``), the end time, and the triggers that pause a chunk for the host
+    to rezone or remesh: a worst corner quality (0: never) and a number of steps."""
 
     h: jax.Array  # s
     dt_max: jax.Array  # s
     t_end: jax.Array  # s
     rezone_quality: jax.Array
+    # a chunk pauses after this many of its converged steps (0: never; remeshing every
+    # remesh.every_steps steps)
+    pause_steps: jax.Array = 0
 
 
 def attempt_step(
@@ -449,15 +453,16 @@ def run_chunk(
 ):
     """lax.scan over n steps, each one converged step of adaptive size
     (:func:`attempt_step`); steps after the end, after a failure, or after a step that
-    left an element corner quality below ``control.rezone_quality`` (the caller rezones
-    and goes on) leave the state unchanged and are marked inactive.  ``fac``: the
+    left an element corner quality below ``control.rezone_quality`` or that was the
+    chunk's ``control.pause_steps``-th (the caller rezones or remeshes and goes on) leave
+    the state unchanged and are marked inactive.  ``fac``: the
     factorization modified Newton keeps (None for 'newton'), carried through and returned
     with (state, control for the next chunk, outputs): the caller owns it and frees the
     last one."""
     model = stepper.model
 
     def step(carry, _):
-        st, ctl, failed, paused, fac = carry
+        st, ctl, failed, paused, fac, count = carry
         run = (st.t < ctl.t_end) & ~failed & ~paused
 
         def do(st, fac):
@@ -484,15 +489,17 @@ def run_chunk(
         pos = model.nodal_positions(new.x, inp.coords, idx)
         quality = min_quality(pos, idx.elements)
         trigger = ctl.rezone_quality
-        paused = paused | (run & ~failed & (trigger > 0.0) & (quality < trigger))
+        count = count + run.astype(count.dtype)
+        due = (ctl.pause_steps > 0) & (count >= ctl.pause_steps)
+        paused = paused | (run & ~failed & (((trigger > 0.0) & (quality < trigger)) | due))
         out = step_outputs(model, new, inp, idx, stepper.symmetric_z)
         out.update(info)
         out["factorizations"] = info["iterations"] if fac is None else fac_new.count - fac.count
         out["active"] = run
         out["mesh_quality"] = quality
         out["paused"] = paused
-        return (new, replace(ctl, h=info["h_next"]), failed, paused, fac_new), out
+        return (new, replace(ctl, h=info["h_next"]), failed, paused, fac_new, count), out
 
-    init = (state, control, jnp.asarray(False), jnp.asarray(False), fac)
-    (state, control, _, _, fac), outs = jax.lax.scan(step, init, None, length=n)
+    init = (state, control, jnp.asarray(False), jnp.asarray(False), fac, jnp.asarray(0, jnp.int32))
+    (state, control, _, _, fac, _), outs = jax.lax.scan(step, init, None, length=n)
     return state, control, outs, fac

@@ -1,0 +1,272 @@
+"""Remeshing: a new all-quad mesh of the deformed workpiece section, and the state on it.
+
+Rezoning (:mod:`jaxform.rezone`) only moves the nodes of a structured grid, so a section
+whose boundary folds or wraps a die corner ends with a degenerate element.  Remeshing
+replaces the mesh (host NumPy and gmsh, between two converged steps):
+
+1. **The boundary** (:func:`boundary_polygon`): the deformed section's boundary as one
+   counter-clockwise loop of node positions, each edge labelled with the set it belongs
+   to (``axis``, ``symmetry``, ``top``, ``side``, ``inner``, ``outer``, ...).  Vertices
+   that lie on the straight chord of their neighbours on the same set (to 1e-6 of the
+   element size: the axis, the mid-plane, a flat die face) are dropped, so those parts
+   are meshed anew at the wanted size; every other vertex stays a node.  The new mesh's
+   boundary is therefore the old boundary polygon, and the material volume changes only
+   by what the dropped vertices cut (reported per remesh, :class:`RemeshReport`).
+2. **The new mesh** (:func:`jaxform.mesh.polygon_quads`, gmsh): all quadrilaterals, the
+   size ``remesh.element_size_mm`` in the bulk and ``remesh.die_size_ratio`` times it at
+   the vertices that touch a die (gap <= ``TOUCH_GAP_MM``) and at sharp boundary corners
+   (a turn of more than 30 deg).  The sets are re-derived from the labels.
+3. **The state** (:mod:`jaxform.transfer`): Gauss-point fields (stress, deformation
+   resistance, equivalent plastic strain) by patch recovery and interpolation; nodal
+   fields besides the displacement (q1q1 pressure, temperature) and the nodal rates of the
+   predictor by interpolation; the contact tractions (multiplier over contact area) of the
+   old candidates along the boundary, times the new contact areas; the contact status and
+   the accumulated slip from the old boundary.  The deformed configuration becomes the
+   new reference (u = 0, F_n = I), as in rezoning.
+
+The scene on the new mesh (dofs, sets, sparsity pattern, its own compiled program) comes
+from :func:`jaxform.scenes.scene_on_mesh`.  Gradients do not pass through a remesh (a
+gradient run refuses ``[remesh]``).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, replace
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxform.config import RemeshConfig
+from jaxform.contact import TOUCH_GAP_MM, facets_in_contact, tributary_areas
+from jaxform.geometry import polygon_measure
+from jaxform.mesh import MeshError, boundary_edges, polygon_quads
+from jaxform.rezone import gap_function, min_quality
+from jaxform.scenes import scene_on_mesh
+from jaxform.transfer import Transfer
+
+# where two sets meet on an edge's nodes, the edge takes the first that has it: held
+# boundaries before free ones
+_SET_ORDER = ("axis", "symmetry", "base", "clamped", "top", "inner", "outer", "side", "loaded")
+_CORNER_TURN = np.deg2rad(30.0)  # a sharper turn of the boundary is refined like die contact
+
+
+class RemeshError(RuntimeError):
+    pass
+
+
+@dataclass(frozen=True)
+class RemeshReport:
+    """What one remesh did: time, mesh sizes and qualities, the relative change of the
+    material volume, the integral of the equivalent plastic strain (mm^3; plane strain
+    mm^2) over the old and the new mesh, and the host time it took (s)."""
+
+    time_s: float
+    nodes_before: int
+    nodes_after: int
+    elements_before: int
+    elements_after: int
+    quality_before: float
+    quality_after: float
+    volume_change: float
+    eqps_integral_before: float
+    eqps_integral_after: float
+    seconds: float
+
+
+def boundary_polygon(mesh, pos: np.ndarray):
+    """(points (n, 2), labels (n,), nodes (n,)): the boundary of the mesh at positions
+    ``pos`` as one counter-clockwise loop, ``labels[i]`` the set of the edge from node
+    ``nodes[i]`` to the next ("" where no set has it).  Raises RemeshError for a section
+    whose boundary is not one loop."""
+    edges = boundary_edges(mesh.elements)
+    nxt = dict(zip(edges[:, 0].tolist(), edges[:, 1].tolist()))
+    if len(nxt) != len(edges):
+        raise RemeshError("the section's boundary touches itself at a node")
+    start = int(edges[0, 0])
+    loop = [start]
+    while (a := nxt[loop[-1]]) != start:
+        loop.append(a)
+        if len(loop) > len(edges):
+            break
+    if len(loop) != len(edges):
+        raise RemeshError("the section's boundary is not one closed loop (a hole?)")
+    loop = np.asarray(loop)
+    n = mesh.n_nodes
+    keys = {}
+    for name in sorted(mesh.facet_sets, key=lambda s: _SET_ORDER.index(s)
+                       if s in _SET_ORDER else len(_SET_ORDER)):  # fmt: skip
+        f = np.asarray(mesh.facet_sets[name], dtype=np.int64).reshape(-1, 2)
+        for a, b in f.tolist():
+            keys.setdefault(min(a, b) * n + max(a, b), name)
+    after = np.roll(loop, -1)
+    labels = [keys.get(min(a, b) * n + max(a, b), "") for a, b in zip(loop, after)]
+    return pos[loop], labels, loop
+
+
+def simplify(points: np.ndarray, labels: list[str], tol: float):
+    """The loop without the vertices that lie within ``tol`` (mm) of the chord between the
+    kept vertices around them on the same set: (kept indices, their edge labels).  Every
+    vertex where the set changes stays."""
+    n = len(points)
+    corners = [i for i in range(n) if labels[i - 1] != labels[i]] or [0]
+    kept = []
+    for c0, c1 in zip(corners, corners[1:] + [corners[0] + n]):
+        run = [i % n for i in range(c0, c1 + 1)]  # one set's vertices, both ends included
+        keep = [run[0]]
+        dropped: list[int] = []
+        for k in range(1, len(run) - 1):
+            a, b = points[keep[-1]], points[run[k + 1]]
+            chord = b - a
+            length = max(float(np.hypot(*chord)), 1e-300)
+            test = points[dropped + [run[k]]] - a
+            dist = np.abs(test[:, 0] * chord[1] - test[:, 1] * chord[0]) / length
+            if dist.max() <= tol:
+                dropped.append(run[k])
+            else:
+                keep.append(run[k])
+                dropped = []
+        kept += keep
+    kept = np.asarray(kept)
+    return kept, [labels[i] for i in kept]
+
+
+def _sizes(points: np.ndarray, touching: np.ndarray, settings: RemeshConfig) -> np.ndarray:
+    """The element size wanted at each vertex: fine at die contact and sharp corners."""
+    d_in = points - np.roll(points, 1, axis=0)
+    d_out = np.roll(points, -1, axis=0) - points
+    turn = np.abs(
+        np.arctan2(
+            d_in[:, 0] * d_out[:, 1] - d_in[:, 1] * d_out[:, 0], np.sum(d_in * d_out, axis=1)
+        )
+    )
+    fine = touching | (turn > _CORNER_TURN)
+    h = settings.element_size_mm
+    return np.where(fine, settings.die_size_ratio * h, h)
+
+
+def new_section_mesh(scene, pos: np.ndarray, t: float, settings: RemeshConfig):
+    """The new mesh of the section whose nodes are at ``pos`` (time t)."""
+    points, labels, nodes = boundary_polygon(scene.mesh, pos)
+    kept, kept_labels = simplify(points, labels, 1e-6 * settings.element_size_mm)
+    touching = np.zeros(len(kept), dtype=bool)
+    die = scene.inputs.die
+    if die is not None:
+        touching = gap_function(die, t)(points[kept])[0] <= TOUCH_GAP_MM
+    try:
+        return polygon_quads(points[kept], kept_labels, _sizes(points[kept], touching, settings))
+    except MeshError as err:
+        raise RemeshError(str(err)) from None
+
+
+def _nearest_on_boundary(points: np.ndarray, a: np.ndarray, b: np.ndarray):
+    """For each point, the nearest boundary edge a -> b and the parameter along it."""
+    d = b - a
+    s = np.einsum("pmi,mi->pm", points[:, None] - a[None], d) / np.maximum(
+        np.sum(d * d, axis=1), 1e-300
+    )
+    s = np.clip(s, 0.0, 1.0)
+    dist = np.linalg.norm(points[:, None] - (a[None] + s[..., None] * d[None]), axis=2)
+    k = np.argmin(dist, axis=1)
+    return k, s[np.arange(len(points)), k]
+
+
+def _contact_transfer(scene, new_scene, state, pos, new_pos):
+    """(multipliers (n_c, 2), status (n_c,), slip (n_c,)) of the new candidates from the old
+    ones: tractions (multiplier / contact area) interpolated along the old boundary, times
+    the new contact areas; status from the nearer end of the old edge; slip interpolated."""
+    lay, idx = scene.model.layout, scene.idx
+    new_idx = new_scene.idx
+    n_new = new_scene.model.layout.n_contact
+    if lay.n_contact == 0 or n_new == 0:
+        return np.zeros((n_new, 2)), np.zeros(n_new, np.int32), np.zeros(n_new)
+    axi = scene.model.formulation.axisymmetric
+    cn = np.asarray(idx.contact_nodes)
+    status = np.asarray(state.contact_status)
+    lam = np.asarray(lay.node_multipliers(np.asarray(state.x)))
+    counted = facets_in_contact(status > 0, np.asarray(idx.contact_facets))
+    area = np.asarray(tributary_areas(pos[cn], np.asarray(idx.contact_facets), axi, counted))
+    traction = np.where(area[:, None] > 0, lam / np.where(area > 0, area, 1.0)[:, None], 0.0)
+    # per old node (zero away from the candidates)
+    n_old = lay.n_nodes
+    t_node = np.zeros((n_old, 2))
+    t_node[cn] = traction
+    st_node = np.zeros(n_old, np.int32)
+    st_node[cn] = status
+    slip_node = np.zeros(n_old)
+    slip_node[cn] = np.asarray(state.slip_mm)
+    edges = boundary_edges(scene.mesh.elements)
+    new_cn = np.asarray(new_idx.contact_nodes)
+    p = new_pos[new_cn]
+    k, s = _nearest_on_boundary(p, pos[edges[:, 0]], pos[edges[:, 1]])
+    ea, eb = edges[k, 0], edges[k, 1]
+    w = s[:, None]
+    new_t = (1 - w) * t_node[ea] + w * t_node[eb]
+    new_status = np.where(s < 0.5, st_node[ea], st_node[eb]).astype(np.int32)
+    new_slip = (1 - s) * slip_node[ea] + s * slip_node[eb]
+    new_counted = facets_in_contact(new_status > 0, np.asarray(new_idx.contact_facets))
+    new_area = np.asarray(tributary_areas(p, np.asarray(new_idx.contact_facets), axi, new_counted))
+    return new_t * new_area[:, None], new_status, new_slip
+
+
+def eqps_integral(scene, pos: np.ndarray, eqps: np.ndarray) -> float:
+    """Integral of the equivalent plastic strain over the section at positions ``pos``
+    (mm^3 axisymmetric, mm^2 plane strain), by the 2 x 2 Gauss rule."""
+    from jaxform import element as el
+
+    axi = scene.model.formulation.axisymmetric
+    xe = jnp.asarray(pos[np.asarray(scene.mesh.elements)])
+    w = jax.vmap(lambda c: el.gauss_geometry(c, axi).weight)(xe)
+    return float(np.sum(np.asarray(w) * np.asarray(eqps)))
+
+
+def remesh(scene, state, settings: RemeshConfig):
+    """(scene on the new mesh, the state on it, :class:`RemeshReport`) for a converged
+    state of ``scene`` (its inputs are ``scene.inputs``).  Raises RemeshError."""
+    start = time.perf_counter()
+    lay = scene.model.layout
+    x = np.asarray(state.x)
+    nodal = lay.nodal(x)
+    pos = np.asarray(scene.inputs.coords) + nodal[:, :2]
+    t = float(state.t)
+    mesh = new_section_mesh(scene, pos, t, settings)
+    new_scene = scene_on_mesh(scene, mesh)
+    new_lay = new_scene.model.layout
+    elements = np.asarray(scene.mesh.elements)
+    move = Transfer(pos, elements, mesh.coords, mesh.elements)
+    mat = jax.tree_util.tree_map(lambda v: jnp.asarray(move.gauss(v)), state.gauss.mat)
+    n_el = mesh.n_elements
+    gauss = replace(state.gauss, F=jnp.broadcast_to(jnp.eye(3), (n_el, 4, 3, 3)), mat=mat)
+    new_x = np.zeros(new_lay.n_dofs)
+    new_rate = np.zeros(new_lay.n_dofs)
+    new_lay.nodal(new_x)[:, 2:] = move.nodal(nodal[:, 2:])  # pressure, temperature
+    new_lay.nodal(new_rate)[:] = move.nodal(lay.nodal(np.asarray(state.x_rate)))
+    lam, status, slip = _contact_transfer(scene, new_scene, state, pos, mesh.coords)
+    start_m = new_lay.n_node_dofs
+    new_x[start_m : start_m + 2 * new_lay.n_contact] = lam.ravel()
+    new_state = replace(
+        state,
+        x=jnp.asarray(new_x),
+        gauss=gauss,
+        x_rate=jnp.asarray(new_rate),
+        slip_mm=jnp.asarray(slip),
+        contact_status=jnp.asarray(status, dtype=state.contact_status.dtype),
+    )
+    axi = scene.model.formulation.axisymmetric
+    v0 = float(np.sum(polygon_measure(pos[elements], axi)))
+    v1 = float(np.sum(polygon_measure(mesh.coords[mesh.elements], axi)))
+    report = RemeshReport(
+        time_s=t,
+        nodes_before=lay.n_nodes,
+        nodes_after=mesh.n_nodes,
+        elements_before=len(elements),
+        elements_after=n_el,
+        quality_before=float(min_quality(pos, elements)),
+        quality_after=float(min_quality(mesh.coords, mesh.elements)),
+        volume_change=v1 / v0 - 1.0,
+        eqps_integral_before=eqps_integral(scene, pos, state.gauss.mat.eqps),
+        eqps_integral_after=eqps_integral(new_scene, mesh.coords, mat.eqps),
+        seconds=time.perf_counter() - start,
+    )
+    return new_scene, new_state, report
