@@ -223,6 +223,12 @@ def _run(args) -> int:
         f"{time.perf_counter() - t0:.1f} s wall (first chunk incl. compile "
         f"{first or 0:.1f} s)"
     )
+    for lap in result.laps:
+        print(
+            f"lap: at stroke {lap['stroke_mm']:.4g} mm the free surface folds at "
+            f"({lap['r_mm']:.4g}, {lap['z_mm']:.4g}) mm, fold angle {lap['angle_deg']:.3g} deg "
+            f"(history fold_angle_deg; output.lap_angle_deg)"
+        )
     overlap = float(np.max(h["die_overlap_mm"])) if "die_overlap_mm" in h else 0.0
     if overlap > 1e-3:
         print(

@@ -570,6 +570,13 @@ class OutputConfig:
         doc="ram strokes (mm) at which the contact pressure/slip profile is plotted ([] = "
         "25/50/75/100 %)",
     )
+    lap_angle_deg: float = key(
+        10.0,
+        low=0.0,
+        high=90.0,
+        doc="report a lap (fold) where the narrowest air wedge of the free surface (history "
+        "fold_angle_deg: against itself or against a die) closes below this (deg; 0 = never)",
+    )
 
 
 @section("design")

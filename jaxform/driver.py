@@ -114,6 +114,7 @@ def write_outputs(out_dir: str | Path, result: Result) -> None:
             f"initial and deformed mesh, {red:.1f} % reduction",
             axes,
             elements1=el1,
+            marks=[(lap["r_mm"], lap["z_mm"]) for lap in result.laps],
         )
         plot.cell_contours(
             coords1,

@@ -220,6 +220,41 @@ def boundary_edges(elements: np.ndarray) -> np.ndarray:
     return np.array([ab for ab in edges.tolist() if (ab[1], ab[0]) not in keys])
 
 
+# where two sets meet on an edge's nodes, the edge takes the first that has it: held
+# boundaries before free ones
+_SET_ORDER = ("axis", "symmetry", "base", "clamped", "top", "inner", "outer", "side", "loaded")
+
+
+def boundary_polygon(mesh, pos: np.ndarray):
+    """(points (n, 2), labels (n,), nodes (n,)): the boundary of the mesh at positions
+    ``pos`` as one counter-clockwise loop, ``labels[i]`` the set of the edge from node
+    ``nodes[i]`` to the next ("" where no set has it).  Raises MeshError for a section
+    whose boundary is not one loop."""
+    edges = boundary_edges(mesh.elements)
+    nxt = dict(zip(edges[:, 0].tolist(), edges[:, 1].tolist()))
+    if len(nxt) != len(edges):
+        raise MeshError("the section's boundary touches itself at a node")
+    start = int(edges[0, 0])
+    loop = [start]
+    while (a := nxt[loop[-1]]) != start:
+        loop.append(a)
+        if len(loop) > len(edges):
+            break
+    if len(loop) != len(edges):
+        raise MeshError("the section's boundary is not one closed loop (a hole?)")
+    loop = np.asarray(loop)
+    n = mesh.n_nodes
+    keys = {}
+    for name in sorted(mesh.facet_sets, key=lambda s: _SET_ORDER.index(s)
+                       if s in _SET_ORDER else len(_SET_ORDER)):  # fmt: skip
+        f = np.asarray(mesh.facet_sets[name], dtype=np.int64).reshape(-1, 2)
+        for a, b in f.tolist():
+            keys.setdefault(min(a, b) * n + max(a, b), name)
+    after = np.roll(loop, -1)
+    labels = [keys.get(min(a, b) * n + max(a, b), "") for a, b in zip(loop, after)]
+    return pos[loop], labels, loop
+
+
 def element_areas(coords: np.ndarray, elements: np.ndarray) -> np.ndarray:
     """Signed areas (shoelace); positive for counter-clockwise quads."""
     return polygon_measure(coords[elements], axisymmetric=False)

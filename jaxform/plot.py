@@ -71,10 +71,18 @@ def _quads(coords, elements):
 
 
 def deformed_mesh(
-    coords0, coords1, elements, path: Path, title: str, axes=("r [mm]", "z [mm]"), elements1=None
+    coords0,
+    coords1,
+    elements,
+    path: Path,
+    title: str,
+    axes=("r [mm]", "z [mm]"),
+    elements1=None,
+    marks=(),
 ):
     """Deformed mesh (blue) over the initial mesh (grey), as thesis Fig. 6.4; ``elements1``:
-    the deformed mesh's elements where it is another mesh (after remeshing)."""
+    the deformed mesh's elements where it is another mesh (after remeshing); ``marks``:
+    (r, z) points marked with a red cross (laps, where they were found)."""
     fig, ax = _figure(figsize=(6, 5))
     for c, e, style in (
         (coords0, elements, dict(edgecolor="0.6", facecolor="none", lw=0.8)),
@@ -84,6 +92,10 @@ def deformed_mesh(
         pc = _quads(c, e)
         pc.set(**style)
         ax.add_collection(pc)
+    if len(marks):
+        m = np.asarray(marks, dtype=float).reshape(-1, 2)
+        ax.plot(m[:, 0], m[:, 1], "x", color="tab:red", ms=9, mew=2, label="lap")
+        ax.legend(loc="upper right")
     allc = np.vstack([coords0, coords1])
     ax.set_xlim(allc[:, 0].min() - 0.1, allc[:, 0].max() * 1.05 + 0.1)
     ax.set_ylim(allc[:, 1].min() - 0.1, allc[:, 1].max() * 1.05 + 0.1)

@@ -52,10 +52,10 @@ def nodal_volumes(scene) -> np.ndarray:
     """(n_nodes,) int N_a dV0 on the reference mesh (mm^3; plane strain mm^2): the nodes'
     shares of the material, the weights of the lumped heat capacity."""
     from jaxform import element as el
+    from jaxform.transfer import gauss_weights
 
     coords, elements = np.asarray(scene.inputs.coords), np.asarray(scene.mesh.elements)
-    axi = scene.model.formulation.axisymmetric
-    weights = np.stack([np.asarray(el.gauss_geometry(c, axi).weight) for c in coords[elements]])
+    weights = gauss_weights(coords, elements, scene.model.formulation.axisymmetric)
     return np.bincount(elements.ravel(), (weights @ el.N_GP).ravel(), len(coords))
 
 
@@ -232,10 +232,85 @@ def filled_volume(scene, pos: np.ndarray, t: float) -> float:
     return abs(2.0 * np.pi * total) if axi else abs(total)
 
 
+def fold_angle(scene, pos: np.ndarray, t: float) -> tuple[float, float, float]:
+    """(angle in degrees, r, z of where): the narrowest air wedge of the free surface at
+    nodal positions ``pos`` and time t.  A lap (fold) forms where it closes:
+
+    * at a free-surface vertex off the die whose two edges are free: the air-side angle
+      between them (the boundary turning back on itself; 270 deg at a square corner of the
+      section, 180 on a straight side);
+    * at a contact front, a vertex touching a die (gap <= TOUCH_GAP_MM) with one edge
+      free: the angle between that free edge and the die surface, measured away from the
+      contact zone (90 deg for a vertical side on a flat die, 0 when the side lies down
+      on the die).
+
+    Free means on a set a die may touch (:meth:`Workpiece.contact_sets`); (180, nan, nan)
+    where the scene has none."""
+    from jaxform.contact import TOUCH_GAP_MM
+    from jaxform.mesh import boundary_polygon
+    from jaxform.rezone import gap_function
+
+    free_sets = set(scene.workpiece.contact_sets(scene.mesh))
+    pts, labels, _ = boundary_polygon(scene.mesh, pos)
+    free_out = np.array([lab in free_sets for lab in labels])  # edge i: pts[i] -> pts[i+1]
+    free_in = np.roll(free_out, 1)
+    if not free_out.any():
+        return 180.0, float("nan"), float("nan")
+    e_in = pts - np.roll(pts, 1, axis=0)
+    e_out = np.roll(pts, -1, axis=0) - pts
+    turn = np.arctan2(
+        e_in[:, 0] * e_out[:, 1] - e_in[:, 1] * e_out[:, 0], np.sum(e_in * e_out, axis=1)
+    )
+    angle = np.full(len(pts), np.inf)
+    touching = np.zeros(len(pts), dtype=bool)
+    normal = np.zeros_like(pts)
+    if scene.inputs.die is not None:
+        g, normal = gap_function(scene.inputs.die, t)(pts)
+        touching = g <= TOUCH_GAP_MM
+    side = free_in & free_out & ~touching
+    angle[side] = np.degrees(np.pi + turn[side])
+    prev_touch, next_touch = np.roll(touching, 1), np.roll(touching, -1)
+    for i in np.nonzero(touching & (free_in | free_out) & (prev_touch != next_touch))[0]:
+        # d: along the free edge away from the vertex; the contact zone lies the other way
+        d, c = (e_out[i], -e_in[i]) if not next_touch[i] else (-e_in[i], e_out[i])
+        d = d / max(np.linalg.norm(d), 1e-300)
+        n = normal[i]
+        t_away = np.array([-n[1], n[0]])
+        t_away = -t_away if np.dot(t_away, c) > 0 else t_away
+        angle[i] = np.degrees(np.arctan2(np.dot(d, n), np.dot(d, t_away)))
+    k = int(np.argmin(angle))
+    if not np.isfinite(angle[k]):
+        return 180.0, float("nan"), float("nan")
+    return float(angle[k]), float(pts[k, 0]), float(pts[k, 1])
+
+
+def laps(history: dict, angle_deg: float) -> list[dict]:
+    """The laps of a run: each row where the history's ``fold_angle_deg`` falls below
+    ``angle_deg`` after being at or above it (row, stroke_mm, r_mm, z_mm, angle_deg)."""
+    a = np.asarray(history.get("fold_angle_deg", []))
+    if angle_deg <= 0.0 or not len(a):
+        return []
+    below = a < angle_deg
+    starts = np.nonzero(below & ~np.r_[False, below[:-1]])[0]
+    keys = ("stroke_mm", "fold_r_mm", "fold_z_mm", "fold_angle_deg")
+    return [
+        dict(
+            row=int(k),
+            **{
+                n: float(history[key][k])
+                for n, key in zip(("stroke_mm", "r_mm", "z_mm", "angle_deg"), keys)
+            },
+        )  # fmt: skip
+        for k in starts
+    ]
+
+
 def extra_history(scene, xs: np.ndarray, times: np.ndarray) -> dict[str, np.ndarray]:
     """The history columns a scene adds to every run: its workpiece's
     (:meth:`jaxform.workpieces.Workpiece.extra_history`), for a die scene
-    ``die_overlap_mm`` (:func:`die_overlap`), for a closed die ``die_fill`` (0..1),
+    ``die_overlap_mm`` (:func:`die_overlap`) and the narrowest air wedge of the free
+    surface ``fold_angle_deg`` at ``fold_r_mm``, ``fold_z_mm`` (:func:`fold_angle`), for a
+    closed die ``die_fill`` (0..1),
     with a part radius ``flash_volume_mm3``, with a temperature field the mean, min and
     max temperature (:func:`temperature_history`)."""
     coords = np.asarray(scene.inputs.coords)
@@ -256,6 +331,9 @@ def extra_history(scene, xs: np.ndarray, times: np.ndarray) -> dict[str, np.ndar
         out["flash_volume_mm3"] = np.array(
             [halves * material_beyond(scene, p, die.part_radius_mm) for p in pos]
         )
+    if die is not None:
+        folds = np.array([fold_angle(scene, p, t) for p, t in zip(pos, times)]).reshape(-1, 3)
+        out.update(fold_angle_deg=folds[:, 0], fold_r_mm=folds[:, 1], fold_z_mm=folds[:, 2])
     out.update(temperature_history(scene, xs))
     return out
 

@@ -4,7 +4,7 @@ Rezoning (:mod:`jaxform.rezone`) only moves the nodes of a structured grid, so a
 whose boundary folds or wraps a die corner ends with a degenerate element.  Remeshing
 replaces the mesh (host NumPy and gmsh, between two converged steps):
 
-1. **The boundary** (:func:`boundary_polygon`): the deformed section's boundary as one
+1. **The boundary** (:func:`jaxform.mesh.boundary_polygon`): the deformed section's boundary as one
    counter-clockwise loop of node positions, each edge labelled with the set it belongs
    to (``axis``, ``symmetry``, ``top``, ``side``, ``inner``, ``outer``, ...).  Vertices
    that lie on the straight chord of their neighbours on the same set (to 1e-6 of the
@@ -39,16 +39,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxform.config import RemeshConfig
-from jaxform.contact import TOUCH_GAP_MM, facets_in_contact, tributary_areas
+from jaxform.contact import TOUCH_GAP_MM, facets_in_contact
 from jaxform.geometry import polygon_measure
-from jaxform.mesh import MeshError, boundary_edges, polygon_quads
+from jaxform.mesh import MeshError, boundary_edges, boundary_polygon, polygon_quads
 from jaxform.rezone import gap_function, min_quality
 from jaxform.scenes import scene_on_mesh
-from jaxform.transfer import Transfer
+from jaxform.transfer import Transfer, gauss_weights
 
-# where two sets meet on an edge's nodes, the edge takes the first that has it: held
-# boundaries before free ones
-_SET_ORDER = ("axis", "symmetry", "base", "clamped", "top", "inner", "outer", "side", "loaded")
 _CORNER_TURN = np.deg2rad(30.0)  # a sharper turn of the boundary is refined like die contact
 
 
@@ -73,36 +70,6 @@ class RemeshReport:
     eqps_integral_before: float
     eqps_integral_after: float
     seconds: float
-
-
-def boundary_polygon(mesh, pos: np.ndarray):
-    """(points (n, 2), labels (n,), nodes (n,)): the boundary of the mesh at positions
-    ``pos`` as one counter-clockwise loop, ``labels[i]`` the set of the edge from node
-    ``nodes[i]`` to the next ("" where no set has it).  Raises RemeshError for a section
-    whose boundary is not one loop."""
-    edges = boundary_edges(mesh.elements)
-    nxt = dict(zip(edges[:, 0].tolist(), edges[:, 1].tolist()))
-    if len(nxt) != len(edges):
-        raise RemeshError("the section's boundary touches itself at a node")
-    start = int(edges[0, 0])
-    loop = [start]
-    while (a := nxt[loop[-1]]) != start:
-        loop.append(a)
-        if len(loop) > len(edges):
-            break
-    if len(loop) != len(edges):
-        raise RemeshError("the section's boundary is not one closed loop (a hole?)")
-    loop = np.asarray(loop)
-    n = mesh.n_nodes
-    keys = {}
-    for name in sorted(mesh.facet_sets, key=lambda s: _SET_ORDER.index(s)
-                       if s in _SET_ORDER else len(_SET_ORDER)):  # fmt: skip
-        f = np.asarray(mesh.facet_sets[name], dtype=np.int64).reshape(-1, 2)
-        for a, b in f.tolist():
-            keys.setdefault(min(a, b) * n + max(a, b), name)
-    after = np.roll(loop, -1)
-    labels = [keys.get(min(a, b) * n + max(a, b), "") for a, b in zip(loop, after)]
-    return pos[loop], labels, loop
 
 
 def simplify(points: np.ndarray, labels: list[str], tol: float):
@@ -147,15 +114,16 @@ def _sizes(points: np.ndarray, touching: np.ndarray, settings: RemeshConfig) -> 
 
 
 def new_section_mesh(scene, pos: np.ndarray, t: float, settings: RemeshConfig):
-    """The new mesh of the section whose nodes are at ``pos`` (time t)."""
-    points, labels, nodes = boundary_polygon(scene.mesh, pos)
-    kept, kept_labels = simplify(points, labels, 1e-6 * settings.element_size_mm)
-    touching = np.zeros(len(kept), dtype=bool)
-    die = scene.inputs.die
-    if die is not None:
-        touching = gap_function(die, t)(points[kept])[0] <= TOUCH_GAP_MM
+    """The new mesh of the section whose nodes are at ``pos`` (time t).  Raises
+    RemeshError."""
     try:
-        return polygon_quads(points[kept], kept_labels, _sizes(points[kept], touching, settings))
+        points, labels, _ = boundary_polygon(scene.mesh, pos)
+        kept, kept_labels = simplify(points, labels, 1e-6 * settings.element_size_mm)
+        touching = np.zeros(len(kept), dtype=bool)
+        if scene.inputs.die is not None:
+            touching = gap_function(scene.inputs.die, t)(points[kept])[0] <= TOUCH_GAP_MM
+        sizes = _sizes(points[kept], touching, settings)
+        return polygon_quads(points[kept], kept_labels, sizes)
     except MeshError as err:
         raise RemeshError(str(err)) from None
 
@@ -186,7 +154,7 @@ def _contact_transfer(scene, new_scene, state, pos, new_pos):
     status = np.asarray(state.contact_status)
     lam = np.asarray(lay.node_multipliers(np.asarray(state.x)))
     counted = facets_in_contact(status > 0, np.asarray(idx.contact_facets))
-    area = np.asarray(tributary_areas(pos[cn], np.asarray(idx.contact_facets), axi, counted))
+    area = contact_areas(pos[cn], np.asarray(idx.contact_facets), axi, counted)
     traction = np.where(area[:, None] > 0, lam / np.where(area > 0, area, 1.0)[:, None], 0.0)
     # per old node (zero away from the candidates)
     n_old = lay.n_nodes
@@ -206,19 +174,27 @@ def _contact_transfer(scene, new_scene, state, pos, new_pos):
     new_status = np.where(s < 0.5, st_node[ea], st_node[eb]).astype(np.int32)
     new_slip = (1 - s) * slip_node[ea] + s * slip_node[eb]
     new_counted = facets_in_contact(new_status > 0, np.asarray(new_idx.contact_facets))
-    new_area = np.asarray(tributary_areas(p, np.asarray(new_idx.contact_facets), axi, new_counted))
+    new_area = contact_areas(p, np.asarray(new_idx.contact_facets), axi, new_counted)
     return new_t * new_area[:, None], new_status, new_slip
 
 
 def eqps_integral(scene, pos: np.ndarray, eqps: np.ndarray) -> float:
     """Integral of the equivalent plastic strain over the section at positions ``pos``
     (mm^3 axisymmetric, mm^2 plane strain), by the 2 x 2 Gauss rule."""
-    from jaxform import element as el
-
     axi = scene.model.formulation.axisymmetric
-    xe = jnp.asarray(pos[np.asarray(scene.mesh.elements)])
-    w = jax.vmap(lambda c: el.gauss_geometry(c, axi).weight)(xe)
-    return float(np.sum(np.asarray(w) * np.asarray(eqps)))
+    return float(np.sum(gauss_weights(pos, scene.mesh.elements, axi) * np.asarray(eqps)))
+
+
+def contact_areas(pos: np.ndarray, facets: np.ndarray, axisymmetric: bool, counted) -> np.ndarray:
+    """NumPy :func:`jaxform.contact.tributary_areas` (no compile per new mesh)."""
+    a, b = pos[facets[:, 0]], pos[facets[:, 1]]
+    length = np.linalg.norm(b - a, axis=1) * counted
+    if axisymmetric:
+        wa = 2.0 * np.pi * length * (2.0 * a[:, 0] + b[:, 0]) / 6.0
+        wb = 2.0 * np.pi * length * (a[:, 0] + 2.0 * b[:, 0]) / 6.0
+    else:
+        wa = wb = 0.5 * length
+    return np.bincount(facets[:, 0], wa, len(pos)) + np.bincount(facets[:, 1], wb, len(pos))
 
 
 def remesh(scene, state, settings: RemeshConfig):
@@ -237,7 +213,9 @@ def remesh(scene, state, settings: RemeshConfig):
     move = Transfer(pos, elements, mesh.coords, mesh.elements)
     mat = jax.tree_util.tree_map(lambda v: jnp.asarray(move.gauss(v)), state.gauss.mat)
     n_el = mesh.n_elements
-    gauss = replace(state.gauss, F=jnp.broadcast_to(jnp.eye(3), (n_el, 4, 3, 3)), mat=mat)
+    gauss = replace(
+        state.gauss, F=jnp.asarray(np.broadcast_to(np.eye(3), (n_el, 4, 3, 3))), mat=mat
+    )
     new_x = np.zeros(new_lay.n_dofs)
     new_rate = np.zeros(new_lay.n_dofs)
     new_lay.nodal(new_x)[:, 2:] = move.nodal(nodal[:, 2:])  # pressure, temperature

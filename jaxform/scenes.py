@@ -266,12 +266,17 @@ def scene_on_mesh(scene: Scene, mesh: meshing.Mesh) -> Scene:
         model.layout.n_facets > 0,
         temperature=model.layout.temperature,
     )
-    idx = replace(idx, lu_symbolic=scene.linear.analyze(idx.rows, idx.cols, layout.n_dofs))
+    so = scene.settings.solver
+    linear = choose_backend(so.linear, layout.n_dofs)
+    idx = replace(idx, lu_symbolic=linear.analyze(idx.rows, idx.cols, layout.n_dofs))
+    newton = replace(scene.newton, method=choose_method(so.newton, linear, layout.n_dofs))
     return replace(
         scene,
         mesh=mesh,
         model=replace(model, layout=layout),
         idx=idx,
+        linear=linear,
+        newton=newton,
         inputs=replace(scene.inputs, coords=jnp.asarray(mesh.coords)),
         grid=None,
     )

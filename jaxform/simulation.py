@@ -24,7 +24,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax.errors import JaxRuntimeError
 
-from jaxform.postprocess import HEAT_COLUMNS, extra_history
+from jaxform.capacity import padded
+from jaxform.postprocess import HEAT_COLUMNS, extra_history, laps
 from jaxform.precision import require_x64
 from jaxform.remesh import RemeshError, remesh
 from jaxform.rezone import RezoneError, corner_qualities, min_quality, rezone
@@ -75,6 +76,9 @@ class Result:
     # segment without remeshing); jaxform.remesh.RemeshReport per remesh
     segments: list = field(default_factory=list)
     remeshes: list = field(default_factory=list)
+    step_programs: int = 1  # distinct compiled step programs (capacity buckets) the run used
+    # laps found (jaxform.postprocess.laps): row, stroke_mm, r_mm, z_mm, angle_deg
+    laps: list = field(default_factory=list)
 
     def scene_at(self, row: int) -> Scene:
         """The scene (mesh, sets, reference coordinates) of history row ``row``."""
@@ -259,15 +263,20 @@ def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Re
     remeshing = settings is not None and settings.on
     trigger = settings.quality_below if remeshing else scene.rezone_quality
     control = replace(control, rezone_quality=jnp.asarray(trigger))
-    current, inp, stepper = scene, scene.inputs, stepper_of(scene)
+    # remeshed runs step a scene padded to a capacity bucket (jaxform.capacity): a new
+    # mesh in the same bucket reuses the compiled program
+    current, inp = scene, scene.inputs
+    padder = padded(scene) if remeshing else None
+    stepped = padder.scene if padder else scene
+    stepper, programs = stepper_of(stepped), {stepped.model.layout}
     rows, rezones, remeshes, failure = [_initial_row(scene, state)], [], [], None
     segments, since = [Segment(0, scene)], 0
     t_stop = scene.t_end - 1e-9 * scene.dt
-    modified = scene.newton.method == "modified"
 
     def new_factorization():
-        n = current.model.layout.n_dofs
-        return current.linear.empty_factorization(n, state.x.dtype) if modified else None
+        if stepped.newton.method != "modified":
+            return None
+        return stepped.linear.empty_factorization(stepped.model.layout.n_dofs, state.x.dtype)
 
     owned = [new_factorization()]
     try:
@@ -276,8 +285,13 @@ def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Re
             control = replace(control, pause_steps=jnp.asarray(every - since if every else 0,
                                                                jnp.int32))  # fmt: skip
             fac, owned[0] = owned[0], None  # the chunk frees it when it refactors
-            state_new, control, outs, owned[0] = _chunk(current, stepper, state, control, inp, fac)
+            start = padder.state(state) if padder else state
+            state_new, control, outs, owned[0] = _chunk(
+                stepped, stepper, start, control, stepped.inputs, fac
+            )
             outs = jax.device_get(outs)
+            if padder:
+                state_new, outs = padder.trim(state_new), padder.trim_outputs(outs)
             first = len(rows)
             for j in range(len(outs["active"])):
                 row = {k: v[j] for k, v in outs.items()}
@@ -303,9 +317,12 @@ def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Re
                     failure = f"step {len(rows) - 1}: remeshing failed: {err}"
                 else:
                     if owned[0] is not None:
-                        jax.block_until_ready(current.linear.release(owned[0]))
+                        jax.block_until_ready(stepped.linear.release(owned[0]))
+                    padder = padded(current)
+                    stepped = padder.scene
                     owned[0] = new_factorization()
-                    inp, stepper, since = current.inputs, stepper_of(current), 0
+                    inp, stepper, since = current.inputs, stepper_of(stepped), 0
+                    programs.add(stepped.model.layout)
                     segments.append(Segment(len(rows), current))
                     remeshes.append(report)
                     rows[-1].update(remeshed=1, new_nodes=report.nodes_after)
@@ -326,13 +343,15 @@ def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Re
         # the last factorization modified Newton kept is freed here; one a raising chunk
         # held is lost, never freed twice
         if owned[0] is not None:
-            jax.block_until_ready(current.linear.release(owned[0]))
+            jax.block_until_ready(stepped.linear.release(owned[0]))
     fields = _fields(rows, len(segments) == 1)
     history = _history(segments, rows, fields)
     hists = np.array([r["hist"] for r in rows[1:]])
     result = Result(history=history, fields=fields, scene=scene, final_state=state,
                     newton_histories=hists, failure=failure, inputs=inp,
-                    rezones=rezones, segments=segments, remeshes=remeshes)  # fmt: skip
+                    rezones=rezones, segments=segments, remeshes=remeshes,
+                    step_programs=len(programs),
+                    laps=laps(history, scene.settings.output.lap_angle_deg))  # fmt: skip
     if failure:
         raise SimulationError(failure, result)
     return result

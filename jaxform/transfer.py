@@ -137,6 +137,17 @@ def gauss_points(pos: np.ndarray, elements: np.ndarray) -> np.ndarray:
     return np.einsum("ga,eai->egi", el.N_GP, pos[elements])
 
 
+def gauss_weights(pos: np.ndarray, elements: np.ndarray, axisymmetric: bool) -> np.ndarray:
+    """(ne, 4) volume weights dV of the 2 x 2 Gauss rule (mm^3 axisymmetric, with 2 pi r;
+    mm^2 plane strain), the NumPy twin of :func:`jaxform.element.gauss_geometry`'s (no JAX
+    call, so no compile for each new mesh)."""
+    xe = np.asarray(pos)[np.asarray(elements)]
+    jac = np.einsum("gai,eaj->egji", el.DN_GP, xe)
+    det = jac[..., 0, 0] * jac[..., 1, 1] - jac[..., 0, 1] * jac[..., 1, 0]
+    w = det * el.GAUSS_WEIGHTS
+    return w * 2.0 * np.pi * np.einsum("ga,ea->eg", el.N_GP, xe[..., 0]) if axisymmetric else w
+
+
 class Transfer:
     """The transfer operators from an old mesh (old_pos, old_elements) to the nodes and the
     Gauss points of a new one (new_pos, new_elements), located once and applied to any

@@ -8,14 +8,15 @@ upsetting is a homogeneous deformation, so its force does not depend on the mesh
 unremeshed runs agree to 1e-6 relative, the issue asks 0.1 %).
 """
 
+import jax
 import numpy as np
 import pytest
 
 import jaxform
 from jaxform.config import ConfigError, check_gradient_run, load_config
 from jaxform.geometry import min_quality, polygon_measure
-from jaxform.mesh import billet_quarter, polygon_quads
-from jaxform.remesh import boundary_polygon, simplify
+from jaxform.mesh import billet_quarter, boundary_polygon, polygon_quads
+from jaxform.remesh import simplify
 from jaxform.transfer import Transfer, gauss_points, gauss_to_nodes
 
 
@@ -137,6 +138,8 @@ def test_forced_remeshes_leave_frictionless_upsetting_unchanged():
     res = jaxform.run(SEED, over + ["remesh.every_steps=5"])
     h0, h1 = plain.history, res.history
     assert len(res.remeshes) == 2 and list(np.nonzero(h1["remeshed"])[0]) == [5, 10]
+    # the two new meshes fit one capacity bucket: at most one step program besides the first
+    assert res.step_programs <= 2
     assert np.allclose(h1["force_N"], h0["force_N"], rtol=1e-6)
     for rep in res.remeshes:
         assert abs(rep.volume_change) < 1e-12
@@ -163,15 +166,103 @@ def test_remesh_config_is_checked():
 
 @pytest.mark.slow
 def test_ring_with_high_friction_runs_to_the_end_with_remeshing():
-    """6:3:2 ring, m = 0.5, 24 x 12 q1q1: without remeshing the bore folds onto the die and
-    the run stops near 38 % (README); with remesh.quality_below = 0.4 it reaches 50 %,
-    volume kept to 1e-10 per remesh, and the inner diameter shrinks by 30-40 % (Avitzur's
-    chart for m = 0.5 at 50 %: about -35 %)."""
-    over = QUIET + ["friction.m=0.5", "mesh.nr=24", "mesh.nz=12", "remesh.quality_below=0.4"]
-    res = jaxform.run("configs/ring_compression.toml", over)
-    h = res.history
-    assert h["stroke_mm"][-1] == pytest.approx(3.0)
-    assert len(res.remeshes) >= 2
-    assert all(abs(r.volume_change) < 1e-10 for r in res.remeshes)
-    change = h["inner_diameter_mm"][-1] / 9.0 - 1.0
-    assert -0.40 < change < -0.30
+    """6:3:2 ring, m = 0.5, q1q1 with remesh.quality_below = 0.4 on the shipped 12 x 6 mesh
+    and on 24 x 12: both reach 50 %, volume kept to 1e-10 per remesh, the inner-diameter
+    changes agree within 1 percentage point (the issue's mesh check) and lie within 10
+    points of Avitzur's upper bound (-27.4 %; its field has no barrel, so it reads less
+    negative: experiments/ring_remesh.py)."""
+    changes = []
+    for nr, nz in ((12, 6), (24, 12)):
+        over = QUIET + ["friction.m=0.5", f"mesh.nr={nr}", f"mesh.nz={nz}",
+                        "remesh.quality_below=0.4"]  # fmt: skip
+        res = jaxform.run("configs/ring_compression.toml", over)
+        h = res.history
+        assert h["stroke_mm"][-1] == pytest.approx(3.0)
+        assert all(abs(r.volume_change) < 1e-10 for r in res.remeshes)
+        changes.append(100.0 * (h["inner_diameter_mm"][-1] / 9.0 - 1.0))
+    assert abs(changes[0] - changes[1]) < 1.0, changes
+    assert all(-37.4 < c < -27.4 for c in changes), changes
+
+
+def test_padding_to_a_bucket_is_inert_and_shared():
+    """The seed on 4 x 4 and on 5 x 4 padded to one bucket: equal layouts and argument
+    shapes (one compiled program serves both), and one step of the padded 4 x 4 scene
+    equals the unpadded step (unknowns to 1e-10 relative, ghosts at rest)."""
+    from jaxform.capacity import Bucket, padded
+    from jaxform.config import typed
+    from jaxform.scenes import build_scene
+    from jaxform.simulation import init, step
+
+    def scene(nr):
+        return build_scene(typed(load_config(SEED, QUIET + [f"mesh.nr={nr}", "mesh.nz=4"])))
+
+    a, b = scene(4), scene(5)
+    bucket = Bucket(64, 24)
+    pa, pb = padded(a, bucket), padded(b, bucket)
+    assert pa.scene.model.layout == pb.scene.model.layout
+    shapes = [
+        jax.tree_util.tree_map(lambda v: np.shape(v), (p.scene.idx, p.scene.inputs))
+        for p in (pa, pb)
+    ]
+    assert shapes[0] == shapes[1]
+    state, control = init(a)
+    plain, _, _ = step(a, state, control)
+    big, _, _ = step(pa.scene, pa.state(state), control)
+    back = pa.trim(big)
+    x0, x1 = np.asarray(plain.x), np.asarray(back.x)
+    assert np.max(np.abs(x1 - x0)) <= 1e-10 * np.max(np.abs(x0))
+    lay = pa.scene.model.layout
+    ghosts = np.asarray(lay.nodal(big.x))[a.model.layout.n_nodes :]
+    assert np.all(ghosts == 0.0)
+    assert np.allclose(np.asarray(back.gauss.mat.stress), np.asarray(plain.gauss.mat.stress))
+
+
+def test_fold_angle_of_known_wedges():
+    """The seed section on 2 x 2 (R = 3.75 mm, half height 3.75 mm, die on the top face):
+    90 deg at the top outer corner as built; the side's upper edge laid down to 5 deg
+    under the die gives 5 deg at the contact front (1e-9); an inward crease of the side
+    (mid node pulled in by a = 4 h) gives the air wedge 2 atan(1/4) = 28.07 deg (1e-9); the
+    lap list reports a crossing of output.lap_angle_deg once, with its stroke and place."""
+    from jaxform.config import typed
+    from jaxform.postprocess import fold_angle, laps
+    from jaxform.scenes import build_scene
+
+    scene = build_scene(typed(load_config(SEED, QUIET + ["mesh.nr=2", "mesh.nz=2"])))
+    pos = np.asarray(scene.inputs.coords).copy()
+    r, h = pos[:, 0].max(), pos[:, 1].max()
+    assert fold_angle(scene, pos, 0.0) == pytest.approx((90.0, r, h), abs=1e-9)
+    side = scene.mesh.node_sets["side"]
+    mid = side[np.argsort(pos[side, 1])][1]  # the side node at half of the half height
+    laid = pos.copy()
+    laid[mid] = [r + 1.0 * np.cos(np.radians(5.0)), h - 1.0 * np.sin(np.radians(5.0))]
+    assert fold_angle(scene, laid, 0.0)[0] == pytest.approx(5.0, abs=1e-9)
+    crease = pos.copy()
+    crease[mid, 0] = r - 4.0 * (h / 2)
+    angle, r_at, z_at = fold_angle(scene, crease, 0.0)
+    assert angle == pytest.approx(np.degrees(2 * np.arctan(0.25)), abs=1e-9)
+    assert (r_at, z_at) == pytest.approx(tuple(crease[mid]))
+    hist = {
+        "fold_angle_deg": np.array([90.0, 40.0, 8.0, 6.0, 12.0, 7.0]),
+        "stroke_mm": np.arange(6.0),
+        "fold_r_mm": np.ones(6),
+        "fold_z_mm": np.zeros(6),
+    }
+    found = laps(hist, 10.0)
+    assert [f["row"] for f in found] == [2, 5] and found[0]["angle_deg"] == 8.0
+    assert laps(hist, 0.0) == []
+
+
+def test_avitzur_upper_bound_reference():
+    """The ring reference of experiments/ring_remesh.py: frictionless, Avitzur's field is
+    homogeneous (R_n = 0), so the inner diameter grows by sqrt(T0 / T) - 1 = 41.421 % at
+    50 % (to 0.01 points); friction turns the change negative and m = 1 lies below m = 0.5."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "experiments" / "ring_remesh.py"
+    spec = importlib.util.spec_from_file_location("ring_remesh", path)
+    ring = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(ring)
+    assert ring.avitzur_ring(0.0, steps=50)[-1, 1] == pytest.approx(100 * (2**0.5 - 1), abs=0.01)
+    half, full = (ring.avitzur_ring(m, steps=20)[-1, 1] for m in (0.5, 1.0))
+    assert full < half < 0.0

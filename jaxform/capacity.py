@@ -1,0 +1,257 @@
+"""Capacity buckets: a scene padded to fixed sizes, so that new meshes reuse one program.
+
+XLA compiles a program for fixed array shapes, and a scene's sizes (nodes, elements,
+contact candidates, pattern entries) change with every remesh.  :func:`padded` embeds a
+scene in a larger one whose sizes depend only on a *bucket*: the node capacity B (a
+geometric grid, :data:`GROWTH`), the candidate capacity C (its own grid) and, from
+them, the element and pattern capacities.  Every mesh whose sizes fit the same bucket
+gives the same :class:`jaxform.assembly.Layout` and the same argument shapes, so the
+compiled step program is reused (jit's cache).  The padding is inert:
+
+* ghost nodes (B - n of them) have every field fixed (Dirichlet rows, value 0); the
+  first four form a unit square far below the section, the rest sit on its corner;
+* ghost elements (B - n_el) are copies of that square: zero displacement, zero stress,
+  the material's initial state, no heat exchange, so they add nothing to the residual
+  and only fixed rows of the Jacobian;
+* ghost contact candidates (C - n_c, at least 2) sit on two ghost nodes, far from every
+  die (open contact: zero multipliers), joined by ghost facets of unit length;
+* the pattern is padded to ``10 nf^2 B + 16 C + 25 C + dofs`` entries by structural
+  zeros in a band between isolated ghost dofs (no duplicates: klujax wants unique
+  entries; inside ghost rows: the LU fill stays in the ghost block);
+* the index arrays of varying length (Dirichlet dofs, reaction dofs) are padded by
+  repeating a ghost dof.
+
+The real unknowns come first in every block (nodes, then candidates, then corner facets),
+so :meth:`Padded.state` and :meth:`Padded.trim` move a state between the real and the
+padded layout by slicing.  Outputs and remeshing see only the real scene.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxform import mesh as meshing
+from jaxform.assembly import Layout, build_indices
+from jaxform.linear import choose_backend
+from jaxform.solver import choose_method
+
+GROWTH = 1.25  # ratio of successive capacities
+SMALLEST_NODES = 64
+SMALLEST_CONTACTS = 16
+NONZEROS_PER_NODE = 10  # x nf^2: an all-quad mesh averages about 9 (node and its neighbours)
+
+
+def grid_value(n: int, smallest: int) -> int:
+    """The smallest capacity of the grid round(smallest * GROWTH**k / 8) * 8 that is >= n."""
+    k = max(0, math.ceil(math.log(max(n, 1) / smallest) / math.log(GROWTH) - 1e-12))
+    while True:
+        c = int(round(smallest * GROWTH**k / 8.0)) * 8
+        if c >= n:
+            return c
+        k += 1
+
+
+@dataclass(frozen=True)
+class Bucket:
+    """The capacities of a padded scene (hashable; equal buckets share a program)."""
+
+    nodes: int
+    contacts: int
+
+    def nonzeros(self, n_fields: int, corner: bool) -> int:
+        fc = self.contacts if corner else 0
+        dofs = self.nodes * n_fields + 2 * self.contacts + fc
+        return NONZEROS_PER_NODE * n_fields**2 * self.nodes + 16 * self.contacts + 25 * fc + dofs
+
+
+@dataclass(frozen=True)
+class Padded:
+    """A scene padded to a bucket: ``scene`` is what the compiled steps run, ``real`` the
+    layout of the scene it pads."""
+
+    scene: object
+    real: Layout
+    bucket: Bucket
+
+    def _blocks(self, lay: Layout):
+        return (lay.n_node_dofs, 2 * lay.n_contact, lay.n_facets)
+
+    def _pad_x(self, x):
+        x = np.asarray(x)
+        out, start = [], 0
+        for n_real, n_cap in zip(self._blocks(self.real), self._blocks(self.scene.model.layout)):
+            out += [x[start : start + n_real], np.zeros(n_cap - n_real, x.dtype)]
+            start += n_real
+        return np.concatenate(out)
+
+    def _trim_x(self, x):
+        x = np.asarray(x)
+        out, start = [], 0
+        for n_real, n_cap in zip(self._blocks(self.real), self._blocks(self.scene.model.layout)):
+            out.append(x[..., start : start + n_real])
+            start += n_cap
+        return np.concatenate(out, axis=-1)
+
+    def state(self, state):
+        """The real scene's state in the padded layout (ghosts at rest, initial state).
+        Host NumPy, so a new mesh compiles nothing here."""
+        lay = self.scene.model.layout
+        ghost_el = lay.n_elements - self.real.n_elements
+        init = self.scene.model.law.initial_state(self.scene.inputs.params)
+        ghost = type(state.gauss)(F=np.broadcast_to(np.eye(3), (ghost_el, 4, 3, 3)), mat=init)
+        gauss = jax.tree_util.tree_map(
+            lambda a, b: jnp.asarray(
+                np.concatenate(
+                    [
+                        np.asarray(a),
+                        np.broadcast_to(np.asarray(b, a.dtype), (ghost_el,) + a.shape[1:]),
+                    ]
+                )
+            ),  # fmt: skip
+            state.gauss,
+            ghost,
+        )
+        pad_c = lay.n_contact - self.real.n_contact
+        status = np.asarray(state.contact_status)
+        return replace(
+            state,
+            x=jnp.asarray(self._pad_x(state.x)),
+            x_rate=jnp.asarray(self._pad_x(state.x_rate)),
+            gauss=gauss,
+            slip_mm=jnp.asarray(np.concatenate([np.asarray(state.slip_mm), np.zeros(pad_c)])),
+            contact_status=jnp.asarray(np.concatenate([status, np.zeros(pad_c, status.dtype)])),
+        )
+
+    def trim(self, state):
+        """A padded state in the real scene's layout (host NumPy slices)."""
+        ne, nc = self.real.n_elements, self.real.n_contact
+        return replace(
+            state,
+            x=jnp.asarray(self._trim_x(state.x)),
+            x_rate=jnp.asarray(self._trim_x(state.x_rate)),
+            gauss=jax.tree_util.tree_map(lambda a: jnp.asarray(np.asarray(a)[:ne]), state.gauss),
+            slip_mm=jnp.asarray(np.asarray(state.slip_mm)[:nc]),
+            contact_status=jnp.asarray(np.asarray(state.contact_status)[:nc]),
+        )
+
+    def trim_outputs(self, outs: dict) -> dict:
+        """A chunk's outputs (host arrays, leading axis the steps) in the real layout."""
+        ne, nc = self.real.n_elements, self.real.n_contact
+        out = dict(outs)
+        out["x"] = self._trim_x(outs["x"])
+        for k in ("stress", "s", "eqps"):
+            out[k] = outs[k][:, :ne]
+        for k in ("slip_mm", "contact_status"):
+            out[k] = outs[k][:, :nc]
+        return out
+
+
+def _ghost_square(coords: np.ndarray) -> np.ndarray:
+    """A unit square far below and beside the section (r > 0: a valid axisymmetric
+    element), counter-clockwise."""
+    lo, hi = coords.min(axis=0), coords.max(axis=0)
+    size = float(np.max(hi - lo))
+    r0, z0 = hi[0] + 10.0 * size + 1.0, lo[1] - 10.0 * size - 2.0
+    return np.array([[r0, z0], [r0 + 1.0, z0], [r0 + 1.0, z0 + 1.0], [r0, z0 + 1.0]])
+
+
+def _band(ghost_dofs: np.ndarray, count: int, n: int) -> np.ndarray:
+    """``count`` keys row * n + col of distinct off-diagonal pairs of ``ghost_dofs``, in
+    bands of growing offset.  ValueError when they cannot hold that many."""
+    k = len(ghost_dofs)
+    if count > k * (k - 1):
+        raise ValueError("not enough ghost dofs for the pattern's padding")
+    keys, d = [], 1
+    while sum(len(a) for a in keys) < count:
+        a, b = ghost_dofs[:-d], ghost_dofs[d:]
+        keys += [a * n + b, b * n + a]
+        d += 1
+    return np.concatenate(keys)[:count] if count else np.zeros(0, np.int64)
+
+
+def bucket_of(scene) -> Bucket:
+    """The smallest bucket that holds the scene's sizes with room for the padding."""
+    lay = scene.model.layout
+    nodes = grid_value(lay.n_nodes + 8, SMALLEST_NODES)
+    contacts = grid_value(lay.n_contact + 2, SMALLEST_CONTACTS)
+    return Bucket(nodes, contacts)
+
+
+def padded(scene, bucket: Bucket | None = None) -> Padded:
+    """The scene padded to ``bucket`` (default :func:`bucket_of`; the next larger node
+    capacity where the pattern's padding does not fit)."""
+    bucket = bucket or bucket_of(scene)
+    while True:
+        try:
+            return _padded(scene, bucket)
+        except ValueError:
+            bucket = Bucket(grid_value(bucket.nodes + 1, SMALLEST_NODES), bucket.contacts)
+
+
+def _padded(scene, bucket: Bucket) -> Padded:
+    real, idx, mesh = scene.model.layout, scene.idx, scene.mesh
+    nf, n, n_el, n_c = real.n_fields, real.n_nodes, real.n_elements, real.n_contact
+    corner = real.n_facets > 0
+    g = np.arange(n, bucket.nodes)  # ghost nodes
+    if n_el > bucket.nodes or len(g) < 8 or bucket.contacts < n_c + 2:
+        raise ValueError("bucket too small")
+    coords = np.vstack(
+        [
+            np.asarray(scene.inputs.coords),
+            np.repeat(_ghost_square(mesh.coords), [1, 1, 1, len(g) - 3], 0),
+        ]
+    )
+    square = g[:4]
+    elements = np.vstack([np.asarray(mesh.elements), np.tile(square, (bucket.nodes - n_el, 1))])
+    ghost_mesh = meshing.Mesh(coords, elements, mesh.node_sets, mesh.facet_sets)
+    fixed = np.concatenate([np.asarray(idx.fixed), (g[:, None] * nf + np.arange(nf)).ravel()])
+    fixed = np.concatenate([fixed, np.full(bucket.nodes * nf - len(fixed), g[0] * nf)])
+    ghost_c = np.where(np.arange(bucket.contacts - n_c) % 2 == 0, g[0], g[1])
+    contact_nodes = np.concatenate([np.asarray(idx.contact_nodes), ghost_c]).astype(np.int64)
+    real_facets = np.asarray(idx.contact_nodes)[np.asarray(idx.contact_facets)]
+    facets = np.vstack(
+        [real_facets, np.tile([g[0], g[1]], (bucket.contacts - len(real_facets), 1))]
+    )
+    reaction = np.asarray(idx.bottom_reaction_dofs)
+    reaction = np.concatenate([reaction, np.full(bucket.nodes - len(reaction), g[0] * nf + 1)])
+    layout, pidx = build_indices(ghost_mesh, nf, fixed, contact_nodes, reaction_dofs=reaction,
+                                 contact_facets=facets, corner_contact=corner)  # fmt: skip
+    # the pattern padded to its capacity by a band of zeros between isolated ghost dofs
+    cap = bucket.nonzeros(nf, corner)
+    n_dofs = layout.n_dofs
+    rows, cols, slot = (np.asarray(a, dtype=np.int64) for a in (pidx.rows, pidx.cols, pidx.slot))
+    if len(rows) > cap:
+        raise ValueError("pattern over capacity")
+    isolated = (g[4:, None] * nf + np.arange(nf)).ravel()
+    keys = np.sort(np.concatenate([rows * n_dofs + cols, _band(isolated, cap - len(rows), n_dofs)]))
+    new_slot = np.searchsorted(keys, (rows * n_dofs + cols)[slot])
+    pidx = replace(
+        pidx,
+        rows=jnp.asarray(keys // n_dofs, dtype=jnp.int32),
+        cols=jnp.asarray(keys % n_dofs, dtype=jnp.int32),
+        slot=jnp.asarray(new_slot, dtype=jnp.int32),
+    )
+    layout = replace(layout, n_nonzeros=cap, temperature=real.temperature)
+    if real.temperature:
+        edges = np.zeros((len(elements), 4))
+        edges[:n_el] = np.asarray(idx.exposed_edges)
+        pidx = replace(pidx, exposed_edges=jnp.asarray(edges))
+    so = scene.settings.solver
+    linear = choose_backend(so.linear, layout.n_dofs)
+    pidx = replace(pidx, lu_symbolic=linear.analyze(pidx.rows, pidx.cols, n_dofs))
+    newton = replace(scene.newton, method=choose_method(so.newton, linear, n_dofs))
+    pscene = replace(
+        scene,
+        mesh=ghost_mesh,
+        model=replace(scene.model, layout=layout),
+        idx=pidx,
+        linear=linear,
+        newton=newton,
+        inputs=replace(scene.inputs, coords=jnp.asarray(coords)),
+    )
+    return Padded(pscene, real, bucket)
