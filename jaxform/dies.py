@@ -208,8 +208,11 @@ def corner_gap(points, corner_radius, xa, xb):
     ok = pr["turns"] & (pr["sign"] > 0) & faces & (xi > 0.0) & (xi < 1.0) & (g > -0.5 * length)
     engaged = jnp.any(ok)
     scale = SOFT * length
-    g_ok = jnp.where(ok, g, length)
-    g_min = jnp.min(g_ok)
+    # the soft minimum over the qualifying arcs only: taking the facet length of the
+    # others as their g made the weights underflow to 0 (g = inf) where every qualifying
+    # arc lies more than a facet length away
+    g_min = jnp.where(engaged, jnp.min(jnp.where(ok, g, jnp.inf)), length)
+    g_ok = jnp.where(ok, g, g_min)
     weights = jnp.where(ok, jnp.exp(-(g_ok - g_min) / scale), 0.0)
     soft = g_min - scale * jnp.log(jnp.where(engaged, jnp.sum(weights), 1.0))
     return jnp.where(engaged, soft, length), engaged

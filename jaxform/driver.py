@@ -84,6 +84,8 @@ def write_outputs(out_dir: str | Path, result: Result) -> None:
     dump_config(cfg.to_dict(), out / "config.toml")
     if result.failure:
         (out / "FAILED.txt").write_text(result.failure + "\n")
+    else:  # a failure an earlier run left in this folder is not this run's
+        (out / "FAILED.txt").unlink(missing_ok=True)
     if cfg.output.fields:
         write_vtu_series(out, result)
     if cfg.output.plots:

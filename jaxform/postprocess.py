@@ -233,51 +233,49 @@ def filled_volume(scene, pos: np.ndarray, t: float) -> float:
 
 
 def fold_angle(scene, pos: np.ndarray, t: float) -> tuple[float, float, float]:
-    """(angle in degrees, r, z of where): the narrowest air wedge of the free surface at
-    nodal positions ``pos`` and time t.  A lap (fold) forms where it closes:
+    """(angle in degrees, r, z of where): the narrowest air wedge the free surface makes
+    at nodal positions ``pos`` and time t, where a lap (fold) forms as it closes:
 
     * at a free-surface vertex off the die whose two edges are free: the air-side angle
-      between them (the boundary turning back on itself; 270 deg at a square corner of the
-      section, 180 on a straight side);
-    * at a contact front, a vertex touching a die (gap <= TOUCH_GAP_MM) with one edge
-      free: the angle between that free edge and the die surface, measured away from the
-      contact zone (90 deg for a vertical side on a flat die, 0 when the side lies down
-      on the die).
+      between them, the surface turning back on itself (270 deg at a square corner of the
+      section, 180 on a straight side, 0 when the surface has folded flat onto itself);
+    * over a pocket, a run of free vertices off the die between two vertices that touch a
+      die (gap <= TOUCH_GAP_MM), the material closing on the die from both sides:
+      atan(largest gap / half the pocket's length along the surface) (0 when it closes).
 
-    Free means on a set a die may touch (:meth:`Workpiece.contact_sets`); (180, nan, nan)
-    where the scene has none."""
+    A free surface that meets the die at a contact front, as a side rolling onto the die
+    or material filling a die corner, is neither.  Free means on a set a die may touch
+    (:meth:`Workpiece.contact_sets`); (180, nan, nan) where there is no fold or pocket."""
     from jaxform.contact import TOUCH_GAP_MM
     from jaxform.mesh import boundary_polygon
     from jaxform.rezone import gap_function
 
     free_sets = set(scene.workpiece.contact_sets(scene.mesh))
     pts, labels, _ = boundary_polygon(scene.mesh, pos)
+    n = len(pts)
     free_out = np.array([lab in free_sets for lab in labels])  # edge i: pts[i] -> pts[i+1]
     free_in = np.roll(free_out, 1)
-    if not free_out.any():
-        return 180.0, float("nan"), float("nan")
+    gap = np.full(n, np.inf)
+    if scene.inputs.die is not None and free_out.any():
+        gap = gap_function(scene.inputs.die, t)(pts)[0]
+    touching = gap <= TOUCH_GAP_MM
     e_in = pts - np.roll(pts, 1, axis=0)
     e_out = np.roll(pts, -1, axis=0) - pts
     turn = np.arctan2(
         e_in[:, 0] * e_out[:, 1] - e_in[:, 1] * e_out[:, 0], np.sum(e_in * e_out, axis=1)
     )
-    angle = np.full(len(pts), np.inf)
-    touching = np.zeros(len(pts), dtype=bool)
-    normal = np.zeros_like(pts)
-    if scene.inputs.die is not None:
-        g, normal = gap_function(scene.inputs.die, t)(pts)
-        touching = g <= TOUCH_GAP_MM
-    side = free_in & free_out & ~touching
-    angle[side] = np.degrees(np.pi + turn[side])
-    prev_touch, next_touch = np.roll(touching, 1), np.roll(touching, -1)
-    for i in np.nonzero(touching & (free_in | free_out) & (prev_touch != next_touch))[0]:
-        # d: along the free edge away from the vertex; the contact zone lies the other way
-        d, c = (e_out[i], -e_in[i]) if not next_touch[i] else (-e_in[i], e_out[i])
-        d = d / max(np.linalg.norm(d), 1e-300)
-        n = normal[i]
-        t_away = np.array([-n[1], n[0]])
-        t_away = -t_away if np.dot(t_away, c) > 0 else t_away
-        angle[i] = np.degrees(np.arctan2(np.dot(d, n), np.dot(d, t_away)))
+    angle = np.where(free_in & free_out & ~touching, np.degrees(np.pi + turn), np.inf)
+    length = np.linalg.norm(e_out, axis=1)
+    for i in np.nonzero(touching & free_out & ~np.roll(touching, -1))[0]:
+        run, j = [], (i + 1) % n  # the free vertices after the touching vertex i
+        while not touching[j] and free_in[j] and len(run) < n:
+            run.append(j)
+            j = (j + 1) % n
+        if not run or not touching[j] or not free_in[j]:
+            continue  # the run ends off the free surface (axis, mid-plane): no pocket
+        half = 0.5 * sum(length[k] for k in [i, *run])
+        k = max(run, key=lambda m: gap[m])
+        angle[k] = min(angle[k], np.degrees(np.arctan2(gap[k], half)))
     k = int(np.argmin(angle))
     if not np.isfinite(angle[k]):
         return 180.0, float("nan"), float("nan")

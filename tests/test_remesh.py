@@ -218,11 +218,13 @@ def test_padding_to_a_bucket_is_inert_and_shared():
 
 
 def test_fold_angle_of_known_wedges():
-    """The seed section on 2 x 2 (R = 3.75 mm, half height 3.75 mm, die on the top face):
-    90 deg at the top outer corner as built; the side's upper edge laid down to 5 deg
-    under the die gives 5 deg at the contact front (1e-9); an inward crease of the side
-    (mid node pulled in by a = 4 h) gives the air wedge 2 atan(1/4) = 28.07 deg (1e-9); the
-    lap list reports a crossing of output.lap_angle_deg once, with its stroke and place."""
+    """The seed section on 2 x 2 (R = 2.5 mm, flat die on the top face): no fold as built
+    (180); the top face's middle node pulled 0.1 mm off the die between two touching nodes
+    is a pocket of angle atan(0.1 / half its length along the surface, hypot(1.25, 0.1))
+    (1e-9); an inward
+    crease of the side (mid node pulled in by a = 4 h) gives the air wedge 2 atan(1/4) =
+    28.07 deg (1e-9) at that node; the lap list reports each crossing of
+    output.lap_angle_deg once, with its stroke and place."""
     from jaxform.config import typed
     from jaxform.postprocess import fold_angle, laps
     from jaxform.scenes import build_scene
@@ -230,12 +232,16 @@ def test_fold_angle_of_known_wedges():
     scene = build_scene(typed(load_config(SEED, QUIET + ["mesh.nr=2", "mesh.nz=2"])))
     pos = np.asarray(scene.inputs.coords).copy()
     r, h = pos[:, 0].max(), pos[:, 1].max()
-    assert fold_angle(scene, pos, 0.0) == pytest.approx((90.0, r, h), abs=1e-9)
+    assert fold_angle(scene, pos, 0.0)[0] == 180.0
+    top = scene.mesh.node_sets["top"]
+    mid_top = top[np.argsort(pos[top, 0])][1]
+    pocket = pos.copy()
+    pocket[mid_top, 1] -= 0.1
+    angle, r_at, z_at = fold_angle(scene, pocket, 0.0)
+    assert angle == pytest.approx(np.degrees(np.arctan(0.1 / np.hypot(r / 2, 0.1))), abs=1e-9)
+    assert (r_at, z_at) == pytest.approx(tuple(pocket[mid_top]))
     side = scene.mesh.node_sets["side"]
     mid = side[np.argsort(pos[side, 1])][1]  # the side node at half of the half height
-    laid = pos.copy()
-    laid[mid] = [r + 1.0 * np.cos(np.radians(5.0)), h - 1.0 * np.sin(np.radians(5.0))]
-    assert fold_angle(scene, laid, 0.0)[0] == pytest.approx(5.0, abs=1e-9)
     crease = pos.copy()
     crease[mid, 0] = r - 4.0 * (h / 2)
     angle, r_at, z_at = fold_angle(scene, crease, 0.0)
