@@ -32,6 +32,8 @@ def base_argv(command: str, path: Path, out: Path) -> list[str]:
     raw = tomllib.loads(path.read_bytes().decode("utf-8-sig"))
     if command != "run" and raw.get("mesh", {}).get("rezone_quality", 0) > 0:
         argv += ["--set", "mesh.rezone_quality=0"]  # gradient runs refuse rezoning
+    if command != "run" and raw.get("remesh"):  # and remeshing
+        argv += ["--set", "remesh.quality_below=0", "--set", "remesh.every_steps=0"]
     return argv
 
 
