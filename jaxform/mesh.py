@@ -434,7 +434,7 @@ def _gmsh_quads(pts, labels, sizes, segments, algorithm: int) -> Mesh:
         geo.addPlaneSurface([geo.addCurveLoop(lines)])
         geo.synchronize()
         options = {"Mesh.RecombineAll": 1, "Mesh.Algorithm": algorithm,
-                   "Mesh.RecombinationAlgorithm": 1, "Mesh.Smoothing": 10}  # fmt: skip
+                   "Mesh.RecombinationAlgorithm": 1, "Mesh.Smoothing": 3}  # fmt: skip
         for name, value in options.items():
             gmsh.option.setNumber(name, value)
         gmsh.model.mesh.generate(2)

@@ -53,38 +53,63 @@ def _natural(points: np.ndarray, corners: np.ndarray, iterations: int = 12):
     return xi, np.maximum(np.abs(xi).max(axis=1) - 1.0, 0.0) + miss / size
 
 
+def _candidates(points: np.ndarray, lo: np.ndarray, hi: np.ndarray):
+    """(point, element) pairs whose element box [lo, hi] holds the point, found through a
+    uniform grid of cells about the median box size (each box listed in the cells it
+    covers, each point looked up in its cell): linear in the sizes, not P x E."""
+    size = max(float(np.median(np.max(hi - lo, axis=1))), 1e-300)
+    origin = lo.min(axis=0)
+    c_lo = np.floor((lo - origin) / size).astype(np.int64)
+    c_hi = np.floor((hi - origin) / size).astype(np.int64)
+    n_cols = int(c_hi[:, 0].max()) + 1
+    span = c_hi - c_lo + 1  # cells per box along r and z
+    count = span[:, 0] * span[:, 1]
+    el = np.repeat(np.arange(len(lo)), count)
+    k = np.arange(len(el)) - np.repeat(np.cumsum(count) - count, count)
+    cell = (c_lo[el, 1] + k // span[el, 0]) * n_cols + c_lo[el, 0] + k % span[el, 0]
+    order = np.argsort(cell, kind="stable")
+    cell, el = cell[order], el[order]
+    pc = np.floor((points - origin) / size).astype(np.int64)
+    inside_grid = (pc[:, 0] >= 0) & (pc[:, 0] < n_cols) & (pc[:, 1] >= 0)
+    p_cell = np.where(inside_grid, pc[:, 1] * n_cols + pc[:, 0], -1)
+    start, stop = np.searchsorted(cell, p_cell), np.searchsorted(cell, p_cell, side="right")
+    n = stop - start
+    pi = np.repeat(np.arange(len(points)), n)
+    ei = el[np.repeat(start, n) + np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)]
+    keep = np.all((points[pi] >= lo[ei]) & (points[pi] <= hi[ei]), axis=1)
+    return pi[keep], ei[keep]
+
+
 def locate(points: np.ndarray, pos: np.ndarray, elements: np.ndarray):
     """Element (p,) and natural coordinates (p, 2), clamped to [-1, 1]^2, of each point in
     the mesh (pos, elements): the element the point is least outside of.
 
     Candidates are the elements whose bounding box, grown by a quarter of its size,
-    holds the point (the 8 nearest centroids where none does)."""
+    holds the point (:func:`_candidates`; the 8 nearest centroids where none does)."""
     points = np.asarray(points, dtype=float)
     xe = pos[elements]  # (ne, 4, 2)
     lo, hi = xe.min(axis=1), xe.max(axis=1)
     pad = 0.25 * (hi - lo).max(axis=1, keepdims=True)
-    lo, hi = lo - pad, hi + pad
-    centre = xe.mean(axis=1)
+    pi, ei = _candidates(points, lo - pad, hi + pad)
+    none = np.ones(len(points), dtype=bool)
+    none[pi] = False
+    if none.any():
+        centre = xe.mean(axis=1)
+        lost = np.nonzero(none)[0]
+        d = np.linalg.norm(points[lost][:, None] - centre[None], axis=2)
+        near = np.argsort(d, axis=1)[:, : min(8, len(elements))]
+        pi = np.concatenate([pi, np.repeat(lost, near.shape[1])])
+        ei = np.concatenate([ei, near.ravel()])
+    xi, out = _natural(points[pi], xe[ei])
+    # per point the candidate with the least "outside"
+    order = np.lexsort((out, pi))
+    first = np.ones(len(order), dtype=bool)
+    first[1:] = pi[order][1:] != pi[order][:-1]
+    pick = order[first]
     best_e = np.zeros(len(points), dtype=np.int64)
     best_xi = np.zeros((len(points), 2))
-    for p0 in range(0, len(points), 512):
-        p = points[p0 : p0 + 512]
-        inside = np.all((p[:, None] >= lo[None]) & (p[:, None] <= hi[None]), axis=2)
-        none = ~inside.any(axis=1)
-        if none.any():
-            d = np.linalg.norm(p[none][:, None] - centre[None], axis=2)
-            near = np.argsort(d, axis=1)[:, : min(8, len(elements))]
-            rows = np.repeat(np.nonzero(none)[0], near.shape[1])
-            inside[rows, near.ravel()] = True
-        pi, ei = np.nonzero(inside)
-        xi, out = _natural(p[pi], xe[ei])
-        # per point the candidate with the least "outside"
-        order = np.lexsort((out, pi))
-        first = np.ones(len(order), dtype=bool)
-        first[1:] = pi[order][1:] != pi[order][:-1]
-        pick = order[first]
-        best_e[p0 + pi[pick]] = ei[pick]
-        best_xi[p0 + pi[pick]] = xi[pick]
+    best_e[pi[pick]] = ei[pick]
+    best_xi[pi[pick]] = xi[pick]
     return best_e, np.clip(best_xi, -1.0, 1.0)
 
 
