@@ -65,7 +65,9 @@ class Result:
     """History (one row per converged load step, row 0 = initial state) and fields."""
 
     history: dict[str, np.ndarray]
-    fields: dict[str, np.ndarray]  # per row: x, stress, s, eqps
+    # per row: x, stress, s, eqps, slip_mm, contact_status; arrays stacked over the rows, or
+    # after remeshing a list of per-row arrays (each on its row's mesh, scene_at(row))
+    fields: dict
     scene: Scene
     final_state: SimState
     newton_histories: np.ndarray  # per step: ||R_k|| / F of the last (sub)step's Newton
