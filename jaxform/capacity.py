@@ -81,62 +81,67 @@ class Padded:
     def _blocks(self, lay: Layout):
         return (lay.n_node_dofs, 2 * lay.n_contact, lay.n_facets)
 
-    def _pad_x(self, x):
-        x = np.asarray(x)
+    def _pad_x(self, x, xp=np):
+        x = np.asarray(x) if xp is np else x
         out, start = [], 0
         for n_real, n_cap in zip(self._blocks(self.real), self._blocks(self.scene.model.layout)):
-            out += [x[start : start + n_real], np.zeros(n_cap - n_real, x.dtype)]
+            out += [x[start : start + n_real], xp.zeros(n_cap - n_real, x.dtype)]
             start += n_real
-        return np.concatenate(out)
+        return xp.concatenate(out)
 
-    def _trim_x(self, x):
-        x = np.asarray(x)
+    def _trim_x(self, x, xp=np):
+        x = np.asarray(x) if xp is np else x
         out, start = [], 0
         for n_real, n_cap in zip(self._blocks(self.real), self._blocks(self.scene.model.layout)):
             out.append(x[..., start : start + n_real])
             start += n_cap
-        return np.concatenate(out, axis=-1)
+        return xp.concatenate(out, axis=-1)
 
-    def state(self, state):
+    def coords(self, coords, xp=np):
+        """The real scene's reference coordinates with the ghost nodes' after them."""
+        ghost = np.asarray(self.scene.inputs.coords)[self.real.n_nodes :]
+        return xp.concatenate([coords, ghost])
+
+    def state(self, state, xp=np):
         """The real scene's state in the padded layout (ghosts at rest, initial state).
-        Host NumPy, so a new mesh compiles nothing here."""
+        Host NumPy (so a new mesh compiles nothing here), or traced JAX (``xp=jnp``: a
+        gradient run differentiates through it)."""
         lay = self.scene.model.layout
         ghost_el = lay.n_elements - self.real.n_elements
         init = self.scene.model.law.initial_state(self.scene.inputs.params)
         ghost = type(state.gauss)(F=np.broadcast_to(np.eye(3), (ghost_el, 4, 3, 3)), mat=init)
-        gauss = jax.tree_util.tree_map(
-            lambda a, b: jnp.asarray(
-                np.concatenate(
-                    [
-                        np.asarray(a),
-                        np.broadcast_to(np.asarray(b, a.dtype), (ghost_el,) + a.shape[1:]),
-                    ]
-                )
-            ),  # fmt: skip
-            state.gauss,
-            ghost,
-        )
+        host = xp is np
+
+        def pad(a, b):
+            a = np.asarray(a) if host else a
+            return xp.concatenate([a, np.broadcast_to(np.asarray(b, a.dtype),
+                                                      (ghost_el,) + a.shape[1:])])  # fmt: skip
+
         pad_c = lay.n_contact - self.real.n_contact
         status = np.asarray(state.contact_status)
-        return replace(
+        out = replace(
             state,
-            x=jnp.asarray(self._pad_x(state.x)),
-            x_rate=jnp.asarray(self._pad_x(state.x_rate)),
-            gauss=gauss,
-            slip_mm=jnp.asarray(np.concatenate([np.asarray(state.slip_mm), np.zeros(pad_c)])),
-            contact_status=jnp.asarray(np.concatenate([status, np.zeros(pad_c, status.dtype)])),
+            x=self._pad_x(state.x, xp),
+            x_rate=self._pad_x(state.x_rate, xp),
+            gauss=jax.tree_util.tree_map(pad, state.gauss, ghost),
+            slip_mm=xp.concatenate([state.slip_mm, xp.zeros(pad_c)]),
+            contact_status=np.concatenate([status, np.zeros(pad_c, status.dtype)]),
         )
+        return jax.tree_util.tree_map(jnp.asarray, out) if host else out
 
-    def trim(self, state):
-        """A padded state in the real scene's layout (host NumPy slices)."""
+    def trim(self, state, xp=np):
+        """A padded state in the real scene's layout (host NumPy slices, or traced JAX)."""
         ne, nc = self.real.n_elements, self.real.n_contact
+        host = xp is np
+        part = (lambda a, n: jnp.asarray(np.asarray(a)[:n])) if host else (lambda a, n: a[:n])
+        vec = (lambda a: jnp.asarray(self._trim_x(a))) if host else (lambda a: self._trim_x(a, xp))
         return replace(
             state,
-            x=jnp.asarray(self._trim_x(state.x)),
-            x_rate=jnp.asarray(self._trim_x(state.x_rate)),
-            gauss=jax.tree_util.tree_map(lambda a: jnp.asarray(np.asarray(a)[:ne]), state.gauss),
-            slip_mm=jnp.asarray(np.asarray(state.slip_mm)[:nc]),
-            contact_status=jnp.asarray(np.asarray(state.contact_status)[:nc]),
+            x=vec(state.x),
+            x_rate=vec(state.x_rate),
+            gauss=jax.tree_util.tree_map(lambda a: part(a, ne), state.gauss),
+            slip_mm=part(state.slip_mm, nc),
+            contact_status=part(state.contact_status, nc),
         )
 
     def trim_outputs(self, outs: dict) -> dict:

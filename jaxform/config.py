@@ -1204,6 +1204,8 @@ def describe_schema() -> str:
 
 
 GRADIENT_GROUPS = SCHEMA["design"]["variables"].choices
+# design objectives that read only the force-stroke history: the ones a remeshed run has
+REMESH_OBJECTIVES = ("forging_work", "peak_force", "force_misfit")
 
 
 def check_design_run(cfg: dict) -> None:
@@ -1225,11 +1227,20 @@ def check_gradient_run(
             f"history has no gradient); --set mesh.rezone_quality=0"
         )
     rm = cfg["remesh"]
+    d = cfg["design"]
     if rm["quality_below"] > 0.0 or rm["every_steps"] > 0:
-        raise ConfigError(
-            "[remesh]: gradient runs cannot remesh yet (the gradient through a new mesh is "
-            "not built); set remesh.quality_below = 0 and remesh.every_steps = 0"
-        )
+        if d["objective"] not in REMESH_OBJECTIVES:
+            raise ConfigError(
+                f"design.objective = {d['objective']!r} reads the initial mesh's nodes or "
+                f"elements, which a remeshed run replaces: with [remesh] use one of "
+                f"{', '.join(REMESH_OBJECTIVES)} (or remesh.quality_below = 0 and "
+                f"remesh.every_steps = 0)"
+            )
+        if d["max_temperature_K"] > 0.0:
+            raise ConfigError(
+                "design.max_temperature_K > 0 reads each row's nodal temperatures, which a "
+                "remeshed run keeps on different meshes: set it to 0 with [remesh]"
+            )
     if groups is not None:
         _check_groups(cfg, list(groups), where)
     d = cfg["design"]

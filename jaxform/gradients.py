@@ -34,6 +34,10 @@ Contract
   handles come back in ``Trajectory.factorizations`` and the caller frees them with
   :func:`release` after the reverse pass; a reverse pass after that is undefined, so
   differentiate such a run once (one jax.grad / value_and_grad / vjp call), not under vmap.
+* A scene with ``[remesh]`` runs through the meshes of its forward run
+  (:func:`remeshed_schedule` -> :class:`RemeshPlan`): the same remesh steps, the same
+  new meshes, each remesh a fixed map (:class:`jaxform.remesh.StateMap`) differentiated
+  like the steps.  :class:`RemeshPlan` states what that gradient is.
 """
 
 from __future__ import annotations
@@ -47,8 +51,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxform.capacity import Padded
 from jaxform.formulations import GaussState
 from jaxform.linear import Factorization
+from jaxform.remesh import StateMap
 from jaxform.scenes import Inputs, Scene
 from jaxform.solver import NewtonSettings
 from jaxform.status import CAUSES, OK
@@ -79,13 +85,16 @@ class Trajectory:
     codes: jax.Array  # (n,) status code of each step (0 = converged)
     iterations: jax.Array  # (n,) Newton iterations of each step
     # (n, n_c) contact status of each candidate after each step (0 open, 1 stick, 2 slip):
-    # the active set, whose changes bound where the run is differentiable
+    # the active set, whose changes bound where the run is differentiable (a remeshed
+    # run: each step's candidates on its mesh, padded with -1 to the most of any mesh)
     contact_status: jax.Array
     # klujax factorizations kept for the reverse pass ((n,) leading axis; None when none
     # were kept): handles the caller frees with release() once the reverse pass is done
     factorizations: Factorization | None = None
-    # (n+1, n_nodes) nodal temperatures (K) of each row (None: no temperature field)
+    # (n+1, n_nodes) nodal temperatures (K) of each row (None: no temperature field, or
+    # a remeshed run, whose rows lie on different meshes)
     temperature_K: jax.Array | None = None
+    final_state: SimState | None = None  # the whole state after the last step
 
 
 def _temperatures(model, x, inputs: Inputs):
@@ -171,6 +180,7 @@ def _trajectory(stepper: Stepper, inputs: Inputs, times, state0, idx, n_kept=0):
             if temps is None
             else jnp.concatenate([_temperatures(model, state0.x, inputs)[None], temps])
         ),
+        final_state=final,
     )
 
 
@@ -180,6 +190,7 @@ def trajectory(
     times=None,
     reuse_factorizations: bool = False,
     idx=None,
+    plan: RemeshPlan | None = None,
 ) -> Trajectory:
     """Run ``scene`` (with ``inputs`` in place of ``scene.inputs``) over the step end
     times ``times`` (default: the scene's schedule).  Traceable and differentiable.
@@ -204,8 +215,23 @@ def trajectory(
     refines its adjoint solves with them instead of factoring each step's Jacobian
     again.  Only for one reverse-mode differentiation (jax.grad, value_and_grad, one
     vjp) outside vmap; the caller then frees them with :func:`release` (the entry points
-    :func:`value_and_grad` and the design problems do both)."""
+    :func:`value_and_grad` and the design problems do both).
+
+    ``plan``: the meshes of a scene that remeshes (``[remesh]``), from
+    :func:`remeshed_schedule` (required for such a scene): the run takes the forward
+    run's meshes and remeshes at its steps, through the fixed maps of
+    :class:`RemeshPlan`.  It keeps no factorizations (``reuse_factorizations`` is
+    ignored) and is not for an enclosing jit: each mesh's steps run the compiled program
+    of its capacity bucket, shared by the meshes of one bucket."""
     inputs = scene.inputs if inputs is None else inputs
+    if scene.remesh is not None and scene.remesh.on and plan is None:
+        raise ValueError(
+            "trajectory: this scene remeshes ([remesh]); pass the forward run's plan "
+            "(times, plan = jaxform.gradients.remeshed_schedule(scene, inputs))"
+        )
+    if plan is not None and len(plan.segments) > 1:
+        times = jnp.asarray(plan.times if times is None else times)
+        return _remeshed_trajectory(scene, inputs, times, plan)
     times = jnp.asarray(scene.step_targets() if times is None else times)
     n_kept = kept_steps(scene, times.shape[0]) if reuse_factorizations else 0
     if n_kept and _under_vmap((inputs, times)):
@@ -264,7 +290,17 @@ def schedule(scene: Scene, inputs: Inputs | None = None) -> np.ndarray:
     """The step schedule the forward run takes: run the scene (adaptive steps, with
     cutbacks, :func:`jaxform.simulation.simulate`) and return the end times of its
     converged steps, so that a differentiable run takes the same steps and each of them
-    converged in the forward run."""
+    converged in the forward run.  (A scene that remeshes needs its meshes too:
+    :func:`remeshed_schedule`.)"""
+    return remeshed_schedule(scene, inputs)[0]
+
+
+def remeshed_schedule(
+    scene: Scene, inputs: Inputs | None = None
+) -> tuple[np.ndarray, RemeshPlan | None]:
+    """(step end times, :class:`RemeshPlan`) of the forward run of ``scene`` with
+    ``inputs``: the schedule of :func:`schedule` and, for a scene with ``[remesh]``, the
+    meshes the run went through and the maps between them (None without ``[remesh]``)."""
     from jaxform.simulation import simulate
 
     if scene.rezone_quality > 0.0:
@@ -274,8 +310,111 @@ def schedule(scene: Scene, inputs: Inputs | None = None) -> np.ndarray:
             "gradient runs"
         )
     run = scene if inputs is None else replace(scene, inputs=inputs)
-    h = simulate(run).history
-    return np.asarray(h["time_s"][1:])
+    res = simulate(run)
+    times = np.asarray(res.history["time_s"][1:])
+    if scene.remesh is None or not scene.remesh.on:
+        return times, None
+    return times, RemeshPlan.of(res)
+
+
+@dataclass(frozen=True, eq=False)
+class MeshSegment:
+    """The steps of a remeshed run on one mesh, as a gradient run takes them: ``scene`` on
+    that mesh (the first: the run's own), ``padded`` to its capacity bucket (what the steps
+    run: the meshes of one bucket share a compiled program), ``n_steps`` steps, reached
+    from the previous mesh's last state through ``transfer`` (None for the first)."""
+
+    scene: Scene
+    padded: Padded
+    n_steps: int
+    transfer: StateMap | None
+
+
+@dataclass(frozen=True, eq=False)
+class RemeshPlan:
+    """The meshes of a forward run with remeshing, fixed for gradient runs.
+
+    A gradient run through it (:func:`trajectory` with ``plan``) remeshes after the same
+    steps onto the same meshes: each remesh is the fixed map of the forward run
+    (:class:`jaxform.remesh.StateMap`, set up once at the design point: new reference
+    coordinates interpolated from the old deformed positions, Gauss-point fields by patch
+    recovery and interpolation, nodal fields and contact by interpolation), applied to the
+    run's traced state.  So ``jax.grad`` goes through every mesh and every map.
+
+    What the gradient is: that of the run whose remesh schedule, new-mesh topology and
+    transfer weights are those of the forward run at the design point.  It is exact for
+    perturbations small enough to leave the remesher's output topology unchanged; the new
+    mesh's nodes move with the old deformed configuration (through the interpolation
+    weights) instead of being placed anew by gmsh, and the recovery's limiter is piecewise
+    linear (its derivative one-sided exactly where it switches, as contact's)."""
+
+    segments: tuple[MeshSegment, ...]
+
+    @classmethod
+    def of(cls, result) -> RemeshPlan:
+        """The plan of a :class:`jaxform.simulation.Result` (one segment without remeshes)."""
+        from jaxform.capacity import padded
+
+        n_rows = len(result.history["time_s"])
+        ends = [s.first_row for s in result.segments[1:]] + [n_rows]
+        starts = [1] + ends[:-1]
+        return cls(
+            tuple(
+                MeshSegment(s.scene, padded(s.scene), end - start, s.transfer)
+                for s, start, end in zip(result.segments, starts, ends)
+            )
+        )
+
+    @property
+    def n_steps(self) -> int:
+        return sum(s.n_steps for s in self.segments)
+
+
+def _remeshed_trajectory(scene: Scene, inputs: Inputs, times, plan: RemeshPlan) -> Trajectory:
+    """:func:`trajectory` through the meshes of ``plan`` (traced, not under jit)."""
+    if times.shape[0] != plan.n_steps:
+        raise ValueError(f"trajectory: {times.shape[0]} step times for a plan of {plan.n_steps}")
+    state, coords = initial_state(scene.model, inputs), inputs.coords
+    parts, first = [], 0
+    for seg in plan.segments:
+        if seg.transfer is not None:
+            state, coords = seg.transfer.apply(state, coords, jnp)
+        pad, sc = seg.padded, seg.padded.scene
+        stepper = Stepper(sc.model, sc.linear, exact_newton(sc.newton), 0,
+                          symmetric_z=sc.symmetric_z)  # fmt: skip
+        run_inputs = replace(inputs, coords=pad.coords(coords, jnp))
+        part = _trajectory(stepper, run_inputs, times[first : first + seg.n_steps],
+                           pad.state(state, jnp), sc.idx, 0)  # fmt: skip
+        state = pad.trim(part.final_state, jnp)
+        parts.append(part)
+        first += seg.n_steps
+    last = plan.segments[-1].scene
+
+    def rows(name):  # row 0 of the first mesh, then every mesh's steps
+        return jnp.concatenate(
+            [getattr(parts[0], name)[:1]] + [getattr(p, name)[1:] for p in parts]
+        )
+
+    n_c = max(s.scene.model.layout.n_contact for s in plan.segments)
+    status = [
+        jnp.pad(p.contact_status[:, : s.scene.model.layout.n_contact],
+                ((0, 0), (0, n_c - s.scene.model.layout.n_contact)), constant_values=-1)
+        for p, s in zip(parts, plan.segments)
+    ]  # fmt: skip
+    return Trajectory(
+        time_s=rows("time_s"),
+        stroke_mm=rows("stroke_mm"),
+        force_N=rows("force_N"),
+        friction_work_Nmm=rows("friction_work_Nmm"),
+        x=state.x,
+        gauss=state.gauss,
+        positions=last.model.nodal_positions(state.x, coords, last.idx),
+        coords=coords,
+        codes=jnp.concatenate([p.codes for p in parts]),
+        iterations=jnp.concatenate([p.iterations for p in parts]),
+        contact_status=jnp.concatenate(status),
+        final_state=state,
+    )
 
 
 def check(traj: Trajectory) -> None:

@@ -25,8 +25,9 @@ replaces the mesh (host NumPy and gmsh, between two converged steps):
    new reference (u = 0, F_n = I), as in rezoning.
 
 The scene on the new mesh (dofs, sets, sparsity pattern, its own compiled program) comes
-from :func:`jaxform.scenes.scene_on_mesh`.  Gradients do not pass through a remesh (a
-gradient run refuses ``[remesh]``).
+from :func:`jaxform.scenes.scene_on_mesh`.  The transfer is a :class:`StateMap`, set up
+once from the geometry and applied to the values: the forward run applies it with NumPy,
+a gradient run (:mod:`jaxform.gradients`) with JAX and differentiates through it.
 """
 
 from __future__ import annotations
@@ -38,6 +39,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxform.assembly import Layout
 from jaxform.config import RemeshConfig
 from jaxform.contact import TOUCH_GAP_MM, facets_in_contact
 from jaxform.geometry import polygon_measure
@@ -140,42 +142,97 @@ def _nearest_on_boundary(points: np.ndarray, a: np.ndarray, b: np.ndarray):
     return k, s[np.arange(len(points)), k]
 
 
-def _contact_transfer(scene, new_scene, state, pos, new_pos):
-    """(multipliers (n_c, 2), status (n_c,), slip (n_c,)) of the new candidates from the old
-    ones: tractions (multiplier / contact area) interpolated along the old boundary, times
-    the new contact areas; status from the nearer end of the old edge; slip interpolated."""
+@dataclass(frozen=True)
+class ContactMap:
+    """The new candidates' multipliers, slip and status from the old candidates: each new
+    candidate's nearest old boundary edge a -> b (old candidate indices, 0 with weight 0
+    where an end is no candidate) and the weights of its two ends.  Multipliers: the
+    tractions (multiplier / contact area) interpolated along the old boundary, times the
+    new contact area; slip interpolated; status from the nearer end."""
+
+    ends: np.ndarray  # (n_new_c, 2) old candidate index of the edge's ends
+    multiplier_weights: np.ndarray  # (n_new_c, 2)
+    slip_weights: np.ndarray  # (n_new_c, 2)
+    status: np.ndarray  # (n_new_c,)
+
+    def apply(self, multipliers, slip, xp=np):
+        """(multipliers (n_new_c, 2), slip (n_new_c,)) of the old (n_c, 2) and (n_c,)."""
+        if multipliers.shape[0] == 0:  # no old candidates: nothing to carry
+            return xp.zeros((len(self.ends), 2)), xp.zeros(len(self.ends))
+        lam = xp.einsum("pk,pki->pi", self.multiplier_weights, multipliers[self.ends])
+        return lam, xp.sum(self.slip_weights * slip[self.ends], axis=1)
+
+
+def contact_map(scene, new_scene, state, pos, new_pos) -> ContactMap:
+    """The :class:`ContactMap` of a remesh at the old state ``state`` (nodes at ``pos``)."""
     lay, idx = scene.model.layout, scene.idx
     new_idx = new_scene.idx
     n_new = new_scene.model.layout.n_contact
     if lay.n_contact == 0 or n_new == 0:
-        return np.zeros((n_new, 2)), np.zeros(n_new, np.int32), np.zeros(n_new)
+        zero = np.zeros((n_new, 2))
+        return ContactMap(np.zeros((n_new, 2), np.int64), zero, zero, np.zeros(n_new, np.int32))
     axi = scene.model.formulation.axisymmetric
     cn = np.asarray(idx.contact_nodes)
     status = np.asarray(state.contact_status)
-    lam = np.asarray(lay.node_multipliers(np.asarray(state.x)))
     counted = facets_in_contact(status > 0, np.asarray(idx.contact_facets))
     area = contact_areas(pos[cn], np.asarray(idx.contact_facets), axi, counted)
-    traction = np.where(area[:, None] > 0, lam / np.where(area > 0, area, 1.0)[:, None], 0.0)
-    # per old node (zero away from the candidates)
-    n_old = lay.n_nodes
-    t_node = np.zeros((n_old, 2))
-    t_node[cn] = traction
-    st_node = np.zeros(n_old, np.int32)
-    st_node[cn] = status
-    slip_node = np.zeros(n_old)
-    slip_node[cn] = np.asarray(state.slip_mm)
+    per_area = np.where(area > 0, 1.0 / np.where(area > 0, area, 1.0), 0.0)
+    cand = np.full(lay.n_nodes, -1)  # old node -> candidate index
+    cand[cn] = np.arange(len(cn))
     edges = boundary_edges(scene.mesh.elements)
     new_cn = np.asarray(new_idx.contact_nodes)
     p = new_pos[new_cn]
     k, s = _nearest_on_boundary(p, pos[edges[:, 0]], pos[edges[:, 1]])
-    ea, eb = edges[k, 0], edges[k, 1]
-    w = s[:, None]
-    new_t = (1 - w) * t_node[ea] + w * t_node[eb]
-    new_status = np.where(s < 0.5, st_node[ea], st_node[eb]).astype(np.int32)
-    new_slip = (1 - s) * slip_node[ea] + s * slip_node[eb]
+    ends = cand[edges[k]]  # (n_new, 2)
+    is_cand = ends >= 0
+    ends = np.where(is_cand, ends, 0)
+    along = np.column_stack([1.0 - s, s]) * is_cand
+    st_end = np.where(is_cand, status[ends], 0)
+    new_status = np.where(s < 0.5, st_end[:, 0], st_end[:, 1]).astype(np.int32)
     new_counted = facets_in_contact(new_status > 0, np.asarray(new_idx.contact_facets))
     new_area = contact_areas(p, np.asarray(new_idx.contact_facets), axi, new_counted)
-    return new_t * new_area[:, None], new_status, new_slip
+    lam_w = along * per_area[ends] * new_area[:, None]
+    return ContactMap(ends, lam_w, along, new_status)
+
+
+@dataclass(frozen=True, eq=False)
+class StateMap:
+    """One remesh as a fixed map from the old mesh's state to the new mesh's, set up once
+    from the forward run's state (the located points, the recovery patches, the contact
+    weights) and applied to NumPy values (the forward run) or traced JAX values (a
+    gradient run, :mod:`jaxform.gradients`, which differentiates through it).
+
+    :meth:`apply` ``(state, coords)`` -> ``(state, coords)``: the new reference coordinates
+    are the old deformed positions (coords + u) interpolated at the new nodes (plus the
+    fixed offset that makes them the new mesh's nodes exactly at the forward run's state:
+    nodes a rounding outside the old mesh); Gauss-point fields by :class:`Transfer`
+    (patch recovery, then interpolation), F = I; nodal fields besides u (pressure,
+    temperature) and the predictor's rates by interpolation; contact by
+    :class:`ContactMap`; time, friction work and heat carry over."""
+
+    old: Layout
+    new: Layout
+    move: Transfer
+    coords_offset: np.ndarray  # (n_new, 2) mm
+    contact: ContactMap
+
+    def apply(self, state, coords, xp=np):
+        old, new = self.old, self.new
+        nodal = old.nodal(state.x)
+        pos = coords + nodal[:, :2]
+        new_coords = self.move.nodal(pos, xp) + self.coords_offset
+        cat = xp.concatenate
+        rest = self.move.nodal(nodal[:, 2:], xp)  # pressure, temperature
+        lam, slip = self.contact.apply(old.node_multipliers(state.x), state.slip_mm, xp)
+        facets = xp.zeros(new.n_facets)
+        x = cat([cat([xp.zeros((new.n_nodes, 2)), rest], axis=1).ravel(), lam.ravel(), facets])
+        rate = self.move.nodal(old.nodal(state.x_rate), xp)
+        x_rate = cat([rate.ravel(), xp.zeros(2 * new.n_contact), facets])
+        eye = xp.broadcast_to(xp.eye(3), (new.n_elements, 4, 3, 3))
+        mat = jax.tree_util.tree_map(lambda v: self.move.gauss(v, xp), state.gauss.mat)
+        status = self.contact.status.astype(np.asarray(state.contact_status).dtype)
+        return replace(state, x=x, gauss=replace(state.gauss, F=eye, mat=mat), x_rate=x_rate,
+                       slip_mm=slip, contact_status=xp.asarray(status)), new_coords  # fmt: skip
 
 
 def eqps_integral(scene, pos: np.ndarray, eqps: np.ndarray) -> float:
@@ -197,40 +254,39 @@ def contact_areas(pos: np.ndarray, facets: np.ndarray, axisymmetric: bool, count
     return np.bincount(facets[:, 0], wa, len(pos)) + np.bincount(facets[:, 1], wb, len(pos))
 
 
-def remesh(scene, state, settings: RemeshConfig):
-    """(scene on the new mesh, the state on it, :class:`RemeshReport`) for a converged
-    state of ``scene`` (its inputs are ``scene.inputs``).  Raises RemeshError."""
+@dataclass(frozen=True)
+class Remeshed:
+    """A remesh: the scene on the new mesh, the state on it, what it did and the map that
+    carried the state (:class:`StateMap`, for gradient runs)."""
+
+    scene: object
+    state: object
+    report: RemeshReport
+    transfer: StateMap
+
+
+def remesh(scene, state, settings: RemeshConfig) -> Remeshed:
+    """The new mesh and the state on it (:class:`Remeshed`) for a converged state of
+    ``scene`` (its inputs are ``scene.inputs``).  Raises RemeshError."""
     start = time.perf_counter()
     lay = scene.model.layout
-    x = np.asarray(state.x)
-    nodal = lay.nodal(x)
-    pos = np.asarray(scene.inputs.coords) + nodal[:, :2]
-    t = float(state.t)
+    host = jax.tree_util.tree_map(np.asarray, state)
+    coords = np.asarray(scene.inputs.coords)
+    pos = coords + lay.nodal(host.x)[:, :2]
+    t = float(host.t)
     mesh = new_section_mesh(scene, pos, t, settings)
     new_scene = scene_on_mesh(scene, mesh)
-    new_lay = new_scene.model.layout
     elements = np.asarray(scene.mesh.elements)
     move = Transfer(pos, elements, mesh.coords, mesh.elements)
-    mat = jax.tree_util.tree_map(lambda v: jnp.asarray(move.gauss(v)), state.gauss.mat)
-    n_el = mesh.n_elements
-    gauss = replace(
-        state.gauss, F=jnp.asarray(np.broadcast_to(np.eye(3), (n_el, 4, 3, 3))), mat=mat
+    transfer = StateMap(
+        lay,
+        new_scene.model.layout,
+        move,
+        mesh.coords - move.nodal(pos),
+        contact_map(scene, new_scene, host, pos, mesh.coords),
     )
-    new_x = np.zeros(new_lay.n_dofs)
-    new_rate = np.zeros(new_lay.n_dofs)
-    new_lay.nodal(new_x)[:, 2:] = move.nodal(nodal[:, 2:])  # pressure, temperature
-    new_lay.nodal(new_rate)[:] = move.nodal(lay.nodal(np.asarray(state.x_rate)))
-    lam, status, slip = _contact_transfer(scene, new_scene, state, pos, mesh.coords)
-    start_m = new_lay.n_node_dofs
-    new_x[start_m : start_m + 2 * new_lay.n_contact] = lam.ravel()
-    new_state = replace(
-        state,
-        x=jnp.asarray(new_x),
-        gauss=gauss,
-        x_rate=jnp.asarray(new_rate),
-        slip_mm=jnp.asarray(slip),
-        contact_status=jnp.asarray(status, dtype=state.contact_status.dtype),
-    )
+    new_state, _ = transfer.apply(host, coords)
+    new_state = jax.tree_util.tree_map(jnp.asarray, new_state)
     axi = scene.model.formulation.axisymmetric
     v0 = float(np.sum(polygon_measure(pos[elements], axi)))
     v1 = float(np.sum(polygon_measure(mesh.coords[mesh.elements], axi)))
@@ -239,12 +295,12 @@ def remesh(scene, state, settings: RemeshConfig):
         nodes_before=lay.n_nodes,
         nodes_after=mesh.n_nodes,
         elements_before=len(elements),
-        elements_after=n_el,
+        elements_after=mesh.n_elements,
         quality_before=float(min_quality(pos, elements)),
         quality_after=float(min_quality(mesh.coords, mesh.elements)),
         volume_change=v1 / v0 - 1.0,
-        eqps_integral_before=eqps_integral(scene, pos, state.gauss.mat.eqps),
-        eqps_integral_after=eqps_integral(new_scene, mesh.coords, mat.eqps),
+        eqps_integral_before=eqps_integral(scene, pos, host.gauss.mat.eqps),
+        eqps_integral_after=eqps_integral(new_scene, mesh.coords, new_state.gauss.mat.eqps),
         seconds=time.perf_counter() - start,
     )
-    return new_scene, new_state, report
+    return Remeshed(new_scene, new_state, report, transfer)

@@ -54,10 +54,13 @@ class SimulationError(RuntimeError):
 @dataclass(frozen=True)
 class Segment:
     """The rows of a run on one mesh: from ``first_row`` to the next segment's first row,
-    on ``scene`` (its mesh, sets, dofs and reference coordinates)."""
+    on ``scene`` (its mesh, sets, dofs and reference coordinates), reached from the last
+    row before it through ``transfer`` (:class:`jaxform.remesh.StateMap`; None for the
+    first segment)."""
 
     first_row: int
     scene: Scene
+    transfer: object = None
 
 
 @dataclass
@@ -314,10 +317,11 @@ def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Re
                 pause, rows[-1]["rezoned"] = False, 0  # the run ends here: nothing to do
             if pause and failure is None and remeshing:
                 try:
-                    current, state, report = remesh(current, state, settings)
+                    done = remesh(current, state, settings)
                 except RemeshError as err:
                     failure = f"step {len(rows) - 1}: remeshing failed: {err}"
                 else:
+                    current, state, report = done.scene, done.state, done.report
                     if owned[0] is not None:
                         jax.block_until_ready(stepped.linear.release(owned[0]))
                     padder = padded(current)
@@ -325,7 +329,7 @@ def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Re
                     owned[0] = new_factorization()
                     inp, stepper, since = current.inputs, stepper_of(stepped), 0
                     programs.add(stepped.model.layout)
-                    segments.append(Segment(len(rows), current))
+                    segments.append(Segment(len(rows), current, done.transfer))
                     remeshes.append(report)
                     rows[-1].update(remeshed=1, new_nodes=report.nodes_after)
                     q = settings.quality_below  # a new mesh already below it: wait for worse

@@ -1,12 +1,12 @@
-"""Transfer of fields between two quadrilateral meshes of the same material (host NumPy).
+"""Transfer of fields between two quadrilateral meshes of the same material.
 
 Rezoning (:mod:`jaxform.rezone`) and remeshing (:mod:`jaxform.remesh`) both carry the
 state of a converged step from an old mesh to a new one.  The method, in two parts:
 
-1. **Recovery to the old nodes** (:func:`gauss_to_nodes`): patch recovery, a linear
+1. **Recovery to the old nodes** (:class:`Recovery`): patch recovery, a linear
    least-squares fit to the Gauss values of the elements around each node, taken at the
    node (exact for every linear field of x), limited against overshoot.
-2. **Interpolation at the new points** (:func:`locate`, :func:`interpolate`): each new
+2. **Interpolation at the new points** (:func:`locate`, :class:`Transfer`): each new
    node or Gauss point is found in the old mesh (element and natural coordinates, by
    Newton on the bilinear map) and the recovered nodal field is interpolated there.
 
@@ -14,6 +14,11 @@ A linear field of the position therefore transfers exactly (both parts are exact
 a smooth field with an error O(h^2) (tested: :mod:`tests.test_remesh`).  Points a little
 outside the old mesh (a new boundary that cuts a corner of the old one by rounding) take
 the value at the nearest point of the nearest element.
+
+Both parts are set up once from the geometry (host NumPy) and then applied to the values
+by NumPy or by traced JAX (argument ``xp``): a fixed, piecewise-linear map of the values
+(linear where no limiter acts), which a gradient run differentiates
+(:mod:`jaxform.gradients`).
 """
 
 from __future__ import annotations
@@ -113,48 +118,76 @@ def locate(points: np.ndarray, pos: np.ndarray, elements: np.ndarray):
     return best_e, np.clip(best_xi, -1.0, 1.0)
 
 
-def interpolate(nodal: np.ndarray, elements: np.ndarray, e: np.ndarray, xi: np.ndarray):
-    """Bilinear interpolation of nodal values (n, ...) at natural coordinates xi (p, 2) of
-    elements e (p,)."""
-    return np.einsum("pa,pa...->p...", _shape(np.asarray(xi)), nodal[elements[e]])
+def _segment(xp, op: str, data, ids: np.ndarray, n: int):
+    """Sum, max or min of the rows of ``data`` that share an id in ``ids`` (n ids): NumPy
+    (``ufunc.at``) or JAX (``jax.ops.segment_*``, differentiable), so that one function
+    serves the host transfer of a forward run and the traced one of a gradient run."""
+    if xp is np:
+        fill = {"sum": 0.0, "max": -np.inf, "min": np.inf}[op]
+        out = np.full((n,) + data.shape[1:], fill)
+        {"sum": np.add, "max": np.maximum, "min": np.minimum}[op].at(out, ids, data)
+        return out
+    import jax
+
+    fn = {"sum": jax.ops.segment_sum, "max": jax.ops.segment_max, "min": jax.ops.segment_min}[op]
+    return fn(data, ids, num_segments=n)
 
 
-def gauss_to_nodes(values: np.ndarray, pos: np.ndarray, elements: np.ndarray) -> np.ndarray:
-    """Gauss-point values (ne, 4, ...) to nodal values (n, ...) by patch recovery: at each
-    node, the least-squares linear fit a + b.(x - x_node) to the Gauss values of the
-    elements around it, taken at the node (a).  Exact for a field linear in x.
+class Recovery:
+    """Patch recovery on one mesh (pos, elements): Gauss-point values (ne, 4, ...) to nodal
+    values (n, ...).  At each node, the least-squares linear fit a + b.(x - x_node) to
+    the Gauss values of the elements around it, taken at the node (a): exact for a field
+    linear in x.
 
     Limited: each value stays within the range of its patch's Gauss values widened by the
     fit's own change between the node and those points (so a linear field is untouched and
-    an overshooting fit is cut back), and a field that is nowhere negative stays so."""
-    values = np.asarray(values, dtype=float)
-    elements = np.asarray(elements)
-    n_nodes, shape = len(pos), values.shape[2:]
-    gp = gauss_points(pos, elements)  # (ne, 4, 2)
-    node = np.repeat(elements[:, :, None], 4, axis=2)  # (ne, corner, gp) -> node
-    size = np.linalg.norm(pos[elements[:, 2]] - pos[elements[:, 0]], axis=1)
-    h = np.zeros(n_nodes)
-    np.maximum.at(h, elements.ravel(), np.repeat(size, 4))
-    d = (gp[:, None, :, :] - pos[elements][:, :, None, :]) / h[node][..., None]  # (ne,4,4,2)
-    p = np.concatenate([np.ones(d.shape[:-1] + (1,)), d], axis=-1)  # (ne, 4, 4, 3)
-    a = np.zeros((n_nodes, 3, 3))
-    np.add.at(a, node.ravel(), (p[..., :, None] * p[..., None, :]).reshape(-1, 3, 3))
-    flat = values.reshape(values.shape[:2] + (-1,))  # (ne, 4, k)
-    v = np.broadcast_to(flat[:, None], (len(elements), 4) + flat.shape[1:])  # (ne, c, g, k)
-    b = np.zeros((n_nodes, 3, flat.shape[-1]))
-    np.add.at(b, node.ravel(), (p[..., :, None] * v[..., None, :]).reshape(-1, 3, flat.shape[-1]))
-    coef = np.linalg.solve(a, b)  # (n, 3, k)
-    change = np.abs(np.einsum("ecgi,ecgik->ecgk", d, coef[node][..., 1:, :]))
-    w = np.zeros((n_nodes, flat.shape[-1]))
-    np.maximum.at(w, node.ravel(), change.reshape(-1, flat.shape[-1]))
-    lo = np.full((n_nodes, flat.shape[-1]), np.inf)
-    hi = np.full((n_nodes, flat.shape[-1]), -np.inf)
-    np.minimum.at(lo, node.ravel(), v.reshape(-1, flat.shape[-1]))
-    np.maximum.at(hi, node.ravel(), v.reshape(-1, flat.shape[-1]))
-    out = np.clip(coef[:, 0], lo - w, hi + w)
-    if flat.size and flat.min() >= 0.0:
-        out = np.maximum(out, 0.0)
-    return out.reshape((n_nodes,) + shape)
+    an overshooting fit is cut back), and a field that is nowhere negative stays so.
+
+    The geometry (the patches, the fit's weights) is set once; :meth:`apply` is then a
+    piecewise-linear function of the values, for NumPy or traced JAX arrays."""
+
+    def __init__(self, pos: np.ndarray, elements: np.ndarray):
+        pos, elements = np.asarray(pos, dtype=float), np.asarray(elements)
+        self.n_nodes, self.n_elements = len(pos), len(elements)
+        gp = gauss_points(pos, elements)  # (ne, 4, 2)
+        node = np.repeat(elements[:, :, None], 4, axis=2)  # (ne, corner, gp) -> node
+        size = np.linalg.norm(pos[elements[:, 2]] - pos[elements[:, 0]], axis=1)
+        h = np.zeros(len(pos))
+        np.maximum.at(h, elements.ravel(), np.repeat(size, 4))
+        d = (gp[:, None, :, :] - pos[elements][:, :, None, :]) / h[node][..., None]  # (ne,4,4,2)
+        p = np.concatenate([np.ones(d.shape[:-1] + (1,)), d], axis=-1)  # (ne, 4, 4, 3)
+        a = np.zeros((len(pos), 3, 3))
+        np.add.at(a, node.ravel(), (p[..., :, None] * p[..., None, :]).reshape(-1, 3, 3))
+        # the fit's coefficients are sum over the patch of (A_node^-1 p) v: its weights
+        self.weights = np.einsum("eckij,eckj->ecki", np.linalg.inv(a)[node], p).reshape(-1, 3)
+        self.node = node.ravel()  # (ne * 16,) the node of each (element, corner, gp) entry
+        self.d = d.reshape(-1, 2)
+        self.gp = np.tile(np.arange(4), 4 * len(elements))  # the entry's Gauss point
+        self.el = np.repeat(np.arange(len(elements)), 16)
+
+    def apply(self, values, xp=np):
+        """Nodal values (n, ...) of Gauss-point values (ne, 4, ...)."""
+        values = np.asarray(values, dtype=float) if xp is np else values
+        shape = values.shape[2:]
+        flat = values.reshape(values.shape[:2] + (-1,))  # (ne, 4, k)
+        v = flat[self.el, self.gp]  # (entries, k)
+        coef = _segment(
+            xp, "sum", self.weights[:, :, None] * v[:, None, :], self.node, self.n_nodes
+        )  # (n, 3, k); fmt: skip
+        change = xp.abs(xp.einsum("mi,mik->mk", self.d, coef[self.node][:, 1:, :]))
+        w = _segment(xp, "max", change, self.node, self.n_nodes)
+        lo = _segment(xp, "min", v, self.node, self.n_nodes)
+        hi = _segment(xp, "max", v, self.node, self.n_nodes)
+        out = xp.clip(coef[:, 0], lo - w, hi + w)
+        if flat.size:
+            out = xp.where(xp.min(flat) >= 0.0, xp.maximum(out, 0.0), out)
+        return out.reshape((self.n_nodes,) + shape)
+
+
+def gauss_to_nodes(values: np.ndarray, pos: np.ndarray, elements: np.ndarray) -> np.ndarray:
+    """Gauss-point values (ne, 4, ...) to nodal values (n, ...) by patch recovery
+    (:class:`Recovery`)."""
+    return Recovery(pos, elements).apply(np.asarray(values, dtype=float))
 
 
 def gauss_points(pos: np.ndarray, elements: np.ndarray) -> np.ndarray:
@@ -176,23 +209,26 @@ def gauss_weights(pos: np.ndarray, elements: np.ndarray, axisymmetric: bool) -> 
 class Transfer:
     """The transfer operators from an old mesh (old_pos, old_elements) to the nodes and the
     Gauss points of a new one (new_pos, new_elements), located once and applied to any
-    number of fields."""
+    number of fields, NumPy or traced JAX (``xp``): for a gradient run a fixed map."""
 
     def __init__(self, old_pos, old_elements, new_pos, new_elements):
-        self.old_elements = np.asarray(old_elements)
-        self.old_pos = np.asarray(old_pos)
+        old_elements = np.asarray(old_elements)
         self.n_new_elements = len(new_elements)
-        self._nodes = locate(new_pos, old_pos, self.old_elements)
+        self.recovery = Recovery(old_pos, old_elements)
+        e, xi = locate(new_pos, old_pos, old_elements)
+        self.node_ids, self.node_w = old_elements[e], _shape(xi)  # (p, 4) each
         gp = gauss_points(new_pos, np.asarray(new_elements)).reshape(-1, 2)
-        self._gauss = locate(gp, old_pos, self.old_elements)
+        e, xi = locate(gp, old_pos, old_elements)
+        self.gauss_ids, self.gauss_w = old_elements[e], _shape(xi)
 
-    def nodal(self, values: np.ndarray) -> np.ndarray:
+    def nodal(self, values, xp=np):
         """Old nodal values (n_old, ...) at the new nodes."""
-        return interpolate(np.asarray(values), self.old_elements, *self._nodes)
+        values = np.asarray(values) if xp is np else values
+        return xp.einsum("pa,pa...->p...", self.node_w, values[self.node_ids])
 
-    def gauss(self, values: np.ndarray) -> np.ndarray:
+    def gauss(self, values, xp=np):
         """Old Gauss-point values (ne_old, 4, ...) at the new Gauss points (ne_new, 4, ...)."""
-        values = np.asarray(values)
-        nodal = gauss_to_nodes(values, self.old_pos, self.old_elements)
-        out = interpolate(nodal, self.old_elements, *self._gauss)
+        values = np.asarray(values) if xp is np else values
+        nodal = self.recovery.apply(values, xp)
+        out = xp.einsum("pa,pa...->p...", self.gauss_w, nodal[self.gauss_ids])
         return out.reshape((self.n_new_elements, 4) + values.shape[2:])

@@ -25,7 +25,7 @@ import numpy as np
 from jaxform.design import objectives as obj
 from jaxform.design import parametrize as par
 from jaxform.errors import ConfigError
-from jaxform.gradients import check, release, schedule, trajectory
+from jaxform.gradients import check, release, remeshed_schedule, trajectory
 from jaxform.postprocess import nodal_volumes
 from jaxform.scenes import Scene
 from jaxform.workpieces import DIE_GROUPS
@@ -43,6 +43,8 @@ class DesignProblem:
     start: dict  # initial design
     single_program: bool = False  # value() runs the gradient program too: one compile
     # instead of two (pays off for small scenes and tests; more run time per value)
+    # the forward run's meshes when the scene remeshes (jaxform.gradients.RemeshPlan)
+    plan: object = None
 
     def run_inputs(self, design):
         return par.apply_all(self.groups, design, self.scene.inputs, jnp.asarray(self.times))
@@ -51,18 +53,26 @@ class DesignProblem:
         """(J, trajectory) of a design; ``idx`` is ``scene.idx``, passed through the
         compiled program's arguments (see :func:`jaxform.gradients.trajectory`)."""
         inputs, times = self.run_inputs(design)
-        traj = trajectory(self.scene, inputs, times, reuse_factorizations, idx=idx)
+        traj = trajectory(self.scene, inputs, times, reuse_factorizations, idx=idx, plan=self.plan)
         return self.objective(traj, inputs), traj
+
+    def _compiled(self, fn):
+        """One program for the whole run, except through remeshes: there each mesh's steps
+        run the program of its capacity bucket (shared by the meshes of one bucket), which
+        one program around them all would compile again for every mesh."""
+        remeshed = self.plan is not None and len(self.plan.segments) > 1
+        return fn if remeshed else jit(fn)
 
     @cached_property
     def _value(self):
-        return jit(self._j)
+        return self._compiled(self._j)
 
     @cached_property
     def _value_and_grad(self):
         # the reverse pass reuses the forward factorizations that fit the scene's
         # adjoint_memory_mb; they are freed by _released once the program has run
-        return jit(jax.value_and_grad(partial(self._j, reuse_factorizations=True), has_aux=True))
+        grad = jax.value_and_grad(partial(self._j, reuse_factorizations=True), has_aux=True)
+        return self._compiled(grad)
 
     def _released(self, traj):
         return release(self.scene, jax.block_until_ready(traj))
@@ -281,7 +291,9 @@ def build_problem(
         objective: a callable ``(trajectory, inputs) -> scalar`` (default from
             ``design.objective``, see :mod:`jaxform.design.objectives`).
         times: the step end times (default: from a forward run of the scene, split where
-            it needed a cutback; :func:`jaxform.gradients.schedule`).
+            it needed a cutback; :func:`jaxform.gradients.schedule`).  A scene that
+            remeshes takes the steps and meshes of its forward run
+            (:func:`jaxform.gradients.remeshed_schedule`): no ``times`` then.
         single_program: value() runs the gradient program too (one compile, not two).
 
     Returns:
@@ -299,10 +311,15 @@ def build_problem(
     if "material" in start:
         start["material"] = start["material"] + np.log(scene.settings.design.material_start_factor)
     objective = build_objective(scene) if objective is None else objective
+    plan = None
     if times is None:
         inputs, _ = par.apply_all(built, start, scene.inputs, jnp.asarray(scene.step_targets()))
-        times = schedule(scene, inputs)
-    return DesignProblem(scene, built, objective, np.asarray(times), start, single_program)
+        times, plan = remeshed_schedule(scene, inputs)
+    elif scene.remesh is not None and scene.remesh.on:
+        raise ValueError(
+            "build_problem: a scene that remeshes takes its forward run's steps: no times"
+        )
+    return DesignProblem(scene, built, objective, np.asarray(times), start, single_program, plan)
 
 
 def write_target_shape(path: str | Path, nodes: np.ndarray, positions: np.ndarray) -> None:
