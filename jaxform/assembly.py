@@ -63,7 +63,9 @@ class Indices:
     contact_nodes: jax.Array  # (n_c,)
     contact_dofs: jax.Array  # (n_c, 2) u dofs of the candidates
     mult_dofs: jax.Array  # (n_c, 2) normal and tangential multipliers
-    contact_facets: jax.Array  # (n_f, 2) free-surface facets, as indices into contact_nodes
+    # (n_f, 2) free-surface facets a -> b as the boundary walks them (material on the
+    # left), as indices into contact_nodes
+    contact_facets: jax.Array
     contact_fixed_r: jax.Array  # (n_c,) bool: the candidate's u_r is a Dirichlet dof
     facet_dofs: jax.Array  # (n_fc, 4) u dofs of the corner-contact facets' nodes a, b
     facet_mult: jax.Array  # (n_fc,) their multipliers' dofs
@@ -174,7 +176,8 @@ def build_indices(
     ndof_nodes = n_nodes * nf
     cdofs = contact_nodes[:, None] * nf + np.arange(2)[None, :]
     mdofs = ndof_nodes + np.arange(2 * n_c).reshape(n_c, 2)
-    corner = _oriented(elements, contact_facets) if corner_contact else np.zeros((0, 2), int)
+    walked = _oriented(elements, contact_facets)
+    corner = walked if corner_contact else np.zeros((0, 2), int)
     n_fc = len(corner)
     n = ndof_nodes + 2 * n_c + n_fc
     fdofs = (corner[:, :, None] * nf + np.arange(2)[None, None, :]).reshape(n_fc, 4)
@@ -201,7 +204,7 @@ def build_indices(
         contact_nodes=jnp.asarray(contact_nodes, dtype=jnp.int32),
         contact_dofs=jnp.asarray(cdofs, dtype=jnp.int32),
         mult_dofs=jnp.asarray(mdofs, dtype=jnp.int32),
-        contact_facets=jnp.asarray(_local_facets(contact_nodes, contact_facets), jnp.int32),
+        contact_facets=jnp.asarray(_local_facets(contact_nodes, walked), jnp.int32),
         contact_fixed_r=jnp.asarray(np.isin(cdofs[:, 0], np.asarray(fixed_dofs))),
         facet_dofs=jnp.asarray(fdofs, dtype=jnp.int32),
         facet_mult=jnp.asarray(fmult, dtype=jnp.int32),

@@ -9,7 +9,8 @@ gives the same :class:`jaxform.assembly.Layout` and the same argument shapes, so
 compiled step program is reused (jit's cache).  The padding is inert:
 
 * ghost nodes (B - n of them) have every field fixed (Dirichlet rows, value 0); the
-  first four form a unit square far below the section, the rest sit on its corner;
+  first four form a unit square far from the section where no die reaches, the rest
+  sit on its corner;
 * ghost elements (B - n_el) are copies of that square: zero displacement, zero stress,
   the material's initial state, no heat exchange, so they add nothing to the residual
   and only fixed rows of the Jacobian;
@@ -147,22 +148,42 @@ class Padded:
     def trim_outputs(self, outs: dict) -> dict:
         """A chunk's outputs (host arrays, leading axis the steps) in the real layout."""
         ne, nc = self.real.n_elements, self.real.n_contact
-        out = dict(outs)
-        out["x"] = self._trim_x(outs["x"])
+        out = dict(outs)  # (a chunk that failed singular has no fields)
+        if "x" in outs:
+            out["x"] = self._trim_x(outs["x"])
         for k in ("stress", "s", "eqps"):
-            out[k] = outs[k][:, :ne]
+            if k in outs:
+                out[k] = outs[k][:, :ne]
         for k in ("slip_mm", "contact_status"):
-            out[k] = outs[k][:, :nc]
+            if k in outs:
+                out[k] = outs[k][:, :nc]
         return out
 
 
-def _ghost_square(coords: np.ndarray) -> np.ndarray:
-    """A unit square far below and beside the section (r > 0: a valid axisymmetric
-    element), counter-clockwise."""
+def _ghost_square(coords: np.ndarray, die=None, t_end: float = 0.0) -> np.ndarray:
+    """A unit square far from the section (r > 0: a valid axisymmetric element),
+    counter-clockwise, where ``die`` (if any) leaves it open all the run: far below the
+    section under its middle (under a top die), else far beside it, else far above."""
     lo, hi = coords.min(axis=0), coords.max(axis=0)
     size = float(np.max(hi - lo))
-    r0, z0 = hi[0] + 10.0 * size + 1.0, lo[1] - 10.0 * size - 2.0
-    return np.array([[r0, z0], [r0 + 1.0, z0], [r0 + 1.0, z0 + 1.0], [r0, z0 + 1.0]])
+    far = 10.0 * size + 2.0
+    unit = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+    corners = [
+        np.array([0.5 * (lo[0] + hi[0]) + 0.5, lo[1] - far]),
+        np.array([hi[0] + far, lo[1] - far]),
+        np.array([hi[0] + far, 0.5 * (lo[1] + hi[1])]),
+        np.array([0.5 * (lo[0] + hi[0]) + 0.5, hi[1] + far]),
+    ]
+    if die is None:
+        return corners[0] + unit
+    from jaxform.rezone import gap_function
+
+    times = np.linspace(0.0, max(t_end, 0.0), 5)
+    for c in corners:
+        square = c + unit
+        if all(np.all(gap_function(die, t)(square)[0] > 1.0) for t in times):
+            return square
+    raise RuntimeError("no place for the ghost nodes where the die leaves them open")
 
 
 def _band(ghost_dofs: np.ndarray, count: int, n: int) -> np.ndarray:
@@ -208,7 +229,9 @@ def _padded(scene, bucket: Bucket) -> Padded:
     coords = np.vstack(
         [
             np.asarray(scene.inputs.coords),
-            np.repeat(_ghost_square(mesh.coords), [1, 1, 1, len(g) - 3], 0),
+            np.repeat(
+                _ghost_square(mesh.coords, scene.inputs.die, scene.t_end), [1, 1, 1, len(g) - 3], 0
+            ),
         ]
     )
     square = g[:4]

@@ -44,7 +44,9 @@ class Progress:
 
     @staticmethod
     def describe(p: dict) -> str:
-        new_mesh = f" remeshed: {p['remeshed']} nodes" if p.get("remeshed") else ""
+        new_mesh = ""
+        if p.get("remeshed"):
+            new_mesh = f" remeshed ({p.get('remesh_trigger', '')}): {p['remeshed']} nodes"
         return (
             f"t={p['time_s']:.3f} s dt={p['dt_s']:.4g} s stroke={p['stroke_mm']:.4f} mm "
             f"force={p['force_N']:.3f} N newton={int(p['iterations'])} "

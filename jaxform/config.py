@@ -306,6 +306,26 @@ class RemeshConfig:
         doc="element size of the new mesh in the bulk (mm; 0 = the initial mesh's mean "
         "element size)",
     )
+    every_stroke_mm: float = key(
+        0.0,
+        low=0.0,
+        doc="remesh after every this much ram stroke (mm) since the last mesh (0 = never)",
+    )
+    corner_depth_ratio: float = key(
+        0.0,
+        low=0.0,
+        high=1.0,
+        high_open=True,
+        doc="remesh after a step where a convex die corner reaches into a free-surface facet "
+        "deeper than this fraction of the facet's length (0 = never)",
+    )
+    fold_angle_deg: float = key(
+        0.0,
+        low=0.0,
+        high=90.0,
+        doc="remesh after a step where the free surface folds: a free vertex off the die "
+        "whose air-side angle between its two edges falls below this (deg; 0 = never)",
+    )
     die_size_ratio: float = key(
         0.5,
         low=0.05,
@@ -317,7 +337,19 @@ class RemeshConfig:
     @property
     def on(self) -> bool:
         """Whether a trigger is set."""
-        return self.quality_below > 0.0 or self.every_steps > 0
+        return remesh_on(vars(self))
+
+
+TRIGGERS = ("quality_below", "every_steps", "every_stroke_mm", "corner_depth_ratio",
+            "fold_angle_deg")  # fmt: skip
+
+
+TRIGGERS_OFF = " = 0, ".join(f"remesh.{k}" for k in TRIGGERS) + " = 0"
+
+
+def remesh_on(section: dict) -> bool:
+    """Whether a [remesh] section (a dict of its keys) sets a trigger."""
+    return any(section[k] > 0 for k in TRIGGERS)
 
 
 @section("material")
@@ -912,7 +944,7 @@ def _cross_checks(raw: dict, out: dict) -> None:
     if times and (times[0] != 0.0 or any(b <= a for a, b in zip(times, times[1:]))):
         raise ConfigError("thermal.die_path_time_s: must start at 0 s and increase")
     rm = out["remesh"]
-    if rm["quality_below"] > 0.0 or rm["every_steps"] > 0:
+    if remesh_on(rm):
         if out["mesh"]["rezone_quality"] > 0.0:
             raise ConfigError(
                 "mesh.rezone_quality > 0 and [remesh] both set: choose one (remeshing "
@@ -921,7 +953,7 @@ def _cross_checks(raw: dict, out: dict) -> None:
         if "membrane" in out:
             raise ConfigError(
                 "[remesh]: a [membrane] scene cannot be remeshed (its load is given per "
-                "initial edge); set remesh.quality_below = 0 and remesh.every_steps = 0"
+                f"initial edge); set {TRIGGERS_OFF}"
             )
     if "membrane" in out:
         _membrane_checks(out)
@@ -1228,13 +1260,12 @@ def check_gradient_run(
         )
     rm = cfg["remesh"]
     d = cfg["design"]
-    if rm["quality_below"] > 0.0 or rm["every_steps"] > 0:
+    if remesh_on(rm):
         if d["objective"] not in REMESH_OBJECTIVES:
             raise ConfigError(
                 f"design.objective = {d['objective']!r} reads the initial mesh's nodes or "
                 f"elements, which a remeshed run replaces: with [remesh] use one of "
-                f"{', '.join(REMESH_OBJECTIVES)} (or remesh.quality_below = 0 and "
-                f"remesh.every_steps = 0)"
+                f"{', '.join(REMESH_OBJECTIVES)} (or set {TRIGGERS_OFF})"
             )
         if d["max_temperature_K"] > 0.0:
             raise ConfigError(

@@ -59,7 +59,7 @@ class RemeshError(RuntimeError):
 class RemeshReport:
     """What one remesh did: time, mesh sizes and qualities, the relative change of the
     material volume, the integral of the equivalent plastic strain (mm^3; plane strain
-    mm^2) over the old and the new mesh, and the host time it took (s)."""
+    mm^2) over the old and the new mesh, the host time it took (s) and the trigger."""
 
     time_s: float
     nodes_before: int
@@ -72,6 +72,7 @@ class RemeshReport:
     eqps_integral_before: float
     eqps_integral_after: float
     seconds: float
+    trigger: str = ""  # what fired it (jaxform.triggers.causes: 'quality', 'steps', ...)
 
 
 def simplify(points: np.ndarray, labels: list[str], tol: float):

@@ -40,6 +40,7 @@ from jaxform.stepping import (
     run_chunk,
     step_outputs,
 )
+from jaxform.triggers import CORNER, FOLD, causes
 from jaxform.xla_options import jit
 
 
@@ -155,7 +156,8 @@ def _initial_row(scene: Scene, state: SimState) -> dict:
     out = jax.device_get(_outputs(scene.model, state, scene.inputs, scene.idx, scene.symmetric_z))
     q = min_quality(np.asarray(scene.inputs.coords), np.asarray(scene.mesh.elements))
     return dict(out, iterations=0, factorizations=0, cutbacks=0, code=OK, rezoned=0,
-                remeshed=0, new_nodes=0, dt_s=0.0, mesh_quality=float(q))  # fmt: skip
+                remeshed=0, new_nodes=0, dt_s=0.0, mesh_quality=float(q),
+                pause_cause=0)  # fmt: skip
 
 
 def _progress(scene: Scene, step: int, row: dict, chunk_end: bool) -> dict:
@@ -164,7 +166,9 @@ def _progress(scene: Scene, step: int, row: dict, chunk_end: bool) -> dict:
     of its compiled chunk, and the row's scalars."""
     left = max(scene.t_end - float(row["time_s"]), 0.0)
     n_steps = step + int(math.ceil(left / scene.dt - 1e-9))
-    return dict(step=step, n_steps=n_steps, chunk_end=chunk_end, remeshed=int(row["new_nodes"]),
+    remeshed = int(row["new_nodes"])
+    return dict(step=step, n_steps=n_steps, chunk_end=chunk_end, remeshed=remeshed,
+                remesh_trigger=causes(int(row["pause_cause"])) if remeshed else "",
                 **{k: row[k] for k in PROGRESS_KEYS})  # fmt: skip
 
 
@@ -177,8 +181,10 @@ def _chunk(scene: Scene, stepper: Stepper, state: SimState, control, inp: Inputs
     Jacobian singular raises (klujax does, instead of returning a status); then the steps
     are retried one at a time, the step halved after each singular attempt as after any
     failed one, down to the smallest step, where the outputs carry the code SINGULAR."""
-    try:
-        return run_chunk(stepper, state, control, inp, scene.idx, scene.chunk, fac)
+    try:  # blocking: an error of the asynchronous run surfaces here, not at the caller
+        return jax.block_until_ready(
+            run_chunk(stepper, state, control, inp, scene.idx, scene.chunk, fac)
+        )
     except JaxRuntimeError as err:
         if not _singular(err):
             raise
@@ -190,8 +196,10 @@ def _chunk(scene: Scene, stepper: Stepper, state: SimState, control, inp: Inputs
     while True:
         fac = scene.linear.empty_factorization(n, state.x.dtype) if modified else None
         try:
-            st, ctl, outs, fac = run_chunk(
-                stepper, state, replace(control, h=jnp.asarray(h)), inp, scene.idx, 1, fac
+            st, ctl, outs, fac = jax.block_until_ready(
+                run_chunk(
+                    stepper, state, replace(control, h=jnp.asarray(h)), inp, scene.idx, 1, fac
+                )
             )
         except JaxRuntimeError as err:
             if not _singular(err):
@@ -213,6 +221,29 @@ def _rezone_after(scene: Scene, state: SimState, inp: Inputs, control: StepContr
     state, inp, report = rezone(scene, state, inp)
     trigger = scene.rezone_quality if report.improved else 0.9 * report.quality_before
     return state, inp, replace(control, rezone_quality=jnp.asarray(trigger)), report
+
+
+def _remesh_triggers(control: StepControl, settings, row: dict | None = None, report=None,
+                     stroke: float | None = None) -> StepControl:  # fmt: skip
+    """The remesh triggers for the steps on a new mesh (after the remesh of ``report``,
+    paused on ``row``; at the start: ``stroke`` = 0).  A trigger that the new mesh still
+    fires (the corner quality, a die corner's depth or a fold, which keep the old
+    boundary) waits until it has become 10 % worse, as rezoning does, so that a scene
+    cannot remesh on every step."""
+    stroke = float(row["stroke_mm"]) if row is not None else stroke
+    s = settings
+    q, depth, fold = s.quality_below, s.corner_depth_ratio, s.fold_angle_deg
+    if report is not None:
+        q = q if report.quality_after > q else 0.9 * report.quality_after
+        if int(row["pause_cause"]) & CORNER:
+            depth = max(depth, 1.1 * float(row["corner_depth_ratio"]))
+        if int(row["pause_cause"]) & FOLD:
+            fold = min(fold, 0.9 * float(row["free_fold_deg"]))
+    every = s.every_stroke_mm
+    return replace(control, rezone_quality=jnp.asarray(q),
+                   pause_stroke_mm=jnp.asarray(stroke + every if every > 0 else 0.0),
+                   corner_depth_ratio=jnp.asarray(depth),
+                   fold_angle_deg=jnp.asarray(fold))  # fmt: skip
 
 
 def _fields(rows: list[dict], one_mesh: bool) -> dict:
@@ -258,7 +289,8 @@ def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Re
         scene: a scene built by :func:`jaxform.scenes.build_scene`.
         progress: called after each converged step with a dict (step, n_steps estimate,
             chunk_end, time_s, stroke_mm, force_N, iterations, cutbacks, dt_s, and
-            remeshed: the nodes of the new mesh after a remesh, else 0), or None.
+            remeshed: the nodes of the new mesh after a remesh, else 0, with
+            remesh_trigger naming what fired it), or None.
 
     Returns:
         A :class:`Result`: the history (one row per converged step, row 0 the initial
@@ -268,6 +300,8 @@ def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Re
     remeshing = settings is not None and settings.on
     trigger = settings.quality_below if remeshing else scene.rezone_quality
     control = replace(control, rezone_quality=jnp.asarray(trigger))
+    if remeshing:
+        control = _remesh_triggers(control, settings, stroke=0.0)
     # remeshed runs step a scene padded to a capacity bucket (jaxform.capacity): a new
     # mesh in the same bucket reuses the compiled program
     current, inp = scene, scene.inputs
@@ -321,7 +355,8 @@ def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Re
                 except RemeshError as err:
                     failure = f"step {len(rows) - 1}: remeshing failed: {err}"
                 else:
-                    current, state, report = done.scene, done.state, done.report
+                    report = replace(done.report, trigger=causes(int(rows[-1]["pause_cause"])))
+                    current, state = done.scene, done.state
                     if owned[0] is not None:
                         jax.block_until_ready(stepped.linear.release(owned[0]))
                     padder = padded(current)
@@ -332,9 +367,7 @@ def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Re
                     segments.append(Segment(len(rows), current, done.transfer))
                     remeshes.append(report)
                     rows[-1].update(remeshed=1, new_nodes=report.nodes_after)
-                    q = settings.quality_below  # a new mesh already below it: wait for worse
-                    q = q if report.quality_after > q else 0.9 * report.quality_after
-                    control = replace(control, rezone_quality=jnp.asarray(q))
+                    control = _remesh_triggers(control, settings, rows[-1], report)
             elif pause and failure is None:
                 try:
                     state, inp, control, report = _rezone_after(current, state, inp, control)
@@ -380,9 +413,11 @@ def init(scene: Scene) -> tuple[SimState, StepControl]:
         no rezoning trigger (:func:`step` does not rezone).
     """
     require_x64()
+    zero = jnp.asarray(0.0)
     control = StepControl(h=jnp.asarray(scene.dt), dt_max=jnp.asarray(scene.dt),
-                          t_end=jnp.asarray(scene.t_end), rezone_quality=jnp.asarray(0.0),
-                          pause_steps=jnp.asarray(0, jnp.int32))  # fmt: skip
+                          t_end=jnp.asarray(scene.t_end), rezone_quality=zero,
+                          pause_steps=jnp.asarray(0, jnp.int32), pause_stroke_mm=zero,
+                          corner_depth_ratio=zero, fold_angle_deg=zero)  # fmt: skip
     return initial_state(scene.model, scene.inputs), control
 
 

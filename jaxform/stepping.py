@@ -45,6 +45,15 @@ from jaxform.loads import external_forces, total_force
 from jaxform.rezone import min_quality
 from jaxform.solver import ImplicitProblem, NewtonSettings, solve_implicit
 from jaxform.status import OK
+from jaxform.triggers import (
+    CORNER,
+    FOLD,
+    QUALITY,
+    STEPS,
+    STROKE,
+    corner_depth_ratio,
+    fold_angle_deg,
+)
 from jaxform.xla_options import jit
 
 if TYPE_CHECKING:
@@ -310,7 +319,8 @@ class Stepper:
 class StepControl:
     """The traced part of the time stepping: the step size to try next, the largest
     step (``time.dt_s``), the end time, and the triggers that pause a chunk for the host
-    to rezone or remesh: a worst corner quality (0: never) and a number of steps."""
+    to rezone or remesh (each 0: never; :mod:`jaxform.triggers`): a worst corner quality,
+    a number of steps, a stroke, a die corner's depth in a facet, a fold angle."""
 
     h: jax.Array  # s
     dt_max: jax.Array  # s
@@ -319,6 +329,9 @@ class StepControl:
     # a chunk pauses after this many of its converged steps (0: never; remeshing every
     # remesh.every_steps steps)
     pause_steps: jax.Array = 0
+    pause_stroke_mm: jax.Array = 0.0  # after the step that reaches this stroke (mm)
+    corner_depth_ratio: jax.Array = 0.0  # a die corner deeper in a facet than this x length
+    fold_angle_deg: jax.Array = 0.0  # a free-surface fold narrower than this (deg)
 
 
 def attempt_step(
@@ -453,9 +466,10 @@ def run_chunk(
 ):
     """lax.scan over n steps, each one converged step of adaptive size
     (:func:`attempt_step`); steps after the end, after a failure, or after a step that
-    left an element corner quality below ``control.rezone_quality`` or that was the
-    chunk's ``control.pause_steps``-th (the caller rezones or remeshes and goes on) leave
-    the state unchanged and are marked inactive.  ``fac``: the
+    fired a trigger of ``control`` (a corner quality below ``control.rezone_quality``, the
+    chunk's ``control.pause_steps``-th step, ...; :class:`StepControl`: the caller
+    rezones or remeshes and goes on; output ``pause_cause`` names them,
+    :mod:`jaxform.triggers`) leave the state unchanged and are marked inactive.  ``fac``: the
     factorization modified Newton keeps (None for 'newton'), carried through and returned
     with (state, control for the next chunk, outputs): the caller owns it and frees the
     last one."""
@@ -488,15 +502,34 @@ def run_chunk(
         failed = failed | (info["code"] != OK)
         pos = model.nodal_positions(new.x, inp.coords, idx)
         quality = min_quality(pos, idx.elements)
-        trigger = ctl.rezone_quality
         count = count + run.astype(count.dtype)
-        due = (ctl.pause_steps > 0) & (count >= ctl.pause_steps)
-        paused = paused | (run & ~failed & (((trigger > 0.0) & (quality < trigger)) | due))
         out = step_outputs(model, new, inp, idx, stepper.symmetric_z)
+        depth = (
+            jnp.zeros_like(quality)
+            if inp.die is None
+            else corner_depth_ratio(inp.die, pos, idx, new.t)
+        )
+        fold = fold_angle_deg(pos, idx, new.contact_status)
+        bits = (
+            jnp.where((ctl.rezone_quality > 0.0) & (quality < ctl.rezone_quality), QUALITY, 0)
+            + jnp.where((ctl.pause_steps > 0) & (count >= ctl.pause_steps), STEPS, 0)
+            + jnp.where(
+                (ctl.pause_stroke_mm > 0.0) & (out["stroke_mm"] >= ctl.pause_stroke_mm), STROKE, 0
+            )
+            + jnp.where(
+                (ctl.corner_depth_ratio > 0.0) & (depth > ctl.corner_depth_ratio), CORNER, 0
+            )
+            + jnp.where((ctl.fold_angle_deg > 0.0) & (fold < ctl.fold_angle_deg), FOLD, 0)
+        )
+        fires = run & ~failed & (bits > 0)
+        paused = paused | fires
         out.update(info)
         out["factorizations"] = info["iterations"] if fac is None else fac_new.count - fac.count
         out["active"] = run
         out["mesh_quality"] = quality
+        out["corner_depth_ratio"] = depth
+        out["free_fold_deg"] = fold
+        out["pause_cause"] = jnp.where(fires, bits, 0)
         out["paused"] = paused
         return (new, replace(ctl, h=info["h_next"]), failed, paused, fac_new, count), out
 

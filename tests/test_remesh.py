@@ -8,16 +8,21 @@ upsetting is a homogeneous deformation, so its force does not depend on the mesh
 unremeshed runs agree to 1e-6 relative, the issue asks 0.1 %).
 """
 
+from types import SimpleNamespace
+
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
 import jaxform
 from jaxform.config import ConfigError, check_gradient_run, load_config
+from jaxform.dies import RigidDie
 from jaxform.geometry import min_quality, polygon_measure
 from jaxform.mesh import billet_quarter, boundary_polygon, polygon_quads
 from jaxform.remesh import simplify
 from jaxform.transfer import Transfer, gauss_points, gauss_to_nodes
+from jaxform.triggers import corner_depth_ratio, fold_angle_deg
 
 
 def _barrel(n_side=11):
@@ -149,6 +154,43 @@ def test_forced_remeshes_leave_frictionless_upsetting_unchanged():
     assert res.final_scene.mesh.n_elements != plain.scene.mesh.n_elements
     # the fields of each row live on its own mesh
     assert len(res.fields["x"][-1]) == res.final_scene.model.layout.n_dofs
+    assert all(rep.trigger == "steps" for rep in res.remeshes)
+    # every 0.4 mm of stroke (1.125 mm in all): after the steps that reach 0.4 and 0.8 mm
+    # past the last remesh
+    by_stroke = jaxform.run(SEED, over + ["remesh.every_stroke_mm=0.4"])
+    h2 = by_stroke.history
+    rows = np.nonzero(h2["remeshed"])[0]
+    assert len(rows) == 2 and all(rep.trigger == "stroke" for rep in by_stroke.remeshes)
+    assert h2["stroke_mm"][rows[0]] >= 0.4 > h2["stroke_mm"][rows[0] - 1]
+    assert h2["stroke_mm"][rows[1]] - h2["stroke_mm"][rows[0]] >= 0.4
+    assert h2["stroke_mm"][rows[1] - 1] - h2["stroke_mm"][rows[0]] < 0.4
+    assert np.allclose(h2["force_N"], h0["force_N"], rtol=1e-6)
+
+
+def test_trigger_measures_of_known_geometry():
+    """A die corner (arc of radius 0.2 mm rounding a flat punch's edge, lowest point at z =
+    1 - travel) against a horizontal facet 0.6 mm long at z = 0.95: depth 0.05 mm after
+    0.1 mm of travel, ratio 0.05 / 0.6 (to 1e-12; 0 before it touches).  A free-surface
+    fold whose facets meet at the air angle atan(0.2) = 11.31 deg (to 1e-12), 180 deg once
+    the vertex touches the die."""
+    die = RigidDie(
+        points=jnp.array([[0.0, 1.0], [2.0, 1.0], [2.0, 3.0]]),
+        path_time_s=jnp.array([0.0, 1.0]),
+        path_travel_mm=jnp.array([0.0, 0.1]),
+        mu=jnp.asarray(0.0),
+        m=jnp.asarray(0.0),
+        corner_radius=jnp.asarray(0.2),
+    )
+    idx = SimpleNamespace(contact_nodes=jnp.arange(2), contact_facets=jnp.array([[0, 1]]))
+    pos = jnp.array([[2.1, 0.95], [1.5, 0.95]])  # walked with the material below (left)
+    assert float(corner_depth_ratio(die, pos, idx, 1.0)) == pytest.approx(0.05 / 0.6, abs=1e-12)
+    assert float(corner_depth_ratio(die, pos, idx, 0.0)) == 0.0
+    idx = SimpleNamespace(contact_nodes=jnp.arange(3), contact_facets=jnp.array([[0, 1], [1, 2]]))
+    pos = jnp.array([[0.0, 0.0], [1.0, 0.0], [0.0, -0.2]])
+    open_ = jnp.zeros(3, jnp.int32)
+    angle = float(fold_angle_deg(pos, idx, open_))
+    assert angle == pytest.approx(np.degrees(np.arctan(0.2)), abs=1e-12)
+    assert float(fold_angle_deg(pos, idx, open_.at[1].set(1))) == 180.0
 
 
 def test_remesh_config_is_checked():
@@ -216,6 +258,34 @@ def test_padding_to_a_bucket_is_inert_and_shared():
     ghosts = np.asarray(lay.nodal(big.x))[a.model.layout.n_nodes :]
     assert np.all(ghosts == 0.0)
     assert np.allclose(np.asarray(back.gauss.mat.stress), np.asarray(plain.gauss.mat.stress))
+
+
+def test_ghost_nodes_sit_where_the_die_leaves_them_open():
+    """The closed die's cavity reaches down beside the section, where the ghost square
+    once sat inside the die (its candidates closed, their multipliers absent from every
+    equation: a singular Jacobian).  The ghosts now sit where the die's gap exceeds 1 mm
+    all the run, and the padded Jacobian at the first step has full rank."""
+    from jaxform.capacity import padded
+    from jaxform.rezone import gap_function
+    from jaxform.scenes import build_scene
+    from jaxform.simulation import init
+    from jaxform.stepping import step_context
+
+    over = QUIET + ["mesh.nr=4", "mesh.nz=4", "mesh.rezone_quality=0", "die.corner_contact=false"]
+    sc = build_scene(load_config("configs/closed_die.toml", over))
+    pd = padded(sc)
+    ghosts = np.asarray(pd.scene.inputs.coords)[sc.model.layout.n_nodes :]
+    for t in (0.0, 0.5 * sc.t_end, sc.t_end):
+        assert np.all(gap_function(sc.inputs.die, t)(ghosts)[0] > 1.0)
+    st = pd.state(init(sc)[0])
+    s = pd.scene
+    vals = s.model.residual_and_jacobian(
+        st.x, step_context(s.model, st, s.inputs, s.idx, 0.01, 0.01)
+    )[1]
+    n = s.model.layout.n_dofs
+    jac = np.zeros((n, n))
+    jac[np.asarray(s.idx.rows), np.asarray(s.idx.cols)] = np.asarray(vals)
+    assert np.linalg.matrix_rank(jac) == n
 
 
 def test_fold_angle_of_known_wedges():
