@@ -27,7 +27,7 @@ def no_compilation():
     """Every path from the CLI into a compiled program raises Reached."""
     with (
         mock.patch.object(jaxform.driver, "simulate", _stop),
-        mock.patch.object(jaxform.design.problem, "schedule", _stop),
+        mock.patch.object(jaxform.design.problem, "remeshed_schedule", _stop),
         mock.patch.object(jaxform.materialpoint, "uniaxial_compression", _stop),
         mock.patch.object(jaxform.xla_options, "jit", _stop),
     ):

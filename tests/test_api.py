@@ -67,7 +67,7 @@ def test_design_commands_refuse_a_scene_without_a_die(command, capsys, monkeypat
     def compiles(*args, **kwargs):
         raise AssertionError("the design problem got as far as a forward run")
 
-    monkeypatch.setattr(problem, "schedule", compiles)
+    monkeypatch.setattr(problem, "remeshed_schedule", compiles)
     argv = [command, str(ROOT / "configs" / "cooks_membrane.toml")]
     code = main(argv + (["--out", str(tmp_path / "out")] if command == "design" else []))
     err = capsys.readouterr().err
