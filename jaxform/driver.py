@@ -218,17 +218,18 @@ def run_design(config, overrides=(), out_dir: str | Path = "out/design", progres
     write_csv(out / "design_history.csv", cols)
     unit = getattr(problem.objective, "unit", "-")
     design_objective(hist.objective, out / "objective.png", f"{d.objective} ({d.optimizer})", unit)
-    _, traj0 = problem.value(hist.designs[0])
-    _, traj1 = problem.value(hist.designs[-1])
-    shapes = {
-        "initial design, start": np.asarray(traj0.coords),
-        "initial design, end": np.asarray(traj0.positions),
-        "optimized, start": np.asarray(traj1.coords),
-        "optimized, end": np.asarray(traj1.positions),
-    }
+    # the start shapes on the initial mesh, the end shapes on the run's last mesh
+    first = np.asarray(scene.mesh.elements)
+    last = (
+        first if problem.plan is None else np.asarray(problem.plan.segments[-1].scene.mesh.elements)
+    )
+    shapes = {}
+    for name, design in (("initial design", hist.designs[0]), ("optimized", hist.designs[-1])):
+        _, traj = problem.value(design)
+        shapes[f"{name}, start"] = (np.asarray(problem.run_inputs(design)[0].coords), first)
+        shapes[f"{name}, end"] = (np.asarray(traj.positions), last)
     design_shapes(
         shapes,
-        np.asarray(scene.mesh.elements),
         out / "shapes.png",
         f"shapes: {d.objective} {hist.objective[0]:.4g} -> {hist.objective[-1]:.4g} {unit}",
     )

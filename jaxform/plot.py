@@ -268,11 +268,12 @@ def _outline(coords, elements):
     return edges[count[inv.ravel()] == 1]
 
 
-def design_shapes(shapes: dict, elements, path: Path, title: str):
-    """shapes: label -> (n_nodes, 2) positions; outlines drawn over each other."""
+def design_shapes(shapes: dict, path: Path, title: str):
+    """shapes: label -> ((n_nodes, 2) positions, (n_el, 4) elements of their mesh);
+    outlines drawn over each other."""
     fig, ax = _figure(figsize=(6, 5))
     styles = ["k--", "C0-", "C1-", "C3-", "C2--"]
-    for (label, pos), style in zip(shapes.items(), styles):
+    for (label, (pos, elements)), style in zip(shapes.items(), styles):
         pos = np.asarray(pos)
         for k, (a, b) in enumerate(_outline(pos, elements)):
             ax.plot(pos[[a, b], 0], pos[[a, b], 1], style, lw=1.2, label=label if k == 0 else None)

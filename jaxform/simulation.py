@@ -325,8 +325,10 @@ def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Re
                                                                jnp.int32))  # fmt: skip
             fac, owned[0] = owned[0], None  # the chunk frees it when it refactors
             start = padder.state(state) if padder else state
+            # a rezoned run steps its rezoned reference (inp); a remeshed one the padded scene
+            run_inputs = stepped.inputs if padder else inp
             state_new, control, outs, owned[0] = _chunk(
-                stepped, stepper, start, control, stepped.inputs, fac
+                stepped, stepper, start, control, run_inputs, fac
             )
             outs = jax.device_get(outs)
             if padder:
