@@ -324,8 +324,11 @@ def _check_closed_die(sc, res, min_fill, force_jump):
     fill = h["die_fill"]
     # the fill is (cavity occupied) / (cavity): once the corners are all that is left, a
     # step that fills them less than the descending die shrinks the filled cavity lowers
-    # the ratio slightly (configured scene: -4.4e-5 and -7.9e-5 near 99.3 %)
-    assert np.all(np.diff(fill) > -1e-4) and min_fill <= fill[-1] <= 1.0, fill[-1]
+    # the ratio slightly (configured scene: -4.4e-5 and -7.9e-5 near 99.3 %), and the step
+    # after a rezoning, whose smoothing slides boundary nodes along the boundary, a
+    # little more (configured scene: -2.4e-4 at 99.3 %)
+    allowed = np.where(h["rezoned"][:-1] > 0, -5e-4, -1e-4)
+    assert np.all(np.diff(fill) > allowed) and min_fill <= fill[-1] <= 1.0, fill[-1]
     assert fill[-1] >= fill.max() - 1e-4
     assert h["rezoned"].sum() >= 1
     k90 = int(np.argmax(fill >= 0.9))
@@ -355,7 +358,7 @@ def test_closed_die_scene_fills_without_penetration():
 
 @pytest.mark.slow
 def test_closed_die_scene_as_configured():
-    """The configured scene (10x10, shear friction m = 0.2, 1 s steps, 44.5 % reduction,
+    """The configured scene (10x10, shear friction m = 0.2, 0.5 s steps, 44.5 % reduction,
     corner contact at the hub's convex fillet): fill >= 99 % (measured 99.39 %), the force
     at the end >= 10 x that at 90 % fill (measured 135 kN / 2.3 kN), rezoned; the die
     never reaches into the material (die_overlap_mm <= 1e-6 mm at every step: the target
