@@ -228,9 +228,10 @@ def _oriented(elements: np.ndarray, facets) -> np.ndarray:
     """The facets (node pairs) ordered as the boundary walks them (the material on the
     left, :func:`jaxform.mesh.boundary_edges`)."""
     facets = np.asarray(facets if facets is not None else np.zeros((0, 2)), dtype=np.int64)
-    walked = set(map(tuple, boundary_edges(elements).tolist()))
-    out = [(a, b) if (a, b) in walked else (b, a) for a, b in facets.tolist()]
-    return np.array(out, dtype=np.int64).reshape(-1, 2)
+    walked = boundary_edges(elements)
+    n = int(max(np.max(elements, initial=0), np.max(facets, initial=0))) + 1
+    forward = np.isin(facets[:, 0] * n + facets[:, 1], walked[:, 0] * n + walked[:, 1])
+    return np.where(forward[:, None], facets, facets[:, ::-1]).reshape(-1, 2)
 
 
 def _local_facets(contact_nodes, facets) -> np.ndarray:

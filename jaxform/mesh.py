@@ -214,10 +214,12 @@ def billet_quarter(
 def boundary_edges(elements: np.ndarray) -> np.ndarray:
     """(n_b, 2) directed boundary edges of a mesh of counter-clockwise quads (the material
     on their left)."""
-    e = np.asarray(elements)
+    e = np.asarray(elements, dtype=np.int64)
     edges = np.stack([e, np.roll(e, -1, axis=1)], axis=-1).reshape(-1, 2)
-    keys = set(map(tuple, edges.tolist()))
-    return np.array([ab for ab in edges.tolist() if (ab[1], ab[0]) not in keys])
+    n = int(e.max()) + 1 if e.size else 1
+    # an edge is on the boundary when no element walks it the other way
+    inner = np.isin(edges[:, 1] * n + edges[:, 0], edges[:, 0] * n + edges[:, 1])
+    return edges[~inner]
 
 
 # where two sets meet on an edge's nodes, the edge takes the first that has it: held

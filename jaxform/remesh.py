@@ -59,7 +59,8 @@ class RemeshError(RuntimeError):
 class RemeshReport:
     """What one remesh did: time, mesh sizes and qualities, the relative change of the
     material volume, the integral of the equivalent plastic strain (mm^3; plane strain
-    mm^2) over the old and the new mesh, the host time it took (s) and the trigger."""
+    mm^2) over the old and the new mesh, the host time it took (s; in a run with the
+    padding to its capacity bucket) and the trigger."""
 
     time_s: float
     nodes_before: int
