@@ -352,15 +352,14 @@ class RemeshPlan:
 
     @classmethod
     def of(cls, result) -> RemeshPlan:
-        """The plan of a :class:`jaxform.simulation.Result` (one segment without remeshes)."""
-        from jaxform.capacity import padded
-
+        """The plan of a :class:`jaxform.simulation.Result` of a scene with ``[remesh]``
+        (one segment where it did not remesh): its meshes as it padded them."""
         n_rows = len(result.history["time_s"])
         ends = [s.first_row for s in result.segments[1:]] + [n_rows]
         starts = [1] + ends[:-1]
         return cls(
             tuple(
-                MeshSegment(s.scene, padded(s.scene), end - start, s.transfer)
+                MeshSegment(s.scene, s.padded, end - start, s.transfer)
                 for s, start, end in zip(result.segments, starts, ends)
             )
         )

@@ -58,11 +58,13 @@ class Segment:
     """The rows of a run on one mesh: from ``first_row`` to the next segment's first row,
     on ``scene`` (its mesh, sets, dofs and reference coordinates), reached from the last
     row before it through ``transfer`` (:class:`jaxform.remesh.StateMap`; None for the
-    first segment)."""
+    first segment) and stepped ``padded`` to its capacity bucket
+    (:class:`jaxform.capacity.Padded`; None without remeshing)."""
 
     first_row: int
     scene: Scene
     transfer: object = None
+    padded: object = None
 
 
 @dataclass
@@ -310,7 +312,7 @@ def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Re
     stepped = padder.scene if padder else scene
     stepper, programs = stepper_of(stepped), {stepped.model.layout}
     rows, rezones, remeshes, failure = [_initial_row(scene, state)], [], [], None
-    segments, since = [Segment(0, scene)], 0
+    segments, since = [Segment(0, scene, padded=padder)], 0
     t_stop = scene.t_end - 1e-9 * scene.dt
 
     def new_factorization():
@@ -372,7 +374,7 @@ def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Re
                     owned[0] = new_factorization()
                     inp, stepper, since = current.inputs, stepper_of(stepped), 0
                     programs.add(stepped.model.layout)
-                    segments.append(Segment(len(rows), current, done.transfer))
+                    segments.append(Segment(len(rows), current, done.transfer, padder))
                     remeshes.append(report)
                     rows[-1].update(remeshed=1, new_nodes=report.nodes_after)
                     control = _remesh_triggers(control, settings, rows[-1], report)
@@ -406,8 +408,10 @@ def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Re
 
 def stepper_of(scene: Scene) -> Stepper:
     """The static part of the scene's compiled steps."""
+    rm = scene.remesh
+    shape = rm is not None and (rm.corner_depth_ratio > 0.0 or rm.fold_angle_deg > 0.0)
     return Stepper(scene.model, scene.linear, scene.newton, scene.max_cutbacks,
-                   scene.dt_growth, scene.symmetric_z)  # fmt: skip
+                   scene.dt_growth, scene.symmetric_z, shape)  # fmt: skip
 
 
 def init(scene: Scene) -> tuple[SimState, StepControl]:

@@ -302,6 +302,9 @@ class Stepper:
     max_cutbacks: int
     dt_growth: float = 1.5
     symmetric_z: bool = True
+    # measure the geometric remesh triggers (a die corner's depth, a fold) after each step:
+    # only a scene that remeshes on them pays for them (jaxform.triggers)
+    shape_triggers: bool = False
 
     def next_step(self, h_used, iterations, cutbacks, dt_max):
         """The size of the next step after one of size h_used."""
@@ -504,12 +507,11 @@ def run_chunk(
         quality = min_quality(pos, idx.elements)
         count = count + run.astype(count.dtype)
         out = step_outputs(model, new, inp, idx, stepper.symmetric_z)
-        depth = (
-            jnp.zeros_like(quality)
-            if inp.die is None
-            else corner_depth_ratio(inp.die, pos, idx, new.t)
-        )
-        fold = fold_angle_deg(pos, idx, new.contact_status)
+        depth, fold = jnp.zeros_like(quality), jnp.full_like(quality, 180.0)
+        if stepper.shape_triggers:
+            if inp.die is not None:
+                depth = corner_depth_ratio(inp.die, pos, idx, new.t)
+            fold = fold_angle_deg(pos, idx, new.contact_status)
         bits = (
             jnp.where((ctl.rezone_quality > 0.0) & (quality < ctl.rezone_quality), QUALITY, 0)
             + jnp.where((ctl.pause_steps > 0) & (count >= ctl.pause_steps), STEPS, 0)
