@@ -129,23 +129,33 @@ def section(name: str):
     return register
 
 
+FULL_HEIGHT_DOC = (
+    "model the whole height, z in [-H/2, H/2], between the top die [die] and a bottom die "
+    "[bottom_die] (no mid-plane; mesh.nz counts the elements over the whole height): for "
+    "parts whose top and bottom differ. false: the half above the mid-plane z = 0"
+)
+
+
 @section("billet")
 @dataclass(frozen=True, kw_only=True)
 class BilletConfig:
-    """[billet]: a solid cylinder (axisymmetric) or block (plane strain), half-height model."""
+    """[billet]: a solid cylinder (axisymmetric) or block (plane strain), half-height model
+    (or full height, pressed between a top and a bottom die)."""
 
     diameter_mm: float = key(low=0.0, low_open=True, doc="billet diameter (mm)")
     height_mm: float = key(low=0.0, low_open=True, doc="billet height (mm)")
+    full_height: bool = key(False, doc=FULL_HEIGHT_DOC)
 
 
 @section("ring")
 @dataclass(frozen=True, kw_only=True)
 class RingConfig:
-    """[ring]: a ring section, half-height model."""
+    """[ring]: a ring section, half-height model (or full height)."""
 
     outer_diameter_mm: float = key(low=0.0, low_open=True, doc="ring outer diameter (mm)")
     inner_diameter_mm: float = key(low=0.0, low_open=True, doc="ring inner diameter (mm), < outer")
     height_mm: float = key(low=0.0, low_open=True, doc="ring height (mm)")
+    full_height: bool = key(False, doc=FULL_HEIGHT_DOC)
 
 
 @section("block")
@@ -389,7 +399,8 @@ class DieConfig:
         low=0.0,
         low_open=True,
         doc="ram speed (mm/s): the dies close at this speed (each moves at half of it towards the"
-        " mid-plane; a block's die at all of it); required unless a path table is given",
+        " mid-plane; a block's die at all of it; full height: shared with the bottom die by "
+        "bottom_die.speed_share); required unless a path table is given",
     )
     reduction: float | None = key(
         low=0.0,
@@ -415,7 +426,8 @@ class DieConfig:
     path_travel_mm: tuple[float, ...] = key(
         [],
         doc="die path table: downward travel of the top die relative to the mid-plane at those "
-        "times (mm), starting at 0 (the ram stroke is twice it)",
+        "times (mm), starting at 0 (half height: the ram stroke is twice it; full height: it "
+        "plus the bottom die's rise)",
     )
     corner_radius_mm: float = key(
         0.5,
@@ -446,6 +458,77 @@ class DieConfig:
         "gains flash_volume_mm3, the material beyond it (whole workpiece: both halves of "
         "a half-height model; per mm of depth in plane strain). 0: the whole cavity is "
         "the part",
+    )
+
+
+@section("bottom_die")
+@dataclass(frozen=True, kw_only=True)
+class BottomDieConfig:
+    """[bottom_die]: the rigid die under a full-height workpiece (billet.full_height or
+    ring.full_height = true): profile, motion; friction as [friction]."""
+
+    profile_mm: tuple[tuple[float, float], ...] = key(
+        [],
+        doc="bottom-die profile as [r_mm, z_mm] points at t = 0, from the axis outward (the "
+        "workpiece above it); [] = flat die on the bottom face z = -H/2",
+    )
+    profile_kind: str = key(
+        "polyline",
+        choices=("polyline", "spline"),
+        doc="straight segments between the points, or the Catmull-Rom spline through them",
+    )
+    mirror: bool = key(
+        False,
+        doc="the bottom die is the top die's profile mirrored about z = 0 (profile_mm must be "
+        "[]): with speed_share = 0.5 the full-height twin of the half-height model",
+    )
+    speed_share: float = key(
+        0.0,
+        low=0.0,
+        high=1.0,
+        high_open=True,
+        doc="share of the ram speed die.speed_mm_s that the bottom die rises at (the top die "
+        "descends at the rest): 0 = a fixed anvil, 0.5 = both dies move towards z = 0",
+    )
+    path_time_s: tuple[float, ...] = key(
+        [], doc="bottom-die path table (with die.path_time_s): times (s), starting at 0"
+    )
+    path_travel_mm: tuple[float, ...] = key(
+        [],
+        doc="bottom-die path table: upward travel at those times (mm), starting at 0 ([] with "
+        "a top-die path table: the bottom die stays fixed); the ram stroke is the top die's "
+        "travel plus this",
+    )
+    corner_radius_mm: float = key(
+        0.5,
+        low=0.0,
+        low_open=True,
+        doc="radius of the arcs that round the profile's vertices (mm), as die.corner_radius_mm",
+    )
+
+
+@section("side_die")
+@dataclass(frozen=True, kw_only=True)
+class SideDieConfig:
+    """[side_die]: a third rigid die, a mandrel in a ring's bore or a container wall beside
+    the workpiece, with its own profile and vertical path; friction as [friction]."""
+
+    profile_mm: tuple[tuple[float, float], ...] = key(
+        [],
+        doc="side-die profile as [r_mm, z_mm] points at t = 0, walked with the workpiece on "
+        "the right (a mandrel in the bore: upwards; a wall outside: downwards); [] = none",
+    )
+    path_time_s: tuple[float, ...] = key(
+        [], doc="side-die path table: times (s), starting at 0 ([] = fixed)"
+    )
+    path_travel_mm: tuple[float, ...] = key(
+        [], doc="side-die path table: downward travel at those times (mm), starting at 0"
+    )
+    corner_radius_mm: float = key(
+        0.5,
+        low=0.0,
+        low_open=True,
+        doc="radius of the arcs that round the profile's vertices (mm), as die.corner_radius_mm",
     )
 
 
@@ -751,6 +834,8 @@ class Config:
     remesh: RemeshConfig
     material: MaterialConfig
     die: DieConfig | None = None
+    bottom_die: BottomDieConfig | None = None
+    side_die: SideDieConfig | None = None
     friction: FrictionConfig | None = None
     thermal: ThermalConfig
     time: TimeConfig
@@ -795,6 +880,7 @@ def typed(cfg: dict) -> Config:
 WORKPIECES = ("billet", "ring", "block", "membrane")
 # sections that only some workpieces use
 _DIE_SECTIONS = ("die", "friction")
+_FORGING_SECTIONS = ("bottom_die", "side_die")  # billets and rings only
 _LOAD_SECTIONS = ("load",)
 
 
@@ -815,6 +901,8 @@ def _applies(section: str, kind: str) -> bool:
         return section == kind
     if section in _DIE_SECTIONS:
         return kind != "membrane"
+    if section in _FORGING_SECTIONS:
+        return kind in ("billet", "ring")
     if section in _LOAD_SECTIONS:
         return kind == "membrane"
     return True
@@ -976,20 +1064,8 @@ def _cross_checks(raw: dict, out: dict) -> None:
                 f"< ring.outer_diameter_mm = {r['outer_diameter_mm']!r}"
             )
     d = out["die"]
-    if len(d["path_time_s"]) != len(d["path_travel_mm"]):
-        raise ConfigError("die.path_time_s and die.path_travel_mm must have the same length")
-    if d["path_time_s"]:
-        t, s = d["path_time_s"], d["path_travel_mm"]
-        if len(t) < 2 or t[0] != 0.0 or s[0] != 0.0:
-            raise ConfigError(
-                "die.path_time_s / die.path_travel_mm: at least 2 rows, starting "
-                "at time 0 s with travel 0 mm"
-            )
-        if any(b <= a for a, b in zip(t, t[1:])) or any(b < a for a, b in zip(s, s[1:])):
-            raise ConfigError(
-                "die.path_time_s must increase and die.path_travel_mm must not decrease"
-            )
-    elif d["speed_mm_s"] is None:
+    _check_path("die", d, monotone=True)
+    if not d["path_time_s"] and d["speed_mm_s"] is None:
         f = SCHEMA["die"]["speed_mm_s"]
         raise ConfigError(f"missing required key die.speed_mm_s (float in {f.allowed()}): {f.doc}")
     if d["profile_mm"] and len(d["profile_mm"]) < 2:
@@ -1008,11 +1084,76 @@ def _cross_checks(raw: dict, out: dict) -> None:
         )
     if out["mesh"]["file"] and not Path(out["mesh"]["file"]).is_file():
         raise ConfigError(f"mesh.file = {out['mesh']['file']!r}: no such file")
+    if "billet" in out or "ring" in out:
+        _die_set_checks(raw, out)
     fr = out["friction"]
     if fr["model"] == "coulomb" and "mu" not in raw.get("friction", {}):
         raise ConfigError("friction.model = 'coulomb' needs friction.mu (float in [0, 10])")
     if fr["model"] == "shear" and "m" not in raw.get("friction", {}):
         raise ConfigError("friction.model = 'shear' needs friction.m (float in [0, 1])")
+
+
+def _check_path(section: str, d: dict, monotone: bool) -> None:
+    """A path table ``section.path_time_s`` -> ``section.path_travel_mm``: same lengths,
+    at least 2 rows from (0 s, 0 mm), times increasing (travel not decreasing if
+    ``monotone``); an empty table passes."""
+    t, s = d["path_time_s"], d["path_travel_mm"]
+    if len(t) != len(s):
+        raise ConfigError(
+            f"{section}.path_time_s and {section}.path_travel_mm must have the same length"
+        )
+    if not t:
+        return
+    if len(t) < 2 or t[0] != 0.0 or s[0] != 0.0:
+        raise ConfigError(
+            f"{section}.path_time_s / {section}.path_travel_mm: at least 2 rows, starting "
+            "at time 0 s with travel 0 mm"
+        )
+    if any(b <= a for a, b in zip(t, t[1:])):
+        raise ConfigError(f"{section}.path_time_s must increase")
+    if monotone and any(b < a for a, b in zip(s, s[1:])):
+        raise ConfigError(f"{section}.path_travel_mm must not decrease")
+
+
+def _die_set_checks(raw: dict, out: dict) -> None:
+    """The bottom and side dies of a billet or ring scene."""
+    kind = "billet" if "billet" in out else "ring"
+    full = out[kind]["full_height"]
+    bd, sd, d = out["bottom_die"], out["side_die"], out["die"]
+    if raw.get("bottom_die") and not full:
+        raise ConfigError(
+            f"[bottom_die] needs {kind}.full_height = true (a half-height model stands on "
+            "its mid-plane, z = 0)"
+        )
+    if full:
+        if bd["mirror"] and bd["profile_mm"]:
+            raise ConfigError(
+                "bottom_die.mirror = true takes the top die's profile: "
+                "set bottom_die.profile_mm = []"
+            )
+        if bd["profile_mm"] and len(bd["profile_mm"]) < 2:
+            raise ConfigError("bottom_die.profile_mm: needs at least 2 [r_mm, z_mm] points")
+        _check_path("bottom_die", bd, monotone=True)
+        if bd["path_time_s"] and not d["path_time_s"]:
+            raise ConfigError(
+                "bottom_die.path_time_s needs die.path_time_s (both dies on path tables); "
+                "with die.speed_mm_s use bottom_die.speed_share"
+            )
+        if bd["speed_share"] > 0.0 and d["path_time_s"]:
+            raise ConfigError(
+                f"bottom_die.speed_share = {bd['speed_share']!r} shares die.speed_mm_s: with "
+                "die.path_time_s give the bottom die's own bottom_die.path_time_s instead"
+            )
+        if out["mesh"]["rezone_quality"] > 0.0:
+            raise ConfigError(
+                f"mesh.rezone_quality > 0 needs a half-height model ({kind}.full_height = "
+                "false): use [remesh] for a full-height one"
+            )
+    if sd["profile_mm"] and len(sd["profile_mm"]) < 2:
+        raise ConfigError("side_die.profile_mm: needs at least 2 [r_mm, z_mm] points")
+    _check_path("side_die", sd, monotone=False)
+    if sd["path_time_s"] and not sd["profile_mm"]:
+        raise ConfigError("side_die.path_time_s: needs side_die.profile_mm (no side die is set)")
 
 
 def _membrane_checks(out: dict) -> None:
@@ -1096,13 +1237,30 @@ def _end_time(out: dict) -> tuple[float | None, str]:
     height = out[kind]["depth_mm" if kind == "block" else "height_mm"]
     if not d["path_time_s"]:
         return d["reduction"] * height / d["speed_mm_s"], f"die.reduction x {key} / die.speed_mm_s"
-    target = d["reduction"] * height * (1.0 if kind == "block" else 0.5)  # top-die travel
+    full = kind == "block" or out[kind]["full_height"]
+    target = d["reduction"] * height * (1.0 if full else 0.5)  # the dies' closure
     rows = list(zip(d["path_time_s"], d["path_travel_mm"]))
+    bottom = out.get("bottom_die")
+    if full and bottom is not None and bottom["path_time_s"]:  # the closure on both tables
+        times = sorted(set(d["path_time_s"]) | set(bottom["path_time_s"]))
+        closure = [float(_interp(t, d) + _interp(t, bottom)) for t in times]
+        rows = list(zip(times, closure))
     for (t0, s0), (t1, s1) in zip(rows, rows[1:]):
         if s1 >= target:
             t = t0 + (target - s0) * (t1 - t0) / (s1 - s0) if s1 > s0 else t1
             return t, f"die.path_time_s to die.reduction x {key}"
     return None, ""
+
+
+def _interp(t: float, d: dict) -> float:
+    """A path table's travel at time t (mm; constant past its ends)."""
+    rows = list(zip(d["path_time_s"], d["path_travel_mm"]))
+    if t >= rows[-1][0]:
+        return rows[-1][1]
+    for (t0, s0), (t1, s1) in zip(rows, rows[1:]):
+        if t0 <= t <= t1:
+            return s0 + (t - t0) * (s1 - s0) / (t1 - t0)
+    return rows[0][1]
 
 
 # keys that may be left out even though they have no default (checked in _cross_checks)

@@ -60,7 +60,9 @@ class ContactStep:
 
 @dataclass(frozen=True)
 class ContactLaw:
-    """Strategy: the friction model (static); coefficients live in the die pytree."""
+    """Strategy: the friction model (static); coefficients live in the die pytree (a
+    :class:`jaxform.dies.RigidDie`, or a :class:`jaxform.dies.DieSet` whose nearest die
+    holds the node)."""
 
     friction: str = "none"
 
@@ -73,15 +75,15 @@ class ContactLaw:
     def _parts(self, die, x, lam, t, c, step: ContactStep, k):
         """The quantities both the residual and the status read for candidate k."""
         friction = self.friction
-        g, n, tan = die.gap(x, t)
-        die_move = die.offset(t) - die.offset(step.t_old)
-        slip = jnp.dot(x - step.x_old[k] - die_move, tan)
+        f = die.frame(x, t, step.t_old)  # the nearest die's surface, motion and friction
+        g, n, tan = f.g, f.n, f.tan
+        slip = jnp.dot(x - step.x_old[k] - f.move, tan)
         lam_n, lam_t = lam[0], lam[1]
         trial_n = lam_n - c * g
         active = trial_n > 0.0
         z = lam_t - c * slip
         if friction == "coulomb":
-            bound = die.mu * jnp.maximum(0.0, trial_n)
+            bound = f.mu * jnp.maximum(0.0, trial_n)
         elif friction == "shear":
             bound = step.shear_bound[k]
         elif friction == "sticking":

@@ -40,7 +40,7 @@ friction factor) so they are arguments of the compiled step and can be different
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 
 import jax
 import jax.numpy as jnp
@@ -77,6 +77,145 @@ class RigidDie:
         """(g, engaged) of the workpiece facet xa -> xb against the convex arcs at time t
         (:func:`corner_gap`)."""
         return corner_gap(self.points + self.offset(t)[None, :], self.corner_radius, xa, xb)
+
+    @property
+    def members(self) -> tuple[RigidDie, ...]:
+        """The rigid dies of the scene (this one)."""
+        return (self,)
+
+    def stroke(self, t):
+        """The ram stroke's share made by the dies at time t (mm): the travel."""
+        return self.travel(t)
+
+    def stroke_at(self, t) -> float:
+        return self.travel_at(t)
+
+    def frame(self, x, t, t_old) -> DieFrame:
+        """What contact reads at a node at x and time t (:class:`DieFrame`)."""
+        g, n, tan = self.gap(x, t)
+        move = self.offset(t) - self.offset(t_old)
+        return DieFrame(g=g, n=n, tan=tan, move=move, mu=self.mu, m=self.m,
+                        which=jnp.zeros((), jnp.int32))  # fmt: skip
+
+    def facet_frame(self, xa, xb, t):
+        """(g, engaged, which die) of a facet against the convex arcs (:meth:`facet_gap`)."""
+        g, engaged = self.facet_gap(xa, xb, t)
+        return g, engaged, jnp.zeros((), jnp.int32)
+
+    def replace_each(self, fn) -> RigidDie:
+        """The die with ``fn`` applied (as for every member of a :class:`DieSet`)."""
+        return fn(self)
+
+    def replace_top(self, fn) -> RigidDie:
+        """The die with ``fn`` applied (as for the top die of a :class:`DieSet`)."""
+        return fn(self)
+
+
+@jax.tree_util.register_dataclass
+@dataclass(frozen=True)
+class DieFrame:
+    """The die surface a workpiece node faces: the nearest die's gap g (mm), its normal n
+    and tangent (2,), the die's displacement over the step (2,) (mm: the slip is measured
+    against it), its friction coefficients mu and m, and which die it is (index)."""
+
+    g: jax.Array
+    n: jax.Array
+    tan: jax.Array
+    move: jax.Array
+    mu: jax.Array
+    m: jax.Array
+    which: jax.Array
+
+
+@jax.tree_util.register_dataclass
+@dataclass(frozen=True)
+class DieSet:
+    """Several rigid dies (a top die, a bottom die, a mandrel or side die), each with its
+    own profile, path and friction, behind the one-die interface contact uses.
+
+    A workpiece node faces the die with the least gap (:meth:`frame`): its normal, its
+    tangent, its motion over the step for the slip, and its friction coefficients.  Every
+    node is a candidate against every die, so a node may leave one die and meet another
+    (material flowing from the bottom die into the top die's flash land).  The choice is
+    piecewise constant, so derivatives hold away from the switch (where two dies are
+    equally near, which a node in contact never is: it touches one die with g = 0 and the
+    others lie a finite distance away).
+
+    The first die is the ram (the top die, moving down); the one named ``bottom``, where
+    there is one, the anvil below the workpiece: the stroke is their closure (top travel
+    minus the bottom die's, whose travel is counted downward like every die's: negative
+    when it rises)."""
+
+    dies: tuple[RigidDie, ...]
+    names: tuple[str, ...] = field(metadata=dict(static=True))  # "top", "bottom", "side"
+
+    @property
+    def from_above(self) -> tuple[bool, ...]:
+        """Per die: whether it presses from above (all but the bottom die)."""
+        return tuple(n != "bottom" for n in self.names)
+
+    @property
+    def members(self) -> tuple[RigidDie, ...]:
+        return self.dies
+
+    @property
+    def top(self) -> RigidDie:
+        return self.dies[0]
+
+    def _closure(self, travel):
+        if "bottom" not in self.names:
+            return travel(self.dies[0])
+        return travel(self.dies[0]) - travel(self.dies[self.names.index("bottom")])
+
+    def travel(self, t):
+        """The top die's downward travel (mm)."""
+        return self.dies[0].travel(t)
+
+    def travel_at(self, t) -> float:
+        return self.dies[0].travel_at(t)
+
+    def stroke(self, t):
+        """The ram stroke at time t (mm): the closure of the top and bottom dies."""
+        return self._closure(lambda d: d.travel(t))
+
+    def stroke_at(self, t) -> float:
+        return float(self._closure(lambda d: d.travel_at(t)))
+
+    def _pick(self, values, k):
+        return jnp.stack(values)[k]
+
+    def frame(self, x, t, t_old) -> DieFrame:
+        frames = [d.frame(x, t, t_old) for d in self.dies]
+        k = jnp.argmin(jnp.stack([f.g for f in frames])).astype(jnp.int32)
+        pick = {name: self._pick([getattr(f, name) for f in frames], k)
+                for name in ("g", "n", "tan", "move", "mu", "m")}  # fmt: skip
+        return DieFrame(**pick, which=k)
+
+    def gap(self, x, t):
+        """(g, n, tangent) of the nearest die at time t."""
+        f = self.frame(x, t, t)
+        return f.g, f.n, f.tan
+
+    def facet_frame(self, xa, xb, t):
+        """(g, engaged, which die): the least gap of the facet to any die's convex arcs."""
+        parts = [d.facet_gap(xa, xb, t) for d in self.dies]
+        g = jnp.stack([p[0] for p in parts])
+        engaged = jnp.stack([p[1] for p in parts])
+        k = jnp.argmin(jnp.where(engaged, g, jnp.inf)).astype(jnp.int32)
+        return jnp.where(jnp.any(engaged), g[k], g[0]), jnp.any(engaged), k
+
+    def facet_gap(self, xa, xb, t):
+        g, engaged, _ = self.facet_frame(xa, xb, t)
+        return g, engaged
+
+    def replace_each(self, fn) -> DieSet:
+        """The set with ``fn`` applied to every die (a friction coefficient or a speed
+        given for the scene holds for every die)."""
+        return replace(self, dies=tuple(fn(d) for d in self.dies))
+
+    def replace_top(self, fn) -> DieSet:
+        """The set with ``fn`` applied to the top die (the design group ``die``)."""
+        return replace(self, dies=(fn(self.dies[0]), *self.dies[1:]))
 
 
 def _right_normals(t):
@@ -277,10 +416,11 @@ def catmull_rom(points: np.ndarray, per_span: int = 16) -> np.ndarray:
     return np.vstack(out)
 
 
-def check_profile(points: np.ndarray, key: str) -> np.ndarray:
+def check_profile(points: np.ndarray, key: str, workpiece_below: bool = True) -> np.ndarray:
     """``points`` as a (k, 2) array, or DieError naming ``key`` and what is wrong: fewer
     than 2 points, non-finite or coinciding points, segments that cross (a self-intersecting
-    profile), or a walk with the workpiece side (below a top die) on its left."""
+    profile), or (``workpiece_below``) a walk with the workpiece side (below a top die) on
+    its left."""
     p = np.asarray(points, dtype=float)
     if p.ndim != 2 or p.shape[1] != 2 or p.shape[0] < 2:
         raise DieError(
@@ -299,7 +439,7 @@ def check_profile(points: np.ndarray, key: str) -> np.ndarray:
             f"{key}: segment {i}-{i + 1} crosses segment {j}-{j + 1}: the profile "
             f"must not intersect itself"
         )
-    if side_of(p, below_probe(p)) <= 0.0:
+    if workpiece_below and side_of(p, below_probe(p)) <= 0.0:
         raise DieError(
             f"{key}: the workpiece (below the die) lies on the left of the walk "
             f"from point 0 to point {len(p) - 1}; list the points from the axis "

@@ -164,7 +164,7 @@ def _trajectory(stepper: Stepper, inputs: Inputs, times, state0, idx, n_kept=0):
     factor = 2.0 if symmetric_z else 1.0
     return Trajectory(
         time_s=t_all,
-        stroke_mm=factor * jax.vmap(inputs.die.travel)(t_all),
+        stroke_mm=factor * jax.vmap(inputs.die.stroke)(t_all),
         force_N=jnp.concatenate([f0[None], force]),
         friction_work_Nmm=jnp.concatenate([zero, fw]),
         x=final.x,

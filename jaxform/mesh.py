@@ -224,7 +224,18 @@ def boundary_edges(elements: np.ndarray) -> np.ndarray:
 
 # where two sets meet on an edge's nodes, the edge takes the first that has it: held
 # boundaries before free ones
-_SET_ORDER = ("axis", "symmetry", "base", "clamped", "top", "inner", "outer", "side", "loaded")
+_SET_ORDER = (
+    "axis",
+    "symmetry",
+    "base",
+    "clamped",
+    "top",
+    "bottom",
+    "inner",
+    "outer",
+    "side",
+    "loaded",
+)
 
 
 def boundary_polygon(mesh, pos: np.ndarray):

@@ -113,11 +113,19 @@ def _clip_above(poly: np.ndarray, z0: float = 0.0) -> np.ndarray:
 
 
 def cavity_polygon(scene, t: float) -> np.ndarray:
-    """The part's cavity at time t (die profile, mid-plane, axis; up to
-    ``die.part_radius_mm`` where one is set) as a counter-clockwise polygon."""
+    """The part's cavity at time t (die profile, mid-plane, axis; full height: the top
+    die's profile, the bottom die's and the axis; up to ``die.part_radius_mm`` where one
+    is set) as a counter-clockwise polygon."""
     die = scene.inputs.die
-    pts = sample_rounded(die.points, die.corner_radius) - np.array([0.0, die.travel_at(t)])
-    poly = _clip_above(np.vstack([[0.0, 0.0], pts, [pts[-1, 0], 0.0]]))
+    names = getattr(die, "names", ("top",))
+    top, *_ = surfaces = [
+        sample_rounded(d.points, d.corner_radius) - np.array([0.0, d.travel_at(t)])
+        for d in die.members
+    ]
+    if "bottom" in names:  # walked from the outside to the axis: the loop closes on the axis
+        poly = np.vstack([top, surfaces[names.index("bottom")]])
+    else:
+        poly = _clip_above(np.vstack([[0.0, 0.0], top, [top[-1, 0], 0.0]]))
     r_part = scene.settings.die.part_radius_mm
     if r_part > 0.0 and len(poly):
         poly = -_clip_above(-poly[:, ::-1], -r_part)[:, ::-1]  # keep r <= r_part
@@ -205,11 +213,16 @@ def die_overlap(scene, pos: np.ndarray, t: float) -> float:
     """The die's overlap of the material at time t (mm): contact holds the workpiece
     nodes on the die, so what remains is a convex die corner reaching between two
     contact nodes into a facet.  The rounded profile is sampled at 64 points per arc
-    (the depth is then resolved to ~1e-3 of the arc's sagitta)."""
-    die = scene.inputs.die
-    pts = sample_rounded(die.points, die.corner_radius, per_arc=64)
-    pts = pts - np.array([0.0, die.travel_at(t)])
-    return overlap_depth(pts, pos, boundary_edges(scene.mesh.elements))
+    (the depth is then resolved to ~1e-3 of the arc's sagitta); the deepest of the dies."""
+    edges = boundary_edges(scene.mesh.elements)
+    return max(
+        overlap_depth(
+            sample_rounded(d.points, d.corner_radius, per_arc=64) - np.array([0.0, d.travel_at(t)]),
+            pos,
+            edges,
+        )
+        for d in scene.inputs.die.members
+    )
 
 
 def filled_volume(scene, pos: np.ndarray, t: float) -> float:

@@ -27,6 +27,7 @@ from jaxform.config import Config, DieConfig, RemeshConfig, typed
 from jaxform.contact import ContactLaw
 from jaxform.dies import (
     DieError,
+    DieSet,
     RigidDie,
     catmull_rom,
     check_clearance,
@@ -58,7 +59,7 @@ class Inputs:
 
     coords: jax.Array  # initial nodal coordinates (mm)
     params: object  # material parameters
-    die: RigidDie | None  # profile, path and friction coefficients (None: no die)
+    die: RigidDie | DieSet | None  # profiles, paths, friction coefficients (None: no die)
     c_contact: jax.Array  # complementarity scale (N/mm), set-up constant
     load: FacetLoad | None = None  # traction load on idx.load_facets (None: no load)
     thermal: ThermalInputs | None = None  # temperatures, conductances (None: isothermal)
@@ -103,17 +104,23 @@ class Scene:
         return np.minimum(k * self.dt, self.t_end)
 
 
+def _profile_points(points, kind: str, key: str, workpiece_below: bool = True) -> np.ndarray:
+    """Checked profile points (mm): the polyline, or the sampled Catmull-Rom spline."""
+    try:
+        pts = check_profile(np.asarray(points), key, workpiece_below)
+        if kind != "polyline":  # a spline through the points, sampled
+            pts = check_profile(catmull_rom(pts), f"{key} (sampled spline)", workpiece_below)
+    except DieError as err:
+        raise ConfigError(str(err)) from err
+    return pts
+
+
 def die_profile(d: DieConfig, top_z: float) -> np.ndarray:
     """The die's profile points (mm): the configured polyline or sampled spline, or a flat
     die on the top face (extended both ways)."""
     if not d.profile_mm:
         return np.array([[0.0, top_z], [1.0, top_z]])
-    try:
-        pts = check_profile(np.asarray(d.profile_mm), "die.profile_mm")
-        if d.profile_kind != "polyline":  # a spline through the points, sampled
-            pts = check_profile(catmull_rom(pts), "die.profile_mm (sampled spline)")
-    except DieError as err:
-        raise ConfigError(str(err)) from err
+    pts = _profile_points(d.profile_mm, d.profile_kind, "die.profile_mm")
     if d.closed and abs(pts[0, 0]) > 1e-9:
         raise ConfigError(
             f"die.closed = true: die.profile_mm must start on the axis (r = 0), "
@@ -122,7 +129,26 @@ def die_profile(d: DieConfig, top_z: float) -> np.ndarray:
     return pts
 
 
-def _check_clearance(profile: np.ndarray, mesh: meshing.Mesh, sets) -> None:
+_MIRROR = np.array([1.0, -1.0])
+
+
+def bottom_die_profile(cfg: Config, top_profile: np.ndarray, bottom_z: float) -> np.ndarray:
+    """The bottom die's profile points (mm), walked with the workpiece (above it) on the
+    right, i.e. from the outside towards the axis: the top die's mirrored about z = 0
+    (``bottom_die.mirror``), the configured points (given from the axis outward), or a
+    flat die on the bottom face."""
+    b = cfg.bottom_die
+    if b.mirror:
+        return (top_profile * _MIRROR)[::-1]
+    if not b.profile_mm:
+        return np.array([[1.0, bottom_z], [0.0, bottom_z]])
+    # checked as the mirror image, a top die (the workpiece on its right when walked outward)
+    mirrored = _profile_points(np.asarray(b.profile_mm) * _MIRROR, b.profile_kind,
+                               "bottom_die.profile_mm")  # fmt: skip
+    return (mirrored * _MIRROR)[::-1]
+
+
+def _check_clearance(profile: np.ndarray, mesh: meshing.Mesh, sets, key: str) -> None:
     """ConfigError if the die overlaps the workpiece at t = 0: a point of a candidate or
     axis facet (9 points per facet) lies inside the die."""
     facets = [mesh.facet_sets[s] for s in (*sets, "axis") if s in mesh.facet_sets]
@@ -134,7 +160,7 @@ def _check_clearance(profile: np.ndarray, mesh: meshing.Mesh, sets) -> None:
     pts = (a + s * (b - a)).reshape(-1, 2)
     size = float(np.ptp(mesh.coords, axis=0).max())
     try:
-        check_clearance(profile, pts, "die.profile_mm", 1e-9 * size)
+        check_clearance(profile, pts, key, 1e-9 * size)
     except DieError as err:
         raise ConfigError(str(err)) from None
 
@@ -176,7 +202,8 @@ def _indices(mesh: meshing.Mesh, n_fields: int, contact_sets: tuple[str, ...], c
     n_fields = n_fields + temperature  # the temperature is the last nodal field
     fixed = [sets[s] * n_fields + k for s, comps in FIXED_COMPONENTS.items() if s in sets
              for k in comps]  # fmt: skip
-    reaction = next(sets[s] * n_fields + 1 for s in REACTION_SETS if s in sets)
+    reaction = next((sets[s] * n_fields + 1 for s in REACTION_SETS if s in sets),
+                    np.zeros(0, np.int64))  # fmt: skip
     if contact_sets:
         contact = np.unique(np.concatenate([sets[s] for s in contact_sets])).astype(np.int64)
         facets = np.concatenate([mesh.facet_sets[s] for s in contact_sets if s in mesh.facet_sets])
@@ -235,22 +262,78 @@ def _contact_scale(mesh: meshing.Mesh, shear_modulus: float, axisymmetric: bool)
 
 
 def _die_or_load(cfg: Config, piece: Workpiece, mesh: meshing.Mesh):
-    """(die, load, end time): the moving die of a pressed workpiece, checked clear of it
-    at t = 0, or the traction load of a membrane."""
+    """(die, load, end time): the moving die of a pressed workpiece (a :class:`DieSet` of
+    the top, bottom and side dies where there are several), each checked clear of it at
+    t = 0, or the traction load of a membrane."""
     if not piece.pressed:
         return None, membrane_load(cfg, mesh), cfg.load.ramp_time_s
+    sets = piece.contact_sets(mesh)
     top_z = float(mesh.coords[mesh.node_sets["top"], 1].max())
     profile = die_profile(cfg.die, top_z)
-    _check_clearance(profile, mesh, piece.contact_sets(mesh))
-    speed_factor = 0.5 if piece.half_height else 1.0
-    times, travel, t_end = die_path(cfg.die, cfg.die.reduction * top_z, speed_factor)
+    _check_clearance(profile, mesh, sets, "die.profile_mm")
+    full = cfg.bottom_die is not None and not piece.half_height
+    if full:
+        bottom_z = float(mesh.coords[mesh.node_sets["bottom"], 1].min())
+        paths, t_end = _closing_paths(cfg, cfg.die.reduction * (top_z - bottom_z))
+        bottom = bottom_die_profile(cfg, profile, bottom_z)
+        _check_clearance(bottom, mesh, sets, "bottom_die.profile_mm")
+        profiles, names = [profile, bottom], ["top", "bottom"]
+    else:
+        speed_factor = 0.5 if piece.half_height else 1.0
+        times, travel, t_end = die_path(cfg.die, cfg.die.reduction * top_z, speed_factor)
+        paths, profiles, names = [(times, travel)], [profile], ["top"]
+    side = cfg.side_die
+    if side is not None and side.profile_mm:
+        pts = _profile_points(side.profile_mm, "polyline", "side_die.profile_mm", False)
+        _check_clearance(pts, mesh, sets, "side_die.profile_mm")
+        fixed = (np.array([0.0, t_end]), np.zeros(2))
+        paths.append((np.asarray(side.path_time_s), np.asarray(side.path_travel_mm))
+                     if side.path_time_s else fixed)  # fmt: skip
+        profiles.append(pts)
+        names.append("side")
     dwell = cfg.thermal.dwell_s
     if dwell > 0.0:  # the dies wait while the billet cools in air
-        times, travel, t_end = np.r_[0.0, times + dwell], np.r_[0.0, travel], t_end + dwell
+        paths = [(np.r_[0.0, times + dwell], np.r_[0.0, travel]) for times, travel in paths]
+        t_end = t_end + dwell
     fr = cfg.friction
-    die = make_die(profile, times, travel, mu=fr.mu, m=fr.m,
-                   corner_radius=cfg.die.corner_radius_mm)  # fmt: skip
-    return die, None, t_end
+    radii = {"top": cfg.die.corner_radius_mm}
+    if cfg.bottom_die is not None:
+        radii["bottom"] = cfg.bottom_die.corner_radius_mm
+    if side is not None:
+        radii["side"] = side.corner_radius_mm
+    dies = tuple(
+        make_die(p, times, travel, mu=fr.mu, m=fr.m, corner_radius=radii[name])
+        for p, (times, travel), name in zip(profiles, paths, names)
+    )
+    if len(dies) == 1:
+        return dies[0], None, t_end
+    return DieSet(dies, tuple(names)), None, t_end
+
+
+def _closing_paths(cfg: Config, target_mm: float):
+    """([(times, travel) of the top die, of the bottom die], end time) of a full-height
+    scene whose dies close by ``target_mm``: at die.speed_mm_s shared by
+    bottom_die.speed_share, or along the two path tables (the bottom die's travel is
+    counted downward like every die's, so it is minus its rise)."""
+    d, b = cfg.die, cfg.bottom_die
+    if not d.path_time_s:
+        v = d.speed_mm_s
+        t_end = target_mm / v
+        times = np.array([0.0, t_end])
+        share = b.speed_share
+        return [(times, np.array([0.0, (1.0 - share) * v * t_end])),
+                (times, np.array([0.0, -share * v * t_end]))], t_end  # fmt: skip
+    top = (np.asarray(d.path_time_s), np.asarray(d.path_travel_mm))
+    rise = (np.asarray(b.path_time_s), np.asarray(b.path_travel_mm)) if b.path_time_s else (
+        np.array([0.0, 1.0]), np.zeros(2))  # fmt: skip
+    times = np.union1d(top[0], rise[0])
+    closure = np.interp(times, *top) + np.interp(times, *rise)
+    try:
+        t_end = time_at_travel(times, closure, target_mm, "die.path_travel_mm + "
+                               "bottom_die.path_travel_mm")  # fmt: skip
+    except DieError as err:
+        raise ConfigError(str(err)) from err
+    return [top, (rise[0], -rise[1])], t_end
 
 
 def scene_on_mesh(scene: Scene, mesh: meshing.Mesh) -> Scene:
@@ -308,7 +391,7 @@ def build_scene(cfg: dict | Config) -> Scene:
     corner = (
         die is not None
         and cfg.die.corner_contact
-        and has_convex_corner(die.points, float(die.corner_radius))
+        and any(has_convex_corner(d.points, float(d.corner_radius)) for d in die.members)
     )
     thermal = thermal_inputs(cfg)
     layout, idx = _indices(

@@ -269,6 +269,10 @@ def _history(segments: list[Segment], rows: list[dict], fields: dict) -> dict:
         for seg, end in zip(segments, ends)
     ]
     history.update({k: np.concatenate([p[k] for p in parts]) for k in parts[0]})
+    die = segments[0].scene.inputs.die
+    if "die_forces_N" in rows[0]:  # several dies: the force each carries
+        per_die = np.array([np.asarray(r["die_forces_N"]) for r in rows])
+        history.update({f"force_{name}_N": per_die[:, i] for i, name in enumerate(die.names)})
     if segments[0].scene.model.layout.temperature:
         heat = np.array([np.asarray(r["heat_mJ"]) for r in rows])
         history.update({k: heat[:, i] for i, k in enumerate(HEAT_COLUMNS)})

@@ -107,10 +107,10 @@ def contact_step(model: Model, state: SimState, inp: Inputs, idx: Indices) -> Co
         eq_nodes = nodal_average(eq_el, idx.elements, model.layout.n_nodes)[idx.contact_nodes]
         # friction acts on the facets in contact only: counting a free facet below an edge
         # node (the bore or the bulge) let the edge carry up to twice m k
-        gaps = jax.vmap(lambda p: inp.die.gap(p, state.t)[0])(pos)
-        counted = facets_in_contact(gaps <= TOUCH_GAP_MM, idx.contact_facets)
+        frames = jax.vmap(lambda p: inp.die.frame(p, state.t, state.t))(pos)
+        counted = facets_in_contact(frames.g <= TOUCH_GAP_MM, idx.contact_facets)
         areas = tributary_areas(pos, idx.contact_facets, model.formulation.axisymmetric, counted)
-        bound = shear_bounds(inp.die.m, eq_nodes, areas)
+        bound = shear_bounds(frames.m, eq_nodes, areas)  # m of the die each node faces
     else:
         bound = jnp.zeros(model.layout.n_contact, dtype=pos.dtype)
     return ContactStep(
@@ -416,24 +416,37 @@ def applied_forces(model: Model, inp: Inputs, t, idx: Indices):
     )
 
 
+def die_forces(model: Model, x, inp: Inputs, t, idx: Indices):
+    """The force each die carries (N, positive in compression; (n_dies,)): the z-component
+    of the force the die puts on the workpiece, lambda_n n + lambda_t t summed over the
+    candidates that face it (:meth:`jaxform.dies.DieSet.frame`), negated for a die that
+    presses from above.  Corner contact adds the facets' multipliers along -(their
+    normal) to the die whose arc holds them."""
+    members = inp.die.members
+    above = getattr(inp.die, "from_above", (True,))
+    pos = model.nodal_positions(x, inp.coords, idx)[idx.contact_nodes]
+    frames = jax.vmap(lambda p: inp.die.frame(p, t, t))(pos)
+    lam = x[idx.mult_dofs]
+    fz = lam[:, 0] * frames.n[:, 1] + lam[:, 1] * frames.tan[:, 1]  # the die on the node
+    per_die = jnp.zeros(len(members), x.dtype).at[frames.which].add(fz)
+    if model.layout.n_facets:  # corner contact: the die pushes a facet along -(its normal)
+        ends = model.facet_ends(x, inp.coords, idx)
+        n_f = facet_normal(ends[:, 0], ends[:, 1])
+        _, _, which = jax.vmap(lambda a, b: inp.die.facet_frame(a, b, t))(ends[:, 0], ends[:, 1])
+        per_die = per_die.at[which].add(-x[idx.facet_mult] * n_f[:, 1])
+    sign = jnp.asarray([-1.0 if a else 1.0 for a in above], x.dtype)
+    return sign * per_die
+
+
 def die_force(model: Model, x, inp: Inputs, t, idx: Indices):
-    """Ram force (N, positive in compression): minus the z-component of the force the die
-    puts on the workpiece, lambda_n n + lambda_t t summed over the candidates.  Without a
-    die: the magnitude of the applied load's resultant at t (0 without a load)."""
+    """Ram force (N, positive in compression): the top die's (:func:`die_forces`).
+    Without a die: the magnitude of the applied load's resultant at t (0 without a load)."""
     if inp.die is None:
         if inp.load is None:
             return jnp.zeros((), dtype=x.dtype)
         res = total_force(inp.load, inp.coords, idx.load_facets, model.formulation.axisymmetric)
         return inp.load.factor(t) * jnp.sqrt(jnp.sum(res**2))
-    pos = model.nodal_positions(x, inp.coords, idx)[idx.contact_nodes]
-    _, n, tan = jax.vmap(lambda p: inp.die.gap(p, t))(pos)
-    lam = x[idx.mult_dofs]
-    force = -jnp.sum(lam[:, 0] * n[:, 1] + lam[:, 1] * tan[:, 1])
-    if model.layout.n_facets:  # corner contact: the die pushes a facet along -(its normal)
-        ends = model.facet_ends(x, inp.coords, idx)
-        n_f = facet_normal(ends[:, 0], ends[:, 1])
-        force = force + jnp.sum(x[idx.facet_mult] * n_f[:, 1])
-    return force
+    return die_forces(model, x, inp, t, idx)[0]
 
 
 def step_outputs(model: Model, state: SimState, inp: Inputs, idx: Indices, symmetric_z: bool):
@@ -443,9 +456,14 @@ def step_outputs(model: Model, state: SimState, inp: Inputs, idx: Indices, symme
         stroke_mm=(
             jnp.zeros_like(state.t)
             if inp.die is None
-            else (2.0 if symmetric_z else 1.0) * inp.die.travel(state.t)
+            else (2.0 if symmetric_z else 1.0) * inp.die.stroke(state.t)
         ),
         force_N=die_force(model, state.x, inp, state.t, idx),
+        **(
+            {"die_forces_N": die_forces(model, state.x, inp, state.t, idx)}
+            if inp.die is not None and len(inp.die.members) > 1
+            else {}
+        ),
         friction_work_Nmm=state.friction_work,
         x=state.x,
         stress=state.gauss.mat.stress,

@@ -33,10 +33,11 @@ def causes(bits: int) -> str:
 
 
 def corner_depth_ratio(die, pos, idx: Indices, t):
-    """The largest depth (mm) by which a convex arc of ``die`` at time t reaches into a
-    free-surface facet, over that facet's length (0 where none reaches in)."""
+    """The largest depth (mm) by which a convex arc of ``die`` (of any die of a set) at
+    time t reaches into a free-surface facet, over that facet's length (0 where none
+    reaches in)."""
     f = idx.contact_facets
-    if f.shape[0] == 0 or die.points.shape[0] < 3:  # no facet, or a straight die: no arc
+    if f.shape[0] == 0 or all(d.points.shape[0] < 3 for d in die.members):  # no arc
         return jnp.zeros((), pos.dtype)
     p = pos[idx.contact_nodes]
     xa, xb = p[f[:, 0]], p[f[:, 1]]

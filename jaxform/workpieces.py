@@ -9,13 +9,16 @@ it.  The rest of jaxform asks the workpiece instead of branching on the section'
 
 Billets and rings are half-height models with the symmetry plane z = 0 (u_z = 0) and the
 top die pressing down on it: the die travels half the ram stroke at half the ram speed.
+With ``full_height`` they span z in [-H/2, H/2] between a top and a bottom die (sets
+``bottom`` instead of ``symmetry``; the stroke is the dies' closure).
 
 * :class:`Billet`: solid cylinder (axisymmetric) or block (plane strain), section
   [0, D/2] x [0, H/2]; the axis r = 0 has u_r = 0; contact candidates: top + side.
 * :class:`Ring`: section [D_i/2, D_o/2] x [0, H/2]; candidates: top + outer + inner (both
   sides can fold onto the die); the history records the inner and outer diameters.
 * :class:`MeshFile`: a gmsh/meshio section whose physical groups name the sets:
-  ``symmetry`` and ``top`` required, ``axis``, ``side``, ``inner``, ``outer`` optional.
+  ``symmetry`` (full height: ``bottom``) and ``top`` required, ``axis``, ``side``,
+  ``inner``, ``outer`` optional.
 * :class:`Block`: plane-strain block [0, W] x [0, D] indented from the top (Prandtl's
   punch): symmetric about x = 0 (``axis``, u_x = 0) on a frictionless base (``base``,
   y = 0, u_y = 0); candidates: the top face; graded mesh (equal elements under the die).
@@ -38,7 +41,7 @@ from jaxform.config import GRADIENT_GROUPS, Config, MeshConfig
 from jaxform.errors import ConfigError
 
 # the sets a die may touch, by name (a workpiece uses those its mesh has)
-FREE_SETS = ("top", "side", "outer", "inner")
+FREE_SETS = ("top", "side", "outer", "inner", "bottom")
 # the design groups of scenes pressed by a die (preform: billets on their generated mesh)
 DIE_GROUPS = GRADIENT_GROUPS
 
@@ -81,23 +84,49 @@ class Workpiece(ABC):
 
 class _Generated(Workpiece):
     """A billet or ring on its generated structured mesh: the reduction refers to its
-    height, and rezoning may relocate the nodes of its (nr, nz) grid."""
+    height, and rezoning may relocate the nodes of its (nr, nz) grid.  Full height: the
+    section spans z in [-H/2, H/2] with a ``bottom`` set (a bottom die's candidates) in
+    place of the mid-plane ``symmetry``."""
 
     height_mm: float
     mesh: MeshConfig
+    full_height: bool
+
+    @property
+    def half_height(self) -> bool:
+        return not self.full_height
 
     @property
     def reference_height_mm(self) -> float:
         return self.height_mm
 
     @property
-    def grid(self) -> tuple[int, int]:
-        return (self.mesh.nr, self.mesh.nz)
+    def grid(self) -> tuple[int, int] | None:
+        return None if self.full_height else (self.mesh.nr, self.mesh.nz)
+
+    def _rectangle(self, r0: float, r1: float, names: dict[str, str]) -> meshing.Mesh:
+        """The structured section [r0, r1] x [0, H/2] (full height: [-H/2, H/2]) with the
+        rectangle's sets renamed by ``names`` (left/right/bottom/top)."""
+        h, m = self.height_mm, self.mesh
+        z0 = -0.5 * h if self.full_height else 0.0
+        rect = meshing.rectangle(r1 - r0, -z0 + 0.5 * h, m.nr, m.nz, origin=(r0, z0))
+        names = dict(names, bottom="bottom" if self.full_height else "symmetry")
+        return meshing.Mesh(
+            rect.coords,
+            rect.elements,
+            {names[k]: v for k, v in rect.node_sets.items()},
+            {names[k]: v for k, v in rect.facet_sets.items()},
+        )
 
 
 def _mid_height_node(mesh: meshing.Mesh, name: str) -> int:
-    """The node of set ``name`` on the symmetry plane (the workpiece's mid-height)."""
-    return int(np.intersect1d(mesh.node_sets[name], mesh.node_sets["symmetry"])[0])
+    """The node of set ``name`` on the symmetry plane, or (full height) the one nearest
+    the set's mid-height (the workpiece's mid-height)."""
+    nodes = mesh.node_sets[name]
+    if "symmetry" in mesh.node_sets:
+        return int(np.intersect1d(nodes, mesh.node_sets["symmetry"])[0])
+    z = mesh.coords[nodes, 1]
+    return int(nodes[np.argmin(np.abs(z - 0.5 * (z.min() + z.max())))])
 
 
 @dataclass(frozen=True)
@@ -105,9 +134,13 @@ class Billet(_Generated):
     diameter_mm: float
     height_mm: float
     mesh: MeshConfig
+    full_height: bool = False
     name: ClassVar[str] = "billet"
 
     def build_mesh(self) -> meshing.Mesh:
+        if self.full_height:
+            return self._rectangle(0.0, 0.5 * self.diameter_mm, dict(left="axis", right="side",
+                                                                     top="top"))  # fmt: skip
         return meshing.billet_quarter(
             0.5 * self.diameter_mm, 0.5 * self.height_mm, self.mesh.nr, self.mesh.nz
         )
@@ -122,19 +155,12 @@ class Ring(_Generated):
     inner_diameter_mm: float
     height_mm: float
     mesh: MeshConfig
+    full_height: bool = False
     name: ClassVar[str] = "ring"
 
     def build_mesh(self) -> meshing.Mesh:
         ri, ro = 0.5 * self.inner_diameter_mm, 0.5 * self.outer_diameter_mm
-        m = self.mesh
-        rect = meshing.rectangle(ro - ri, 0.5 * self.height_mm, m.nr, m.nz, origin=(ri, 0.0))
-        rename = {"left": "inner", "right": "outer", "bottom": "symmetry", "top": "top"}
-        return meshing.Mesh(
-            rect.coords,
-            rect.elements,
-            {rename[k]: v for k, v in rect.node_sets.items()},
-            {rename[k]: v for k, v in rect.facet_sets.items()},
-        )
+        return self._rectangle(ri, ro, dict(left="inner", right="outer", top="top"))
 
     def extra_history(self, mesh: meshing.Mesh, positions, displacements) -> dict:
         if not {"inner", "outer"} <= set(mesh.node_sets):
@@ -159,13 +185,17 @@ class MeshFile(Workpiece):
             mesh = meshing.read_mesh(self.path)
         except (OSError, meshing.MeshError) as err:
             raise ConfigError(f"mesh.file = {self.path!r}: {err}") from err
-        for name in ("symmetry", "top"):
+        for name in ("bottom" if self.base.full_height else "symmetry", "top"):
             if name not in mesh.node_sets:
                 raise ConfigError(
                     f"mesh.file = {self.path!r}: needs a physical group {name!r} "
                     f"(line cells); found {sorted(mesh.node_sets)}"
                 )
         return mesh
+
+    @property
+    def half_height(self) -> bool:
+        return self.base.half_height
 
     @property
     def reference_height_mm(self) -> float:
@@ -263,7 +293,8 @@ def workpiece_of(cfg: Config) -> Workpiece:
         return Block(b.width_mm, b.depth_mm, b.fine_width_mm, b.fine_depth_mm, b.growth, m)
     if cfg.ring is not None:
         r = cfg.ring
-        base = Ring(r.outer_diameter_mm, r.inner_diameter_mm, r.height_mm, m)
+        base = Ring(r.outer_diameter_mm, r.inner_diameter_mm, r.height_mm, m, r.full_height)
     else:
-        base = Billet(cfg.billet.diameter_mm, cfg.billet.height_mm, m)
+        b = cfg.billet
+        base = Billet(b.diameter_mm, b.height_mm, m, b.full_height)
     return MeshFile(m.file, base) if m.file else base

@@ -86,7 +86,8 @@ class Friction:
         return jnp.zeros(1), jnp.full(1, self.high)
 
     def apply(self, u, inputs, times):
-        return replace(inputs, die=replace(inputs.die, **{self.key: u[0]})), times
+        die = inputs.die.replace_each(lambda d: replace(d, **{self.key: u[0]}))  # every die
+        return replace(inputs, die=die), times
 
     def physical(self, u):
         return {f"friction_{self.key}": float(u[0])}
@@ -106,7 +107,7 @@ class RamSpeed:
 
     def apply(self, u, inputs, times):
         slow = jnp.exp(-u[0])  # time scale factor v0 / v
-        die = replace(inputs.die, path_time_s=inputs.die.path_time_s * slow)
+        die = inputs.die.replace_each(lambda d: replace(d, path_time_s=d.path_time_s * slow))
         return replace(inputs, die=die), times * slow
 
     def physical(self, u):
@@ -255,8 +256,10 @@ class DieProfile:
         return -b, b
 
     def apply(self, u, inputs, times):
-        pts = inputs.die.points.at[jnp.asarray(self.points), 1].add(u)
-        return replace(inputs, die=replace(inputs.die, points=pts)), times
+        def move(d):
+            return replace(d, points=d.points.at[jnp.asarray(self.points), 1].add(u))
+
+        return replace(inputs, die=inputs.die.replace_top(move)), times
 
     def physical(self, u):
         return {f"die_dz{i}_mm": float(u[k]) for k, i in enumerate(self.points)}
