@@ -66,7 +66,7 @@ class Indices:
     # (n_f, 2) free-surface facets a -> b as the boundary walks them (material on the
     # left), as indices into contact_nodes
     contact_facets: jax.Array
-    contact_fixed_r: jax.Array  # (n_c,) bool: the candidate's u_r is a Dirichlet dof
+    contact_fixed: jax.Array  # (n_c, 2) bool: the candidate's u_r, u_z are Dirichlet dofs
     facet_dofs: jax.Array  # (n_fc, 4) u dofs of the corner-contact facets' nodes a, b
     facet_mult: jax.Array  # (n_fc,) their multipliers' dofs
     rows: jax.Array  # (n_nz,) unique pattern
@@ -205,7 +205,7 @@ def build_indices(
         contact_dofs=jnp.asarray(cdofs, dtype=jnp.int32),
         mult_dofs=jnp.asarray(mdofs, dtype=jnp.int32),
         contact_facets=jnp.asarray(_local_facets(contact_nodes, walked), jnp.int32),
-        contact_fixed_r=jnp.asarray(np.isin(cdofs[:, 0], np.asarray(fixed_dofs))),
+        contact_fixed=jnp.asarray(np.isin(cdofs[:, :2], np.asarray(fixed_dofs))),
         facet_dofs=jnp.asarray(fdofs, dtype=jnp.int32),
         facet_mult=jnp.asarray(fmult, dtype=jnp.int32),
         rows=jnp.asarray(uniq // n, dtype=jnp.int32),

@@ -163,7 +163,8 @@ class Padded:
 def _ghost_square(coords: np.ndarray, die=None, t_end: float = 0.0) -> np.ndarray:
     """A unit square far from the section (r > 0: a valid axisymmetric element),
     counter-clockwise, where ``die`` (if any) leaves it open all the run: far below the
-    section under its middle (under a top die), else far beside it, else far above."""
+    section under its middle (under a top die), else far beside it, else far above, else
+    beside it at a height where the top and bottom dies leave a gap."""
     lo, hi = coords.min(axis=0), coords.max(axis=0)
     size = float(np.max(hi - lo))
     far = 10.0 * size + 2.0
@@ -173,6 +174,8 @@ def _ghost_square(coords: np.ndarray, die=None, t_end: float = 0.0) -> np.ndarra
         np.array([hi[0] + far, lo[1] - far]),
         np.array([hi[0] + far, 0.5 * (lo[1] + hi[1])]),
         np.array([0.5 * (lo[0] + hi[0]) + 0.5, hi[1] + far]),
+        # between a top and a bottom die: beside the section at any height
+        *(np.array([hi[0] + far, z]) for z in np.linspace(lo[1], hi[1], 41)),
     ]
     if die is None:
         return corners[0] + unit

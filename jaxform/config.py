@@ -1120,10 +1120,12 @@ def _die_set_checks(raw: dict, out: dict) -> None:
     kind = "billet" if "billet" in out else "ring"
     full = out[kind]["full_height"]
     bd, sd, d = out["bottom_die"], out["side_die"], out["die"]
-    if raw.get("bottom_die") and not full:
+    given = {k for k, v in raw.get("bottom_die", {}).items()
+             if v != SCHEMA["bottom_die"][k].default}  # fmt: skip
+    if given and not full:
         raise ConfigError(
-            f"[bottom_die] needs {kind}.full_height = true (a half-height model stands on "
-            "its mid-plane, z = 0)"
+            f"bottom_die.{sorted(given)[0]}: a bottom die needs {kind}.full_height = true "
+            "(a half-height model stands on its mid-plane, z = 0)"
         )
     if full:
         if bd["mirror"] and bd["profile_mm"]:

@@ -25,8 +25,9 @@ with the friction bound b of the law (the radial return of thesis Sec. 5.4 in fo
     ``sticking``  b = infinity (an active node never slips).
 
 Candidates whose tangential motion a Dirichlet condition fixes (nodes on the axis of an
-axisymmetric section, where the die tangent is radial) get C_t = lambda_t: the
-condition holds there already and a friction equation would make the system singular.
+axisymmetric section, where the die tangent is radial; nodes on the mid-plane against a
+die surface that runs more up than across, a mandrel or a side die) get C_t = lambda_t:
+the condition holds there already and a friction equation would make the system singular.
 
 Status of a converged node: 0 open, 1 stick, 2 slip (:func:`pair_status`).
 
@@ -55,7 +56,7 @@ class ContactStep:
     x_old: jax.Array  # (n_c, 2) positions of the candidate nodes at t_n (mm)
     t_old: jax.Array  # t_n (s)
     shear_bound: jax.Array  # (n_c,) m sigma_eq/sqrt(3) A at t_n (N); 0 unless 'shear'
-    frictionless: jax.Array  # (n_c,) bool: tangential motion prescribed (e.g. on the axis)
+    fixed: jax.Array  # (n_c, 2) bool: the candidate's u_r, u_z are prescribed (Dirichlet)
 
 
 @dataclass(frozen=True)
@@ -92,6 +93,10 @@ class ContactLaw:
             bound = 0.0
         az = jnp.abs(z)
         stick = az <= bound
+        # the tangential motion is prescribed: u_r held (a node on the axis), or u_z held
+        # (on the mid-plane) against a die surface that runs more up than across (a mandrel)
+        fixed = step.fixed[k]
+        frictionless = fixed[0] | (fixed[1] & (jnp.abs(tan[1]) > jnp.abs(tan[0])))
         return dict(
             g=g,
             n=n,
@@ -105,6 +110,7 @@ class ContactLaw:
             az=az,
             bound=bound,
             stick=stick,
+            frictionless=frictionless,
         )
 
     def pair_terms(self, die, x, lam, t, c, step: ContactStep, k):
@@ -123,7 +129,7 @@ class ContactLaw:
             slip_eq = p["lam_t"] - p["bound"] * p["z"] / safe
             c_t = jnp.where(p["active"], jnp.where(p["stick"], c * p["slip"], slip_eq), p["lam_t"])
         # where a Dirichlet condition fixes the tangential motion, friction has nothing to act on
-        c_t = jnp.where(step.frictionless[k], p["lam_t"], c_t)
+        c_t = jnp.where(p["frictionless"], p["lam_t"], c_t)
         return r_u, jnp.stack([c_n, c_t])
 
     def pair_status(self, die, x, lam, t, c, step: ContactStep, k):
@@ -133,7 +139,7 @@ class ContactLaw:
         if self.friction == "none":
             sticks = jnp.asarray(False)
         else:
-            sticks = p["stick"] | step.frictionless[k]  # a fixed node cannot slip
+            sticks = p["stick"] | p["frictionless"]  # a fixed node cannot slip
         status = jnp.where(in_contact, jnp.where(sticks, STICK, SLIP), OPEN)
         return status, p["n"], p["tan"], p["slip"]
 

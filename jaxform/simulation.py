@@ -399,7 +399,11 @@ def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Re
             jax.block_until_ready(stepped.linear.release(owned[0]))
     fields = _fields(rows, len(segments) == 1)
     history = _history(segments, rows, fields)
-    hists = np.array([r["hist"] for r in rows[1:]])
+    # a remeshed scene may switch Newton method with its size ('auto'), and with it the
+    # length of the residual history: shorter ones are padded with inf
+    width = max((len(r["hist"]) for r in rows[1:]), default=0)
+    hists = np.array([np.pad(np.asarray(r["hist"], float), (0, width - len(r["hist"])),
+                             constant_values=np.inf) for r in rows[1:]])  # fmt: skip
     result = Result(history=history, fields=fields, scene=scene, final_state=state,
                     newton_histories=hists, failure=failure, inputs=inp,
                     rezones=rezones, segments=segments, remeshes=remeshes,

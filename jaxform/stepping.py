@@ -113,9 +113,7 @@ def contact_step(model: Model, state: SimState, inp: Inputs, idx: Indices) -> Co
         bound = shear_bounds(frames.m, eq_nodes, areas)  # m of the die each node faces
     else:
         bound = jnp.zeros(model.layout.n_contact, dtype=pos.dtype)
-    return ContactStep(
-        x_old=pos, t_old=state.t, shear_bound=bound, frictionless=idx.contact_fixed_r
-    )
+    return ContactStep(x_old=pos, t_old=state.t, shear_bound=bound, fixed=idx.contact_fixed)
 
 
 def element_heat_data(model: Model, state: SimState, inp: Inputs, idx: Indices, t_new):
