@@ -107,6 +107,7 @@ def write_outputs(out_dir: str | Path, result: Result) -> None:
             h["force_N"],
             out / "force_stroke.png",
             f"{mesh_text}, friction {cfg.friction.model}",
+            per_die={k[6:-2]: v for k, v in h.items() if k.startswith("force_") and k != "force_N"},
         )
         plot.deformed_mesh(
             coords0,

@@ -50,9 +50,13 @@ def _finish_curve(fig, ax, path, title, xlabel, ylabel):
     return _save(fig, path)
 
 
-def force_stroke(stroke_mm, force_n, path: Path, title: str, reference=None):
+def force_stroke(stroke_mm, force_n, path: Path, title: str, reference=None, per_die=None):
+    """The ram force against the stroke; ``per_die``: {die name: force (N)} of a scene
+    with several dies, drawn beside it."""
     fig, ax = _figure(figsize=(6, 4.2))
     ax.plot(stroke_mm, force_n, "o-", ms=3, label="jaxform")
+    for name, force in (per_die or {}).items():
+        ax.plot(stroke_mm, force, "--", lw=1.2, label=f"{name} die")
     if reference is not None:
         ax.plot(reference[0], reference[1], "k--", lw=1, label=reference[2])
     return _finish_curve(fig, ax, path, title, "stroke [mm]", "ram force [N]")

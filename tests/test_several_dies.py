@@ -115,6 +115,23 @@ def test_bottom_die_path_tables_set_the_end():
     assert float(sc.inputs.die.dies[1].travel(sc.t_end)) == pytest.approx(-0.5, rel=1e-12)
 
 
+def test_side_die_follows_its_path_table():
+    """A side die on a path table: its travel at t is the table's (0.5 mm at 1 s of
+    [0, 2] s -> [0, 1] mm), the other dies' are unchanged, the stroke the top die's."""
+    sc = build_scene(load_config(BILLET, (
+        "side_die.profile_mm=[[6.0, 6.0], [6.0, 0.0]]",
+        "side_die.path_time_s=[0.0, 2.0]",
+        "side_die.path_travel_mm=[0.0, 1.0]",
+    )))  # fmt: skip
+    die = sc.inputs.die
+    assert die.names == ("top", "side")
+    assert float(die.dies[1].travel(1.0)) == pytest.approx(0.5, rel=1e-12)
+    assert float(die.stroke(1.0)) == pytest.approx(0.5, rel=1e-12)  # the top die at 0.5 mm/s
+    g, n, _ = die.gap(jnp.asarray([5.0, 1.0]), 1.0)  # the billet's side, 1 mm from the wall
+    assert float(g) == pytest.approx(1.0, rel=1e-12)
+    np.testing.assert_allclose(np.asarray(n), [-1.0, 0.0], atol=1e-15)
+
+
 RING = {
     "ring": {"outer_diameter_mm": 30.0, "inner_diameter_mm": 15.0, "height_mm": 10.0},
     "mesh": {"nr": 4, "nz": 2, "element": "q1p0"},
