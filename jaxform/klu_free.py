@@ -149,6 +149,12 @@ def _registered():
     return fn
 
 
+def register_ffi_targets() -> None:
+    """Register jaxform's FFI targets with XLA (once per process): a program loaded
+    without being traced (:mod:`jaxform.program_store`) calls them too."""
+    _registered()
+
+
 def free_numeric(handle, valid):
     """Free the klujax numeric factorizations ``handle`` (uint64, (..., 1)) where ``valid``
     (bool, (...)) holds; an int32 zero of ``valid``'s shape, to order later work after it."""

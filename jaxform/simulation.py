@@ -25,6 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.errors import JaxRuntimeError
 
+from jaxform import program_store
 from jaxform.capacity import padded
 from jaxform.postprocess import HEAT_COLUMNS, extra_history, laps
 from jaxform.precision import require_x64
@@ -179,6 +180,21 @@ def _singular(err: Exception) -> bool:
     return "singular" in str(err)
 
 
+def _run_chunk(stepper: Stepper, state, control, inp: Inputs, idx, n: int, fac):
+    """:func:`run_chunk`, through the stored program of its stepper and chunk length where
+    there is one (:mod:`jaxform.program_store`: a warm start without tracing)."""
+    return program_store.call(
+        "run_chunk",
+        f"{stepper!r}|n={n}",
+        lambda s, c, i, x, f: run_chunk(stepper, s, c, i, x, n, f),
+        state,
+        control,
+        inp,
+        idx,
+        fac,
+    )
+
+
 def _chunk(scene: Scene, stepper: Stepper, state: SimState, control, inp: Inputs, fac):
     """:func:`run_chunk` over ``scene.chunk`` steps.  A linear solver that finds the
     Jacobian singular raises (klujax does, instead of returning a status); then the steps
@@ -186,7 +202,7 @@ def _chunk(scene: Scene, stepper: Stepper, state: SimState, control, inp: Inputs
     failed one, down to the smallest step, where the outputs carry the code SINGULAR."""
     try:  # blocking: an error of the asynchronous run surfaces here, not at the caller
         return jax.block_until_ready(
-            run_chunk(stepper, state, control, inp, scene.idx, scene.chunk, fac)
+            _run_chunk(stepper, state, control, inp, scene.idx, scene.chunk, fac)
         )
     except JaxRuntimeError as err:
         if not _singular(err):
@@ -200,7 +216,7 @@ def _chunk(scene: Scene, stepper: Stepper, state: SimState, control, inp: Inputs
         fac = scene.linear.empty_factorization(n, state.x.dtype) if modified else None
         try:
             st, ctl, outs, fac = jax.block_until_ready(
-                run_chunk(
+                _run_chunk(
                     stepper, state, replace(control, h=jnp.asarray(h)), inp, scene.idx, 1, fac
                 )
             )

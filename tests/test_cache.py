@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pytest
 
+from jaxform import program_store
 from jaxform.cache import ENV_VAR, default_cache_root, resolve_cache_dir, version_tag
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -88,8 +89,13 @@ def _probe(argv, env):
     return json.loads(line[len("PROBE ") :])
 
 
-def _files(path: Path) -> set:
-    return {p.name for p in path.rglob("*") if p.is_file()} if path.exists() else set()
+def _files(path: Path, stored: bool = False) -> set:
+    """The compilation cache's files under ``path`` (``stored``: the stored programs',
+    jaxform.program_store, in its ``exported`` folders, instead)."""
+    if not path.exists():
+        return set()
+    return {p.name for p in path.rglob("*")
+            if p.is_file() and (p.parent.name == program_store.SUBDIR) == stored}  # fmt: skip
 
 
 def test_second_process_loads_every_program_from_the_cache(tmp_path):
@@ -110,11 +116,13 @@ def test_second_process_loads_every_program_from_the_cache(tmp_path):
     # compiled again in the same process is a hit
     assert cold["written"] > 0 and cold["requests"] == cold["hits"] + cold["written"]
     assert len(written) == cold["written"] and all(f.endswith("-cache") for f in written)
+    stored = _files(cache, stored=True)  # the chunk's traced program (.bin) and output tree
+    assert sorted(f.rsplit(".", 1)[1] for f in stored) == ["bin", "tree"]
 
     warm = _probe(argv, env)
     assert warm["code"] == 0
     assert (warm["requests"], warm["hits"], warm["written"]) == (cold["requests"],) * 2 + (0,)
-    assert _files(cache) == written
+    assert _files(cache) == written and _files(cache, stored=True) == stored
 
     env_off = dict(env, **{ENV_VAR: "off"})
     moved = _probe(argv + ["--set", f"solver.compilation_cache_dir={cache}"], env_off)

@@ -14,7 +14,7 @@ Both functions are compiled once per problem; a step that fails raises
 from __future__ import annotations
 
 import csv
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property, partial
 from pathlib import Path
 
@@ -22,6 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxform import program_store
 from jaxform.design import objectives as obj
 from jaxform.design import parametrize as par
 from jaxform.errors import ConfigError
@@ -56,23 +57,33 @@ class DesignProblem:
         traj = trajectory(self.scene, inputs, times, reuse_factorizations, idx=idx, plan=self.plan)
         return self.objective(traj, inputs), traj
 
-    def _compiled(self, fn):
+    def _compiled(self, fn, name: str):
         """One program for the whole run, except through remeshes: there each mesh's steps
         run the program of its capacity bucket (shared by the meshes of one bucket), which
-        one program around them all would compile again for every mesh."""
+        one program around them all would compile again for every mesh.  The program is
+        stored (:mod:`jaxform.program_store`) under the problem's content (the scene but
+        its index arrays, which come in as an argument): a warm start skips its tracing."""
         remeshed = self.plan is not None and len(self.plan.segments) > 1
-        return fn if remeshed else jit(fn)
+        if remeshed:
+            return fn
+        compiled = jit(fn)
+        static = program_store.fingerprint(replace(self, scene=replace(self.scene, idx=None)))
+
+        def run(design, idx):
+            return program_store.call(name, static, compiled, design, idx)
+
+        return run
 
     @cached_property
     def _value(self):
-        return self._compiled(self._j)
+        return self._compiled(self._j, "design_value")
 
     @cached_property
     def _value_and_grad(self):
         # the reverse pass reuses the forward factorizations that fit the scene's
         # adjoint_memory_mb; they are freed by _released once the program has run
         grad = jax.value_and_grad(partial(self._j, reuse_factorizations=True), has_aux=True)
-        return self._compiled(grad)
+        return self._compiled(grad, "design_value_and_grad")
 
     def _released(self, traj):
         return release(self.scene, jax.block_until_ready(traj))
@@ -255,6 +266,11 @@ def _base_objective(scene: Scene):
     if name == "die_fill":
         if not scene.settings.die.closed:
             raise ConfigError("design.objective = 'die_fill' needs die.closed = true")
+        if len(scene.inputs.die.members) > 1:
+            raise ConfigError(
+                "design.objective = 'die_fill' reads the top die's cavity over the mid-plane: "
+                "it needs a half-height scene with one die (no [bottom_die] or [side_die])"
+            )
         return obj.UnfilledCavity(np.asarray(scene.mesh.elements), axi)
     if not d.target_csv:
         raise ConfigError(f"design.objective = {name!r} needs design.target_csv")

@@ -1,0 +1,247 @@
+"""Warm start without tracing: compiled programs kept as exported StableHLO on disk.
+
+JAX's persistent compilation cache (:mod:`jaxform.cache`) saves the XLA compile, but a
+second run still traces and lowers every program to compute the cache key: for the seed
+scene's step chunk that is ~4 s of a ~6 s warm first call.  :func:`call` keeps the
+traced and lowered program itself (``jax.export``, serialized StableHLO) in the cache
+directory, under a key of everything that shapes it:
+
+* the program's name and its static arguments, as their ``repr`` (frozen dataclasses of
+  settings: the :class:`jaxform.stepping.Stepper`, the chunk length), or for a program
+  that closes over a whole problem (a design problem's gradient) the problem's content
+  (:func:`fingerprint`: every field, arrays by their bytes);
+* the tree structure, shapes and dtypes of its traced arguments;
+* the source of every jaxform module (a changed line is a new key), the jax, jaxlib and
+  klujax versions, the backend and the x64 flag.
+
+A stored program is loaded and called through a small wrapper program (traced in
+milliseconds; its XLA compile comes from the persistent cache), so a warm first call
+skips the tracing and lowering.  What a program reads must come in through its
+arguments or be described by ``static``: a closed-over array that the description left
+out would be baked in unseen by the key.
+
+Static settings whose ``repr`` shows an object address (no stable description), a
+program that cannot be exported, no cache directory (``jaxform.cache`` off) or
+``JAXFORM_PROGRAM_STORE=off`` in the environment: the function is called as it is,
+traced as always.  The files are trusted code, like the
+compilation cache (the output tree structure is a pickle).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import hashlib
+import os
+import pickle
+import re
+import tempfile
+from functools import cache
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import export
+
+from jaxform.cache import OFF, version_tag
+from jaxform.klu_free import register_ffi_targets
+from jaxform.xla_options import jit
+
+SUBDIR = "exported"
+ENV_VAR = "JAXFORM_PROGRAM_STORE"  # off / 0 / none / false / no: trace every run
+_loaded: dict[str, tuple] = {}  # key -> (compiled wrapper, output tree) in this process
+_refused: set[str] = set()  # keys whose program could not be exported
+
+
+@cache
+def code_fingerprint() -> str:
+    """sha256 of the source of every jaxform module (the package's .py files)."""
+    h = hashlib.sha256()
+    root = Path(__file__).resolve().parent
+    for path in sorted(root.rglob("*.py")):
+        h.update(str(path.relative_to(root)).encode())
+        h.update(path.read_bytes())
+    return h.hexdigest()
+
+
+def store_dir() -> Path | None:
+    """Where the exported programs go: ``exported/`` beside JAX's compilation cache (None
+    when the cache is off, or the environment sets ``JAXFORM_PROGRAM_STORE=off``)."""
+    if os.environ.get(ENV_VAR, "on").strip().lower() in OFF:
+        return None
+    base = jax.config.jax_compilation_cache_dir
+    return Path(base) / SUBDIR if base else None
+
+
+class Unstable(TypeError):
+    """An object with no stable description (:func:`fingerprint`)."""
+
+
+def fingerprint(obj) -> str | None:
+    """A description of ``obj`` by content, stable across processes: dataclasses by their
+    class and fields, containers by their items, arrays by their shape, dtype and bytes
+    (sha256), numbers, strings, None and Enum members by value; None for anything else (a
+    function, an object whose state is not in its fields), which then is not stored."""
+    h = hashlib.sha256()
+    try:
+        _feed(h, obj)
+    except Unstable:
+        return None
+    return h.hexdigest()
+
+
+def _feed(h, obj) -> None:
+    if obj is None or isinstance(obj, (bool, int, float, complex, str, bytes)):
+        h.update(f"{type(obj).__name__}:{obj!r};".encode())
+    elif isinstance(obj, enum.Enum):
+        h.update(f"{type(obj).__qualname__}.{obj.name};".encode())
+    elif isinstance(obj, (np.ndarray, np.generic, jax.Array)):
+        a = np.asarray(obj)
+        h.update(f"array{a.shape}{a.dtype}:".encode())
+        h.update(hashlib.sha256(np.ascontiguousarray(a).tobytes()).digest())
+    elif dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        h.update(f"{type(obj).__module__}.{type(obj).__qualname__}(".encode())
+        for f in dataclasses.fields(obj):
+            h.update(f"{f.name}=".encode())
+            _feed(h, getattr(obj, f.name))
+        h.update(b")")
+    elif isinstance(obj, (tuple, list)):
+        h.update(f"{type(obj).__name__}[".encode())
+        for item in obj:
+            _feed(h, item)
+        h.update(b"]")
+    elif isinstance(obj, dict):
+        h.update(b"{")
+        for k in sorted(obj, key=repr):
+            _feed(h, k)
+            _feed(h, obj[k])
+        h.update(b"}")
+    else:
+        raise Unstable(type(obj).__qualname__)
+
+
+def program_key(name: str, static: str | None, args) -> str | None:
+    """The key of program ``name`` with static settings ``static`` (a repr or a
+    :func:`fingerprint`) on ``args`` (pytrees of arrays); None where the settings have no
+    stable description."""
+    if static is None or re.search(r" at 0x[0-9a-fA-F]+", static):
+        return None
+    leaves, tree = jax.tree_util.tree_flatten(args)
+    h = hashlib.sha256()
+    parts = (name, static, repr(tree), version_tag(), code_fingerprint(),
+             jax.default_backend(), str(jax.config.jax_enable_x64))  # fmt: skip
+    for part in parts:
+        h.update(part.encode())
+        h.update(b"\0")
+    for leaf in leaves:
+        h.update(f"{jnp.shape(leaf)}{jnp.result_type(leaf)};".encode())
+    return h.hexdigest()
+
+
+# custom-call targets with no cross-version guarantee that jaxform's programs call (klujax's
+# and jaxform's own FFI calls): the key holds the versions that make them, so they are safe
+# to store.  A target missing here is learnt from the export's refusal (one more trace).
+_TARGETS: set[str] = set()
+
+
+@cache
+def _known_targets() -> frozenset[str]:
+    """The FFI targets klujax registers (read from its module's source) and jaxform's."""
+    from jaxform import klu_free
+
+    names = {klu_free.TARGET}
+    try:
+        import klujax
+
+        source = Path(klujax.__file__).read_text()
+        names |= set(re.findall(r'register_ffi_target\(\s*"(\w+)"', source))
+    except (ImportError, OSError):
+        pass
+    return frozenset(names)
+
+
+def _export(fn, leaves, tree):
+    """(exported program of fn on the flat leaves, the output tree structure)."""
+    holder = {}
+
+    def flat(*lv):
+        out = fn(*jax.tree_util.tree_unflatten(tree, lv))
+        out_leaves, holder["tree"] = jax.tree_util.tree_flatten(out)
+        return out_leaves
+
+    jitted = jax.jit(flat)
+    _TARGETS.update(_known_targets())
+    for attempt in range(2):
+        checks = [export.DisabledSafetyCheck.custom_call(n) for n in sorted(_TARGETS)]
+        try:
+            exported = export.export(jitted, disabled_checks=checks)(*leaves)
+            return exported, holder["tree"]
+        except ValueError as err:
+            found = set(re.findall(r"custom_call @(\w+)", str(err))) - _TARGETS
+            if attempt or not found:
+                raise
+            _TARGETS.update(found)
+    raise AssertionError("unreachable")
+
+
+def _write(path: Path, data: bytes) -> None:
+    """Write atomically (a partly written file is never read as a program)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
+    with os.fdopen(fd, "wb") as f:
+        f.write(data)
+    os.replace(tmp, path)
+
+
+def _prepared(key: str, fn, leaves, tree):
+    """(compiled wrapper, output tree) of program ``key``: from this process, from the
+    disk, or exported now (and stored)."""
+    if key in _loaded:
+        return _loaded[key]
+    register_ffi_targets()  # a loaded program calls them without being traced here
+    folder = store_dir()
+    blob_path, tree_path = folder / f"{key}.bin", folder / f"{key}.tree"
+    exported = None
+    if blob_path.is_file() and tree_path.is_file():
+        try:
+            exported = export.deserialize(bytearray(blob_path.read_bytes()))
+            out_tree = pickle.loads(tree_path.read_bytes())
+        except Exception:  # a damaged or foreign file: export it again
+            exported = None
+    if exported is None:
+        exported, out_tree = _export(fn, leaves, tree)
+        try:
+            _write(blob_path, bytes(exported.serialize()))
+            _write(tree_path, pickle.dumps(out_tree))
+        except OSError:
+            pass  # a read-only cache: the program still runs, exported afresh next time
+    # compiled ahead of time for these leaves (the persistent cache applies): called
+    # through jit, the wrapper compiled a second time once the leaves came out of a
+    # program (committed to the device)
+    entry = (jit(exported.call).lower(*leaves).compile(), out_tree)
+    _loaded[key] = entry
+    return entry
+
+
+def call(name: str, static: str | None, fn, *args):
+    """``fn(*args)``, through the stored program ``name`` where it can be (see the module
+    docstring): ``fn`` must be a function of its arguments (pytrees of arrays) and of the
+    static settings described by ``static`` alone."""
+    leaves, tree = jax.tree_util.tree_flatten(args)
+    if store_dir() is None or any(isinstance(a, jax.core.Tracer) for a in leaves):
+        return fn(*args)  # no store, or called inside a trace (the outer program's part)
+    # one signature whatever the leaves' weak types (a Python number passed in is weakly
+    # typed, the same value coming out of a program is not): the compiled wrapper is
+    # traced and compiled once, not once per weak-type pattern
+    leaves = [jnp.asarray(a, dtype=jnp.result_type(a)) for a in leaves]
+    args = jax.tree_util.tree_unflatten(tree, leaves)
+    key = program_key(name, static, args)
+    if key is None or key in _refused:
+        return fn(*args)
+    try:
+        wrapper, out_tree = _prepared(key, fn, leaves, tree)
+    except (ValueError, TypeError, NotImplementedError, ImportError):
+        _refused.add(key)  # not exportable (or no serializer): traced as always
+        return fn(*args)
+    return jax.tree_util.tree_unflatten(out_tree, wrapper(*leaves))

@@ -1,0 +1,92 @@
+"""Stored (exported) programs: a warm start that skips tracing (jaxform.program_store).
+
+References: the same run traced as always (store off) gives the same history; a program
+loaded from the disk in a "new process" (the in-process table emptied) is not exported
+again; the key changes with anything that shapes the program."""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxform import program_store
+from jaxform.config import load_config
+from jaxform.scenes import build_scene
+from jaxform.simulation import simulate
+
+SCENE = {
+    "billet": {"diameter_mm": 5.0, "height_mm": 7.5},
+    "mesh": {"nr": 3, "nz": 3, "element": "q1p0"},
+    "die": {"speed_mm_s": 0.075, "reduction": 0.2},
+    "friction": {"model": "coulomb", "mu": 0.3},
+    "time": {"dt_s": 2.0},
+    "output": {"fields": False, "plots": False},
+}
+
+
+def _force(sc):
+    return simulate(sc).history["force_N"]
+
+
+def test_a_stored_program_runs_like_the_traced_one(tmp_path, monkeypatch):
+    """Store off, then exported and stored, then loaded from the disk with nothing in the
+    process: the three force histories agree to 1e-12 of the peak; the load exports
+    nothing."""
+    sc = build_scene(load_config(SCENE))
+    monkeypatch.setenv(program_store.ENV_VAR, "off")
+    plain = _force(sc)
+    monkeypatch.delenv(program_store.ENV_VAR)
+    monkeypatch.setattr(program_store, "store_dir", lambda: tmp_path / "exported")
+    monkeypatch.setattr(program_store, "_loaded", {})
+    stored = _force(sc)
+    files = sorted(p.suffix for p in (tmp_path / "exported").iterdir())
+    assert files == [".bin", ".tree"]
+
+    def no_export(*args):
+        raise AssertionError("a stored program was exported again")
+
+    monkeypatch.setattr(program_store, "_loaded", {})  # as in a new process
+    monkeypatch.setattr(program_store, "_export", no_export)
+    loaded = _force(sc)
+    peak = np.max(plain)
+    assert peak > 10.0 and len(plain) >= 3
+    assert np.max(np.abs(stored - plain)) <= 1e-12 * peak
+    assert np.max(np.abs(loaded - plain)) <= 1e-12 * peak
+
+
+def test_the_key_follows_what_shapes_the_program(monkeypatch):
+    args = (jnp.zeros(3), {"a": jnp.ones((2, 2))})
+
+    def key(name="f", static="Settings(n=1)", a=args):
+        return program_store.program_key(name, static, a)
+
+    assert key() == key()
+    assert key() != key(static="Settings(n=2)")
+    assert key() != key(name="g")
+    assert key() != key(a=(jnp.zeros(4), args[1]))
+    assert key() != key(a=(jnp.zeros(3, int), args[1]))
+    assert key() != key(a=(jnp.zeros(3), {"b": args[1]["a"]}))
+    # no stable description of the settings: nothing is stored
+    assert key(static="<object at 0x7f00deadbeef>") is None
+    # the source of jaxform is part of the key
+    before = key()
+    monkeypatch.setattr(program_store, "code_fingerprint", lambda: "changed")
+    assert key() != before
+
+
+def test_a_program_that_cannot_be_exported_runs_traced(tmp_path, monkeypatch):
+    """An export that fails (here: refused) leaves the call to the traced function."""
+    monkeypatch.setattr(program_store, "store_dir", lambda: tmp_path)
+    monkeypatch.setattr(program_store, "_loaded", {})
+    monkeypatch.setattr(program_store, "_refused", set())
+
+    def refuse(*args):
+        raise ValueError("not exportable")
+
+    monkeypatch.setattr(program_store, "_export", refuse)
+    out = program_store.call("double", "Double()", lambda x: 2.0 * x, jnp.arange(3.0))
+    np.testing.assert_array_equal(np.asarray(out), [0.0, 2.0, 4.0])
+    assert list(tmp_path.iterdir()) == []
+    with pytest.raises(ZeroDivisionError):  # an error of the function itself still raises
+        program_store.call("bad", "Bad()", lambda x: 1 // 0, jnp.arange(3.0))
