@@ -136,6 +136,18 @@ FULL_HEIGHT_DOC = (
 )
 
 
+def _profile_kind_key():
+    return key(
+        "polyline",
+        choices=("polyline", "spline"),
+        doc="straight segments between the points, or the Catmull-Rom spline through them",
+    )
+
+
+def _corner_radius_key(doc: str):
+    return key(0.5, low=0.0, low_open=True, doc=doc)
+
+
 @section("billet")
 @dataclass(frozen=True, kw_only=True)
 class BilletConfig:
@@ -415,11 +427,7 @@ class DieConfig:
         doc="top-die profile as [r_mm, z_mm] points at t = 0, walked with the workpiece on the "
         "right (from the axis outward for a top die); [] = flat die on the billet's top face",
     )
-    profile_kind: str = key(
-        "polyline",
-        choices=("polyline", "spline"),
-        doc="straight segments between the points, or the Catmull-Rom spline through them",
-    )
+    profile_kind: str = _profile_kind_key()
     path_time_s: tuple[float, ...] = key(
         [], doc="die path table: times (s), starting at 0 ([] = constant speed)"
     )
@@ -429,13 +437,10 @@ class DieConfig:
         "times (mm), starting at 0 (half height: the ram stroke is twice it; full height: it "
         "plus the bottom die's rise)",
     )
-    corner_radius_mm: float = key(
-        0.5,
-        low=0.0,
-        low_open=True,
-        doc="radius of the arcs that round the profile's vertices (mm): the die surface is C1; "
+    corner_radius_mm: float = _corner_radius_key(
+        "radius of the arcs that round the profile's vertices (mm): the die surface is C1; "
         "where two segments are too short for it, the arc runs between their midpoints (so "
-        "sampled fillets and splines keep their shape)",
+        "sampled fillets and splines keep their shape)"
     )
     corner_contact: bool = key(
         False,
@@ -472,11 +477,7 @@ class BottomDieConfig:
         doc="bottom-die profile as [r_mm, z_mm] points at t = 0, from the axis outward (the "
         "workpiece above it); [] = flat die on the bottom face z = -H/2",
     )
-    profile_kind: str = key(
-        "polyline",
-        choices=("polyline", "spline"),
-        doc="straight segments between the points, or the Catmull-Rom spline through them",
-    )
+    profile_kind: str = _profile_kind_key()
     mirror: bool = key(
         False,
         doc="the bottom die is the top die's profile mirrored about z = 0 (profile_mm must be "
@@ -499,11 +500,8 @@ class BottomDieConfig:
         "a top-die path table: the bottom die stays fixed); the ram stroke is the top die's "
         "travel plus this",
     )
-    corner_radius_mm: float = key(
-        0.5,
-        low=0.0,
-        low_open=True,
-        doc="radius of the arcs that round the profile's vertices (mm), as die.corner_radius_mm",
+    corner_radius_mm: float = _corner_radius_key(
+        "radius of the arcs that round the profile's vertices (mm), as die.corner_radius_mm"
     )
 
 
@@ -524,11 +522,8 @@ class SideDieConfig:
     path_travel_mm: tuple[float, ...] = key(
         [], doc="side-die path table: downward travel at those times (mm), starting at 0"
     )
-    corner_radius_mm: float = key(
-        0.5,
-        low=0.0,
-        low_open=True,
-        doc="radius of the arcs that round the profile's vertices (mm), as die.corner_radius_mm",
+    corner_radius_mm: float = _corner_radius_key(
+        "radius of the arcs that round the profile's vertices (mm), as die.corner_radius_mm"
     )
 
 

@@ -83,6 +83,9 @@ class RigidDie:
         """The rigid dies of the scene (this one)."""
         return (self,)
 
+    names = ("top",)  # as a DieSet's: the one die is the top die, pressing from above
+    from_above = (True,)
+
     def stroke(self, t):
         """The ram stroke's share made by the dies at time t (mm): the travel."""
         return self.travel(t)

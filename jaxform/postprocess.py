@@ -117,7 +117,7 @@ def cavity_polygon(scene, t: float) -> np.ndarray:
     die's profile, the bottom die's and the axis; up to ``die.part_radius_mm`` where one
     is set) as a counter-clockwise polygon."""
     die = scene.inputs.die
-    names = getattr(die, "names", ("top",))
+    names = die.names
     top, *_ = surfaces = [
         sample_rounded(d.points, d.corner_radius) - np.array([0.0, d.travel_at(t)])
         for d in die.members

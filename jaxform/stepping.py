@@ -421,7 +421,6 @@ def die_forces(model: Model, x, inp: Inputs, t, idx: Indices):
     presses from above.  Corner contact adds the facets' multipliers along -(their
     normal) to the die whose arc holds them."""
     members = inp.die.members
-    above = getattr(inp.die, "from_above", (True,))
     pos = model.nodal_positions(x, inp.coords, idx)[idx.contact_nodes]
     frames = jax.vmap(lambda p: inp.die.frame(p, t, t))(pos)
     lam = x[idx.mult_dofs]
@@ -432,7 +431,7 @@ def die_forces(model: Model, x, inp: Inputs, t, idx: Indices):
         n_f = facet_normal(ends[:, 0], ends[:, 1])
         _, _, which = jax.vmap(lambda a, b: inp.die.facet_frame(a, b, t))(ends[:, 0], ends[:, 1])
         per_die = per_die.at[which].add(-x[idx.facet_mult] * n_f[:, 1])
-    sign = jnp.asarray([-1.0 if a else 1.0 for a in above], x.dtype)
+    sign = jnp.asarray([-1.0 if a else 1.0 for a in inp.die.from_above], x.dtype)
     return sign * per_die
 
 
