@@ -137,14 +137,17 @@ def element_heat_data(model: Model, state: SimState, inp: Inputs, idx: Indices, 
     return ElementHeat(theta_old=theta_old, exposed=idx.exposed_edges, touch=touch, die_K=die_k)
 
 
+@partial(jax.jit, static_argnums=0)
 def _step_residual(model: Model, x, ctx: StepContext):
     return model.residual(x, ctx)
 
 
+@partial(jax.jit, static_argnums=0)
 def _step_residual_and_jacobian(model: Model, x, ctx: StepContext):
     return model.residual_and_jacobian(x, ctx)
 
 
+@partial(jax.jit, static_argnums=0)
 def _step_adjoint(model: Model, x, ctx: StepContext, gauss_bar):
     return model.jacobian_and_state_vjp(x, ctx, gauss_bar)
 

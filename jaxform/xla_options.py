@@ -9,8 +9,17 @@ CPU: YNNPACK fusions off (``xla_cpu_experimental_ynn_fusion_type`` empty).  Rece
 XLA:CPU hands small dot products and reductions to YNNPACK; in jaxform's element
 routines those are 3x3 tensor products batched over Gauss points and forward-mode
 tangents, where a library call per fusion costs more than XLA's own loop (measured: the
-documentation's benchmarks page, "Measurements behind the code").  A jaxlib that does not
-know the option compiles without it (checked once per process).
+documentation's benchmarks page, "Measurements behind the code").
+
+CPU: two HLO passes off (``xla_disable_hlo_passes``), ``while-loop-invariant-code-motion``
+and ``simplify-while-loops``.  jaxform's programs are nested while loops (load steps,
+Newton iterations, cutbacks, the local Anand solves) over code that already computes its
+loop invariants outside the loops; XLA ran these two passes over every loop body at each
+round of its simplification pipeline, and they took about half of the compile time of the
+load-step chunk (benchmarks page, "Compile time") for no measurable gain at run time.
+
+A jaxlib that does not know an option compiles without the options (checked once per
+process).
 
 Other backends: plain ``jax.jit``.
 """
@@ -22,7 +31,10 @@ import functools
 import jax
 import jax.numpy as jnp
 
-CPU_OPTIONS = {"xla_cpu_experimental_ynn_fusion_type": ""}
+CPU_OPTIONS = {
+    "xla_cpu_experimental_ynn_fusion_type": "",
+    "xla_disable_hlo_passes": "while-loop-invariant-code-motion,simplify-while-loops",
+}
 
 
 @functools.cache
