@@ -46,6 +46,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxform.tables import interp_table
+
 
 @jax.tree_util.register_dataclass
 @dataclass(frozen=True)
@@ -59,7 +61,7 @@ class RigidDie:
 
     def travel(self, t):
         """Downward travel d(t) in mm (linear in the table; constant past its ends)."""
-        return jnp.interp(t, self.path_time_s, self.path_travel_mm)
+        return interp_table(t, self.path_time_s, self.path_travel_mm)
 
     def travel_at(self, t) -> float:
         """:meth:`travel` on the host (NumPy) for a time t (s): for post-processing, where
@@ -67,7 +69,8 @@ class RigidDie:
         return float(np.interp(t, np.asarray(self.path_time_s), np.asarray(self.path_travel_mm)))
 
     def offset(self, t):
-        return jnp.stack([jnp.zeros_like(self.travel(t)), -self.travel(t)])
+        d = self.travel(t)
+        return jnp.stack([jnp.zeros_like(d), -d])
 
     def gap(self, x, t):
         """(g, n, tangent) of a node at current position x (2,) at time t."""

@@ -56,6 +56,7 @@ from jaxform.kinematics import deviator, safe_norm_eq
 from jaxform.materials.base import MaterialState
 from jaxform.mesh import boundary_edges
 from jaxform.smallmat import det3, inv2
+from jaxform.tables import interp_table
 
 STEFAN_BOLTZMANN_W_M2K4 = 5.670374419e-8
 _PER_MM2 = 1e-3  # W/m^2 -> mW/mm^2
@@ -92,9 +93,7 @@ class ThermalInputs:
 
     def die_temperature(self, t):
         """The die temperature (K) at time t (s)."""
-        change = jnp.interp(
-            t, jnp.asarray(self.die_path_time_s), jnp.asarray(self.die_path_change_K)
-        )
+        change = interp_table(t, self.die_path_time_s, self.die_path_change_K)
         return self.die_temperature_K + change
 
     def flux_out(self, temp, touching, die_k):

@@ -7,6 +7,7 @@ These are plain polynomial expressions: differentiable everywhere, exact for det
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 
 
@@ -26,24 +27,20 @@ def inv2(a):
     return adj / d[..., None, None]
 
 
+def _roll(a, shift: int, axis: int):
+    """``jnp.roll`` by a static shift on a length-3 axis: two slices and a concatenation
+    (jnp.roll lowers to more operations)."""
+    head = jax.lax.slice_in_dim(a, shift, 3, axis=axis)
+    tail = jax.lax.slice_in_dim(a, 0, shift, axis=axis)
+    return jnp.concatenate([head, tail], axis=axis)
+
+
 def _cofactors3(a):
-    c00 = a[..., 1, 1] * a[..., 2, 2] - a[..., 1, 2] * a[..., 2, 1]
-    c01 = a[..., 1, 2] * a[..., 2, 0] - a[..., 1, 0] * a[..., 2, 2]
-    c02 = a[..., 1, 0] * a[..., 2, 1] - a[..., 1, 1] * a[..., 2, 0]
-    c10 = a[..., 0, 2] * a[..., 2, 1] - a[..., 0, 1] * a[..., 2, 2]
-    c11 = a[..., 0, 0] * a[..., 2, 2] - a[..., 0, 2] * a[..., 2, 0]
-    c12 = a[..., 0, 1] * a[..., 2, 0] - a[..., 0, 0] * a[..., 2, 1]
-    c20 = a[..., 0, 1] * a[..., 1, 2] - a[..., 0, 2] * a[..., 1, 1]
-    c21 = a[..., 0, 2] * a[..., 1, 0] - a[..., 0, 0] * a[..., 1, 2]
-    c22 = a[..., 0, 0] * a[..., 1, 1] - a[..., 0, 1] * a[..., 1, 0]
-    return jnp.stack(
-        [
-            jnp.stack([c00, c01, c02], axis=-1),
-            jnp.stack([c10, c11, c12], axis=-1),
-            jnp.stack([c20, c21, c22], axis=-1),
-        ],
-        axis=-2,
-    )
+    """C_ij = a[i+1, j+1] a[i+2, j+2] - a[i+1, j+2] a[i+2, j+1] (indices mod 3), from four
+    rolled copies of ``a``: about 20 operations to trace, differentiate and compile where
+    nine scalar products written out are about 110 (the same arithmetic, bit for bit)."""
+    r1, r2 = _roll(a, 1, -2), _roll(a, 2, -2)  # rows i+1, i+2
+    return _roll(r1, 1, -1) * _roll(r2, 2, -1) - _roll(r1, 2, -1) * _roll(r2, 1, -1)
 
 
 def det3(a):
