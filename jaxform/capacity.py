@@ -109,7 +109,8 @@ class Padded:
         gradient run differentiates through it)."""
         lay = self.scene.model.layout
         ghost_el = lay.n_elements - self.real.n_elements
-        init = self.scene.model.law.initial_state(self.scene.inputs.params)
+        with jax.ensure_compile_time_eval():  # constants, also inside a traced run
+            init = self.scene.model.law.initial_state(self.scene.inputs.params)
         ghost = type(state.gauss)(F=np.broadcast_to(np.eye(3), (ghost_el, 4, 3, 3)), mat=init)
         host = xp is np
 
@@ -119,14 +120,14 @@ class Padded:
                                                       (ghost_el,) + a.shape[1:])])  # fmt: skip
 
         pad_c = lay.n_contact - self.real.n_contact
-        status = np.asarray(state.contact_status)
+        status = np.asarray(state.contact_status) if host else state.contact_status
         out = replace(
             state,
             x=self._pad_x(state.x, xp),
             x_rate=self._pad_x(state.x_rate, xp),
             gauss=jax.tree_util.tree_map(pad, state.gauss, ghost),
             slip_mm=xp.concatenate([state.slip_mm, xp.zeros(pad_c)]),
-            contact_status=np.concatenate([status, np.zeros(pad_c, status.dtype)]),
+            contact_status=xp.concatenate([status, xp.zeros(pad_c, status.dtype)]),
         )
         return jax.tree_util.tree_map(jnp.asarray, out) if host else out
 

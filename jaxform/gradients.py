@@ -370,21 +370,22 @@ class RemeshPlan:
 
 
 def _remeshed_trajectory(scene: Scene, inputs: Inputs, times, plan: RemeshPlan) -> Trajectory:
-    """:func:`trajectory` through the meshes of ``plan`` (traced, not under jit)."""
+    """:func:`trajectory` through the meshes of ``plan`` (traced, not under jit).  Between
+    two meshes' step programs, the remesh map and the padding to the bucket run as one
+    compiled program (and its reverse as one more), not as hundreds of eager operations
+    that would each compile."""
     if times.shape[0] != plan.n_steps:
         raise ValueError(f"trajectory: {times.shape[0]} step times for a plan of {plan.n_steps}")
     state, coords = initial_state(scene.model, inputs), inputs.coords
     parts, first = [], 0
     for seg in plan.segments:
-        if seg.transfer is not None:
-            state, coords = seg.transfer.apply(state, coords, jnp)
         pad, sc = seg.padded, seg.padded.scene
         stepper = Stepper(sc.model, sc.linear, exact_newton(sc.newton), 0,
                           symmetric_z=sc.symmetric_z)  # fmt: skip
-        run_inputs = replace(inputs, coords=pad.coords(coords, jnp))
-        part = _trajectory(stepper, run_inputs, times[first : first + seg.n_steps],
-                           pad.state(state, jnp), sc.idx, 0)  # fmt: skip
-        state = pad.trim(part.final_state, jnp)
+        state, coords, run_coords, run_state = _enter_mesh(seg, state, coords)
+        part = _segment(stepper, sc.idx, replace(inputs, coords=run_coords),
+                        times[first : first + seg.n_steps], run_state)  # fmt: skip
+        state = _leave_mesh(seg, part.final_state)
         parts.append(part)
         first += seg.n_steps
     last = plan.segments[-1].scene
@@ -414,6 +415,58 @@ def _remeshed_trajectory(scene: Scene, inputs: Inputs, times, plan: RemeshPlan) 
         contact_status=jnp.concatenate(status),
         final_state=state,
     )
+
+
+@partial(jax.custom_vjp, nondiff_argnums=(0, 1))
+def _segment(stepper: Stepper, idx, inputs: Inputs, times, state0) -> Trajectory:
+    """One mesh's steps of a remeshed gradient run, :func:`_trajectory` without kept
+    factorizations, differentiated as two compiled programs shared by every mesh of a
+    capacity bucket: the steps with their reverse pass's residuals, and the reverse pass.
+    Left to JAX's own differentiation of the jitted steps, the first mesh (part of whose
+    state has no tangent) and the last (whose final state gets no cotangent) would each
+    compile programs of their own."""
+    return _trajectory(stepper, inputs, times, state0, idx, 0)
+
+
+@partial(jit, static_argnums=0)
+def _segment_forward(stepper: Stepper, idx, inputs: Inputs, times, state0):
+    """(trajectory, its pullback): every differentiable input gets a cotangent."""
+    return jax.vjp(lambda i, t, s: _trajectory(stepper, i, t, s, idx, 0), inputs, times, state0)
+
+
+@jit
+def _segment_backward(pullback, cotangent):
+    return pullback(cotangent)
+
+
+def _segment_fwd(stepper, idx, inputs, times, state0):
+    return _segment_forward(stepper, idx, inputs, times, state0)
+
+
+def _segment_bwd(stepper, idx, pullback, cotangent):
+    return _segment_backward(pullback, cotangent)
+
+
+_segment.defvjp(_segment_fwd, _segment_bwd)
+
+
+@partial(jax.jit, static_argnums=0)  # a segment is hashed by identity: one program each
+def _enter_mesh(seg: MeshSegment, state, coords):
+    """(state, coords) on the segment's mesh (through its remesh map, if any), and the
+    coordinates and state padded to its capacity bucket."""
+    if seg.transfer is not None:
+        state, coords = seg.transfer.apply(state, coords, jnp)
+    # strongly typed: the first mesh's initial state has weakly typed scalars (t = 0.0),
+    # which would make its step program another one than the later meshes'
+    state, coords = jax.tree_util.tree_map(lambda a: jax.lax.convert_element_type(a, a.dtype),
+                                           (state, coords))  # fmt: skip
+    return state, coords, seg.padded.coords(coords, jnp), seg.padded.state(state, jnp)
+
+
+@partial(jax.jit, static_argnums=0)
+def _leave_mesh(seg: MeshSegment, state):
+    """The segment's last state without the padding."""
+    return seg.padded.trim(state, jnp)
 
 
 def check(traj: Trajectory) -> None:

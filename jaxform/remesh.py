@@ -232,7 +232,7 @@ class StateMap:
         x_rate = cat([rate.ravel(), xp.zeros(2 * new.n_contact), facets])
         eye = xp.broadcast_to(xp.eye(3), (new.n_elements, 4, 3, 3))
         mat = jax.tree_util.tree_map(lambda v: self.move.gauss(v, xp), state.gauss.mat)
-        status = self.contact.status.astype(np.asarray(state.contact_status).dtype)
+        status = self.contact.status.astype(state.contact_status.dtype)
         return replace(state, x=x, gauss=replace(state.gauss, F=eye, mat=mat), x_rate=x_rate,
                        slip_mm=slip, contact_status=xp.asarray(status)), new_coords  # fmt: skip
 
