@@ -39,6 +39,7 @@ of the compiled program altogether.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 
 import jax
 import jax.numpy as jnp
@@ -471,9 +472,11 @@ class Model:
         return r, gnew, code, scale
 
 
+@partial(jax.jit, static_argnums=0)
 def internal_forces(model: Model, x, gstate, coords, dt, params, idx: Indices):
     """Assembled element force vector (no contact, no Dirichlet rows, isothermal): for
-    reactions."""
+    reactions.  Compiled (one program, not an eager operation each, when called on the
+    host)."""
     zero = jnp.zeros((), dtype=x.dtype)
     ctx = StepContext(gauss=gstate, coords=coords, t=zero, dt=dt, params=params, die=None,
                       c_contact=zero, cstep=None, idx=idx)  # fmt: skip

@@ -379,7 +379,7 @@ def _remeshed_trajectory(scene: Scene, inputs: Inputs, times, plan: RemeshPlan) 
     state, coords = initial_state(scene.model, inputs), inputs.coords
     parts, first = [], 0
     for seg in plan.segments:
-        pad, sc = seg.padded, seg.padded.scene
+        sc = seg.padded.scene
         stepper = Stepper(sc.model, sc.linear, exact_newton(sc.newton), 0,
                           symmetric_z=sc.symmetric_z)  # fmt: skip
         state, coords, run_coords, run_state = _enter_mesh(seg, state, coords)

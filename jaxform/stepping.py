@@ -152,6 +152,7 @@ def _step_adjoint(model: Model, x, ctx: StepContext, gauss_bar):
     return model.jacobian_and_state_vjp(x, ctx, gauss_bar)
 
 
+@partial(jax.jit, static_argnums=0)  # one program on the host, not an eager op each
 def step_context(
     model: Model, state: SimState, inp: Inputs, idx: Indices, t_new, dt
 ) -> StepContext:

@@ -9,7 +9,7 @@ def jacobian_fd_error(sc, x, ctx, h_rel):
     """Frobenius relative error of the assembled Jacobian at x against 4-point central
     differences of the global residual, step h_rel x max(|x_j|, 1e-3) per unknown.
     ``ctx``: the step's StepContext (jaxform.stepping.step_context)."""
-    _, vals, *_ = sc.model.residual_and_jacobian(x, ctx)
+    _, vals, *_ = jax.jit(sc.model.residual_and_jacobian)(x, ctx)
     n = sc.model.layout.n_dofs
     jac = np.zeros((n, n))
     jac[np.asarray(sc.idx.rows), np.asarray(sc.idx.cols)] = np.asarray(vals)

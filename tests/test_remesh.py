@@ -279,7 +279,7 @@ def test_ghost_nodes_sit_where_the_die_leaves_them_open():
         assert np.all(gap_function(sc.inputs.die, t)(ghosts)[0] > 1.0)
     st = pd.state(init(sc)[0])
     s = pd.scene
-    vals = s.model.residual_and_jacobian(
+    vals = jax.jit(s.model.residual_and_jacobian)(
         st.x, step_context(s.model, st, s.inputs, s.idx, 0.01, 0.01)
     )[1]
     n = s.model.layout.n_dofs
