@@ -33,35 +33,37 @@ def _value_and_slope(fn: Fn, x, args):
 
 
 def _bracketed_newton(fn: Fn, args, lo, hi, x0, xtol, ftol, maxiter):
+    """The safeguarded iteration: at most ``maxiter + 1`` evaluations of fn, the first at
+    x0.  fn is evaluated in one place only, the loop body (the first pass evaluates x0):
+    a root nested inside fn is traced and compiled once, not once per evaluation site."""
     x0 = jnp.clip(x0, lo, hi)
-    f0, d0 = _value_and_slope(fn, x0, args)
-    lo = jnp.where(f0 <= 0.0, x0, lo)
-    hi = jnp.where(f0 <= 0.0, hi, x0)
 
     def cond(c):
-        x, f, d, lo, hi, it, done = c
-        return (~done) & (it < maxiter)
+        it, done = c[-2], c[-1]
+        return (~done) & (it <= maxiter)
 
     def body(c):
-        x, f, d, lo, hi, it, _ = c
+        x, x_last, _, _, lo, hi, it, _ = c  # x: the point to evaluate now
+        f, d = _value_and_slope(fn, x, args)
+        finite = jnp.isfinite(f)
+        first = it == 0
+        # A non-finite residual is treated as "too far right" (overflow of a steep law);
+        # at x0, a residual <= 0 moves the left end.
+        go_right = jnp.where(first, f <= 0.0, finite & (f <= 0.0))
+        lo = jnp.where(go_right, x, lo)
+        hi = jnp.where(go_right, hi, x)
+        f = jnp.where(finite, f, jnp.inf)
+        small = (jnp.abs(f) <= ftol) | (hi - lo <= xtol)
+        done = finite & (small | (~first & (jnp.abs(x - x_last) <= xtol)))
         step = f / jnp.where(d > 0.0, d, 1.0)
         xn = x - step
         newton_ok = jnp.isfinite(xn) & (d > 0.0) & (xn > lo) & (xn < hi)
         xn = jnp.where(newton_ok, xn, 0.5 * (lo + hi))
-        fn_, dn = _value_and_slope(fn, xn, args)
-        # A non-finite residual is treated as "too far right" (overflow of a steep law).
-        fn_finite = jnp.isfinite(fn_)
-        go_right = fn_finite & (fn_ <= 0.0)
-        lo = jnp.where(go_right, xn, lo)
-        hi = jnp.where(go_right, hi, xn)
-        fn_ = jnp.where(fn_finite, fn_, jnp.inf)
-        done = (jnp.abs(fn_) <= ftol) | (jnp.abs(xn - x) <= xtol) | (hi - lo <= xtol)
-        done = done & fn_finite
-        return xn, fn_, dn, lo, hi, it + 1, done
+        return xn, x, f, d, lo, hi, it + 1, done
 
-    done0 = jnp.isfinite(f0) & ((jnp.abs(f0) <= ftol) | (hi - lo <= xtol))
-    init = (x0, jnp.where(jnp.isfinite(f0), f0, jnp.inf), d0, lo, hi, jnp.asarray(0), done0)
-    x, f, _, _, _, _, done = jax.lax.while_loop(cond, body, init)
+    zero = jnp.zeros_like(x0)
+    init = (x0, x0, zero, zero, lo, hi, jnp.asarray(0), jnp.asarray(False))
+    _, x, _, _, _, _, _, done = jax.lax.while_loop(cond, body, init)
     return x, done & jnp.isfinite(x)
 
 
