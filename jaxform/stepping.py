@@ -137,6 +137,9 @@ def element_heat_data(model: Model, state: SimState, inp: Inputs, idx: Indices, 
     return ElementHeat(theta_old=theta_old, exposed=idx.exposed_edges, touch=touch, die_K=die_k)
 
 
+# The step's functions for the implicit solve, jitted with the model static: a program
+# that calls one several times (Newton's start and loop, the custom rules of the solve,
+# the reverse pass) traces it once per argument shapes instead of at every call.
 @partial(jax.jit, static_argnums=0)
 def _step_residual(model: Model, x, ctx: StepContext):
     return model.residual(x, ctx)
