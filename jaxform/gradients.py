@@ -439,15 +439,11 @@ def _segment_backward(pullback, cotangent):
     return pullback(cotangent)
 
 
-def _segment_fwd(stepper, idx, inputs, times, state0):
-    return _segment_forward(stepper, idx, inputs, times, state0)
-
-
 def _segment_bwd(stepper, idx, pullback, cotangent):
     return _segment_backward(pullback, cotangent)
 
 
-_segment.defvjp(_segment_fwd, _segment_bwd)
+_segment.defvjp(_segment_forward, _segment_bwd)
 
 
 @partial(jax.jit, static_argnums=0)  # a segment is hashed by identity: one program each

@@ -74,6 +74,10 @@ def store_dir() -> Path | None:
     return Path(base) / SUBDIR if base else None
 
 
+class NotStorable(Exception):
+    """A program that ``jax.export`` cannot export (it runs unstored)."""
+
+
 class Unstable(TypeError):
     """An object with no stable description (:func:`fingerprint`)."""
 
@@ -210,7 +214,13 @@ def _prepared(key: str, fn, leaves, tree):
         except Exception:  # a damaged or foreign file: export it again
             exported = None
     if exported is None:
-        exported, out_tree = _export(fn, leaves, tree)
+        try:
+            exported, out_tree = _export(fn, leaves, tree)
+        except (ValueError, TypeError, NotImplementedError, ImportError) as err:
+            # jax.export refuses the program (a primitive or custom call it cannot
+            # serialize; ImportError: no flatbuffers serializer); an error of fn itself
+            # comes back when call() runs it unstored
+            raise NotStorable(key) from err
         try:
             _write(blob_path, bytes(exported.serialize()))
             _write(tree_path, pickle.dumps(out_tree))
@@ -241,7 +251,7 @@ def call(name: str, static: str | None, fn, *args):
         return fn(*args)
     try:
         wrapper, out_tree = _prepared(key, fn, leaves, tree)
-    except (ValueError, TypeError, NotImplementedError, ImportError):
-        _refused.add(key)  # not exportable (or no serializer): traced as always
+    except NotStorable:
+        _refused.add(key)  # traced as always, in this process from now on
         return fn(*args)
     return jax.tree_util.tree_unflatten(out_tree, wrapper(*leaves))
