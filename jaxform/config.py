@@ -645,6 +645,14 @@ class SolverConfig:
         "sparse backend from MODIFIED_MIN_UNKNOWNS unknowns, newton below (see "
         "jaxform/solver.py)",
     )
+    anderson_depth: int = key(
+        3,
+        low=0,
+        high=10,
+        doc="modified Newton: each step with a kept factorization is mixed with up to this many "
+        "earlier ones (Anderson acceleration; fewer iterations for the same root; 0: plain "
+        "steps; see jaxform/solver.py)",
+    )
     adjoint_memory_mb: float = key(
         4096.0,
         low=0.0,

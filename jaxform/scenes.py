@@ -430,6 +430,7 @@ def build_scene(cfg: dict | Config) -> Scene:
             rtol=so.rtol,
             line_search=so.line_search,
             method=method,
+            anderson_depth=so.anderson_depth,
         ),
         inputs=Inputs(
             coords=jnp.asarray(mesh.coords),

@@ -14,7 +14,12 @@ across iterations and load steps and refreshes it (assembly + factorization + an
 Newton step) when a step with it contracts ||R|| by less than 2x (that step is rejected)
 or by less than 10x (that step is kept).  On large sparse systems the triangular solves
 with a kept klujax factorization cost a small fraction of a factorization, so most
-iterations cost a residual and those solves; the root is the same to rtol.
+iterations cost a residual and those solves; the root is the same to rtol.  With
+``anderson_depth`` > 0 the steps with a kept factorization are Anderson-accelerated: each
+mixes the new step with the last few (a multisecant correction of the kept J^-1, one
+small least-squares problem per iteration), a mixed step that does not contract 2x is
+retried plainly before anything is refactored, and a kept step refreshes the next
+iteration below a 3.3x contraction (mixed steps contract less evenly).
 
 :func:`solve_implicit` is the same Newton solve, differentiated by the implicit function
 theorem instead of through its iterations: at the converged x*, R(x*, a) = 0 gives
@@ -83,7 +88,9 @@ class NewtonSettings:
     :func:`modified_newton`; ``accept_ratio`` and ``refresh_ratio`` are its thresholds).
     ``max_iterations`` bounds the Newton iterations with a new Jacobian; modified Newton
     may add up to ``STALE_PER_ITERATION`` times as many with a kept one (which go on
-    while they contract)."""
+    while they contract).  ``anderson_depth``: modified Newton mixes each step with a kept
+    factorization with up to that many earlier ones (Anderson acceleration, see
+    :func:`_anderson_step`; 0: plain steps)."""
 
     max_iterations: int = 25
     rtol: float = 1e-10
@@ -91,7 +98,18 @@ class NewtonSettings:
     max_backtracks: int = 10
     method: str = "newton"
     accept_ratio: float = 0.5
-    refresh_ratio: float = 0.1
+    refresh_ratio: float | None = None
+    anderson_depth: int = 0
+
+    @property
+    def refresh_below(self) -> float:
+        """A kept-factorization step contracting ||R|| by less than this refreshes the next
+        iteration: ``refresh_ratio``, else 0.1 for plain steps and 0.3 for mixed ones (they
+        contract unevenly from one step to the next; chosen on the seed and friction scenes,
+        docs/benchmarks.md)."""
+        if self.refresh_ratio is not None:
+            return self.refresh_ratio
+        return 0.3 if self.anderson_depth > 0 else 0.1
 
     @property
     def max_total_iterations(self) -> int:
@@ -218,6 +236,37 @@ def newton(
     return x, aux, it, code, hist, fac
 
 
+def _anderson_step(mem, x, f):
+    """Anderson acceleration (type II) of the fixed-point map x -> x + f(x), where
+    f(x) = -J_old^-1 R(x) is modified Newton's step with the kept factorization: the step
+    f - (dX + dF) gamma, with gamma minimizing ||f - dF gamma|| over the differences of
+    the last iterates (dX: of x, dF: of f; all with the same factorization).  A linear
+    residual reaches its root in at most depth + 1 steps of this (a multisecant update of
+    J_old^-1); a nonlinear one contracts faster than with plain steps.  ``mem`` holds the
+    differences (newest first), the last iterate and its f, and how many differences are
+    usable (-1: no last iterate).  Returns the step and the memory with (x, f) pushed."""
+    d_x, d_f, x_last, f_last, n = mem["dx"], mem["df"], mem["x"], mem["f"], mem["n"]
+    depth = d_x.shape[0]
+    has_last = n >= 0
+    d_x = jnp.where(has_last, jnp.roll(d_x, 1, axis=0).at[0].set(x - x_last), d_x)
+    d_f = jnp.where(has_last, jnp.roll(d_f, 1, axis=0).at[0].set(f - f_last), d_f)
+    n = jnp.where(has_last, jnp.minimum(n + 1, depth), 0)
+    use = jnp.arange(depth) < n
+    both = use[:, None] & use[None, :]
+    gram = jnp.where(both, d_f @ d_f.T, 0.0)
+    reg = 1e-12 * jnp.max(jnp.diag(gram)) + jnp.finfo(gram.dtype).tiny
+    gram = gram + jnp.diag(jnp.where(use, reg, 1.0))
+    gamma = jnp.where(use, jnp.linalg.solve(gram, jnp.where(use, d_f @ f, 0.0)), 0.0)
+    step = f - (d_x + d_f).T @ gamma
+    return step, dict(dx=d_x, df=d_f, x=x, f=f, n=n)
+
+
+def _anderson_memory(depth, x):
+    """An empty memory for :func:`_anderson_step` (no last iterate)."""
+    rows = jnp.zeros((depth,) + x.shape, x.dtype)
+    return dict(dx=rows, df=rows, x=jnp.zeros_like(x), f=jnp.zeros_like(x), n=jnp.asarray(-1))
+
+
 def modified_newton(
     residual,
     residual_and_jacobian,
@@ -235,7 +284,10 @@ def modified_newton(
     counts) and the next iteration refreshes: assembles the Jacobian at x, factors it
     (``kept.factor(vals, old) -> fac``, which frees the old one) and takes an exact Newton step
     with the backtracking line search of :func:`newton`.  An accepted step that contracted
-    by less than ``refresh_ratio`` also refreshes the next iteration.  Convergence and
+    by less than ``settings.refresh_below`` also refreshes the next iteration.  With
+    ``anderson_depth`` > 0 the steps with a kept factorization are Anderson-accelerated
+    (:func:`_anderson_step`; a refresh starts its memory afresh, and a rejected mixed step
+    is retried plainly with the same factorization instead of refreshing).  Convergence and
     failure codes as in :func:`newton`; the converged x is the same root to ``rtol`` (the
     factorization only changes the path).  Returns (x, aux, iterations, code, history, fac).
     """
@@ -273,6 +325,11 @@ def modified_newton(
         dx = jax.lax.cond(
             fac.valid, lambda: solve_factored(fac, -r), lambda: jnp.full_like(r, jnp.nan)
         )  # never solve with no factors
+        if s.anderson_depth > 0:  # a refreshed step is Newton's, and starts the memory
+            mem = jax.tree_util.tree_map(
+                lambda a, b: jnp.where(fresh, a, b), _anderson_memory(s.anderson_depth, x), c["aa"]
+            )
+            dx, mem = _anderson_step(mem, x, dx)
         finite = jnp.isfinite(dx).all()
 
         def ls_cond(lc):
@@ -311,8 +368,15 @@ def modified_newton(
             conv=conv,
             hist=c["hist"].at[it].set(jnp.where(take, rtn / scalet, rnorm / scale)),
             fac=fac,
-            refresh=reject | (ratio > s.refresh_ratio),
+            refresh=reject | (ratio > s.refresh_below),
         )
+        if s.anderson_depth > 0:
+            # a mixed step that is rejected is retried plainly, with the same factorization
+            mixed = reject & (mem["n"] > 0)
+            new["refresh"] = jnp.where(mixed, False, new["refresh"])
+            new["aa"] = jax.tree_util.tree_map(
+                lambda a, b: jnp.where(mixed, a, b), _anderson_memory(s.anderson_depth, x), mem
+            )
         return new
 
     init = dict(
@@ -327,6 +391,8 @@ def modified_newton(
         fac=fac0,
         refresh=jnp.asarray(False),
     )
+    if s.anderson_depth > 0:
+        init["aa"] = _anderson_memory(s.anderson_depth, x0)
     out = jax.lax.while_loop(cond, body, init)
     code = jnp.where(
         out["conv"], OK, jnp.where(out["code"] == OK, NEWTON_NOT_CONVERGED, out["code"])

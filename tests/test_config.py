@@ -273,6 +273,14 @@ def test_run_size_caps(overrides, message):
         load_config(MINIMAL, overrides)
 
 
+@pytest.mark.parametrize(
+    "value, message", [("11", "must lie in [0, 10]"), ("1.5", "must be an int")]
+)
+def test_anderson_depth_is_a_small_count(value, message):
+    with pytest.raises(ConfigError, match=re.escape(f"solver.anderson_depth = {value}: {message}")):
+        load_config(MINIMAL, [f"solver.anderson_depth={value}"])
+
+
 def test_step_cap_uses_the_path_table_to_the_stroke():
     """With a path table the run ends where the top die reaches reduction x H/2 = 7.5 mm
     (at t = 7.5 s on a table 0 -> 1e6 s): 7.5 s / 1e-4 s = 75 000 steps pass the cap,
