@@ -3,6 +3,8 @@
     python experiments/bench_scale.py [--meshes 10 20 40 80 160] [--quick] [--out docs/figures]
     python experiments/bench_scale.py --full 100 [--newton auto|newton|modified]
                                                         # the seed scene to 56.3 %, timed
+    python experiments/bench_scale.py --full 100 --anderson 0 3 [--config C] [--set k=v ...]
+                                  # modified Newton with and without Anderson, interleaved
 
 Seed scene (configs/upsetting_seed.toml, q1q1, Anand) on n x n meshes, klujax sparse LU.
 Each size runs in its own subprocess (``--one n``, so that its peak resident memory,
@@ -38,7 +40,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from timing import cold_and_warm, interleaved
+from timing import interleaved
 
 SEED = "configs/upsetting_seed.toml"
 
@@ -117,34 +119,55 @@ def one(n: int, linear: str) -> dict:
     return out
 
 
-def full(n: int, newton: str) -> None:
-    """The seed scene on n x n to 56.3 %: first run (compile + run), then a second run."""
+def full(n: int, newton: str, config: str, depths: list[int], sets: list[str]) -> None:
+    """A scene (default the seed, to 56.3 %) on n x n, once per ``solver.anderson_depth`` in
+    ``depths``: a first run each (compile + run), then two rounds of runs interleaved
+    (the drift of a shared host slows each alike), the best of each printed."""
     import jaxform
     from jaxform.config import load_config
+    from jaxform.scenes import build_scene
+    from jaxform.simulation import simulate
 
     jaxform.enable_x64()
-    cfg = load_config(
-        SEED,
-        [
-            f"mesh.nr={n}",
-            f"mesh.nz={n}",
-            "output.fields=false",
-            "output.plots=false",
-            f"solver.newton={newton}",
-        ],
-    )
-    scene, res, first, second = cold_and_warm(cfg)
-    its = res.history["newton_iterations"][1:]
-    n_fac = res.history["factorizations"][1:].sum()
-    print(
-        f"seed {n}x{n}: {scene.model.layout.n_dofs} unknowns, {len(its)} steps, "
-        f"{scene.newton.method} Newton, {n_fac:.0f} factorizations, "
-        f"{its.sum():.0f} iterations ({its.mean():.2f}/step): first run "
-        f"{first:.1f} s, run after compile {second:.1f} s "
-        f"({second / its.sum() * 1e3:.0f} ms per iteration incl. step overhead), "
-        f"force {res.history['force_N'][-1]:.2f} N, peak RSS "
-        f"{resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MiB"
-    )
+    scenes = {}
+    for d in depths:
+        cfg = load_config(
+            config,
+            [
+                f"mesh.nr={n}",
+                f"mesh.nz={n}",
+                "output.fields=false",
+                "output.plots=false",
+                f"solver.newton={newton}",
+                f"solver.anderson_depth={d}",
+                *sets,
+            ],
+        )
+        t0 = time.perf_counter()
+        scenes[d] = build_scene(cfg)
+        simulate(scenes[d])
+        print(f"anderson_depth={d}: first run {time.perf_counter() - t0:.1f} s", flush=True)
+    best, results = {d: np.inf for d in depths}, {}
+    for _ in range(2):
+        for d in depths:
+            t0 = time.perf_counter()
+            results[d] = simulate(scenes[d])
+            best[d] = min(best[d], time.perf_counter() - t0)
+    for d in depths:
+        h, scene = results[d].history, scenes[d]
+        its = h["newton_iterations"][1:]
+        print(
+            f"{config} {n}x{n}: {scene.model.layout.n_dofs} unknowns, {len(its)} steps, "
+            f"{scene.newton.method} Newton, anderson_depth {d}, "
+            f"{h['factorizations'][1:].sum():.0f} factorizations, "
+            f"{its.sum():.0f} iterations ({its.mean():.2f}/step), "
+            f"{h['cutbacks'][1:].sum():.0f} cutbacks, {h['remeshed'][1:].sum():.0f} remeshes: "
+            f"run after compile {best[d]:.1f} s (best of 2, interleaved; "
+            f"{best[d] / its.sum() * 1e3:.0f} ms per iteration incl. step overhead), "
+            f"force {h['force_N'][-1]:.2f} N, peak RSS "
+            f"{resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MiB",
+            flush=True,
+        )
 
 
 def fit(unknowns, seconds):
@@ -166,12 +189,21 @@ def main():
         choices=("auto", "newton", "modified"),
         help="solver.newton of the --full run",
     )
+    ap.add_argument("--config", default=SEED, help="the scene of the --full run")
+    ap.add_argument(
+        "--anderson",
+        type=int,
+        nargs="+",
+        default=[3],
+        help="solver.anderson_depth values of the --full run, compared in one process",
+    )
+    ap.add_argument("--set", nargs="*", default=[], help="more overrides of the --full run")
     args = ap.parse_args()
     if args.one:
         print("RESULT " + json.dumps(one(args.one, args.linear)), flush=True)
         return
     if args.full:
-        return full(args.full, args.newton)
+        return full(args.full, args.newton, args.config, args.anderson, args.set)
     meshes = [10, 20, 40] if args.quick else args.meshes
     rows = []
     print(
