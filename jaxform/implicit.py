@@ -32,10 +32,15 @@ def _value_and_slope(fn: Fn, x, args):
     return jax.jvp(lambda z: fn(z, args), (x,), (one,))
 
 
-def _bracketed_newton(fn: Fn, args, lo, hi, x0, xtol, ftol, maxiter):
-    """The safeguarded iteration: at most ``maxiter + 1`` evaluations of fn, the first at
-    x0.  fn is evaluated in one place only, the loop body (the first pass evaluates x0):
-    a root nested inside fn is traced and compiled once, not once per evaluation site."""
+def _bracketed_newton(fn: Fn, args, bracket, x0, xtol, ftol, maxiter, known=False):
+    """The safeguarded iteration in ``bracket = (lo, hi)``: at most ``maxiter + 1``
+    evaluations of fn, the first at x0.  fn is evaluated in one place only, the loop body
+    (the first pass evaluates x0): a root nested inside fn is traced and compiled once,
+    not once per evaluation site.
+    ``known`` (bool scalar): x0 is already the root (found otherwise); it is returned
+    without evaluating fn, so under vmap the loop runs only as long as some point of the
+    batch still needs it."""
+    lo, hi = bracket
     x0 = jnp.clip(x0, lo, hi)
 
     def cond(c):
@@ -62,7 +67,7 @@ def _bracketed_newton(fn: Fn, args, lo, hi, x0, xtol, ftol, maxiter):
         return xn, x, f, d, lo, hi, it + 1, done
 
     zero = jnp.zeros_like(x0)
-    init = (x0, x0, zero, zero, lo, hi, jnp.asarray(0), jnp.asarray(False))
+    init = (x0, x0, zero, zero, lo, hi, jnp.asarray(0), jnp.asarray(known))
     _, x, _, _, _, _, _, done = jax.lax.while_loop(cond, body, init)
     return x, done & jnp.isfinite(x)
 
@@ -75,7 +80,7 @@ def root_scalar(fn: Fn, args, lo, hi, x0, xtol, ftol, maxiter):
     root, so they carry no derivative); ``maxiter`` an int scalar.
     """
     sg = jax.lax.stop_gradient
-    x, conv = _bracketed_newton(fn, args, sg(lo), sg(hi), sg(x0), sg(xtol), sg(ftol), maxiter)
+    x, conv = _bracketed_newton(fn, args, (sg(lo), sg(hi)), sg(x0), sg(xtol), sg(ftol), maxiter)
     return x, conv.astype(x.dtype)
 
 

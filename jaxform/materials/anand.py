@@ -25,7 +25,12 @@ where s(y) is the root of the hardening equation for the plastic strain incremen
 which is bracketed by [min(s_n, s*), max(s_n, s*)] (backward Euler cannot overshoot s*).
 F is bracketed by y in [log(sigma_trial/3G) - 200, log(sigma_trial/3G)] (all the trial
 stress relaxed at the upper end).  Both are solved by Newton safeguarded with bisection
-(:mod:`jaxform.implicit`), so the solve converges for any finite step and rate.  The
+(:mod:`jaxform.implicit`), so the solve converges for any finite step and rate.  That
+nested solve evaluates the hardening root afresh at every outer iterate (~5 x ~5 scalar
+evaluations a point); the same pair is found first by Newton on both equations at once
+from the same start (y from the viscous estimate, s = s_n; ~5 iterations of the 2x2
+system), and the nested solve runs only where that did not converge (under vmap its loops
+run as long as one point of the batch needs them, none when all converged).  The
 solution is differentiated by the implicit function theorem once, at the converged pair
 (y, s), from the 2x2 Jacobian of both equations (``_local_solution`` below), not root by
 root through the nesting.
@@ -40,7 +45,7 @@ from typing import ClassVar
 import jax
 import jax.numpy as jnp
 
-from jaxform.implicit import root_scalar
+from jaxform.implicit import _bracketed_newton, root_scalar
 from jaxform.kinematics import StepKinematics
 from jaxform.materials.base import (
     MaterialState,
@@ -143,6 +148,7 @@ class Anand:
     design_params: ClassVar[tuple[str, ...]] = ("s0_MPa", "h0_MPa", "s_hat_MPa")
     max_outer: int = 100
     max_inner: int = 80
+    max_joint: int = 12
     rtol: float = 1e-13
 
     def initial_state(self, params: AnandParams) -> MaterialState:
@@ -159,49 +165,101 @@ class Anand:
         return replace(params, temperature_K=temperature_K)
 
     # -- the local solve ------------------------------------------------------------
-    def _s_of_y(self, y, s_n, log_dt, p: AnandParams):
+    def _s_of_y(self, y, s_n, log_dt, p: AnandParams, known=None):
+        """The hardening root s(y) (differentiable: the outer solve's slope needs ds/dy);
+        ``known = (s, flag)``: s is already the root where flag holds (not differentiated)."""
         rate = jnp.exp(y - log_dt)
         s_star = saturation(rate, p)
         lo = jnp.minimum(s_n, s_star)
         hi = jnp.maximum(s_n, s_star)
         scale = jnp.abs(s_n) + jnp.abs(s_star)
-        return root_scalar(
-            _s_residual,
-            (y, s_n, log_dt, p),
-            lo,
-            hi,
-            s_n,
-            self.rtol * scale,
-            self.rtol * scale,
-            self.max_inner,
+        args = (y, s_n, log_dt, p)
+        tol = self.rtol * scale
+        if known is None:
+            return root_scalar(_s_residual, args, lo, hi, s_n, tol, tol, self.max_inner)
+        s0, flag = known
+        s, conv = _bracketed_newton(
+            _s_residual, args, (lo, hi), jnp.where(flag, s0, s_n), tol, tol, self.max_inner, flag
         )
+        return s, conv.astype(s.dtype)
 
     def _y_residual(self, y, args):
         sig_tr, s_n, log_dt, p = args
         s, _ = self._s_of_y(y, s_n, log_dt, p)
         return _flow_residual(y, s, sig_tr, log_dt, p)
 
-    def local_solve(self, sig_tr, s_n, log_dt, p: AnandParams):
-        """The nested safeguarded solve: (y = log d_eqps, s_new, converged as 1.0/0.0)."""
+    def _start(self, sig_tr, s_n, log_dt, p: AnandParams):
+        """The bracket of y and the start inside it (the viscous estimate at s_n)."""
         y_hi = jnp.log(sig_tr / (3.0 * p.G_MPa))
         y_lo = y_hi - 200.0
         log_dt_a = log_dt + p.log_a_eff()
         x = p.xi * sig_tr / s_n
         y_visc = log_dt_a + _log_sinh(jnp.minimum(x, 700.0)) / p.m
-        y0 = jnp.clip(y_visc, y_lo, y_hi)
+        return y_lo, y_hi, jnp.clip(y_visc, y_lo, y_hi)
+
+    def joint_newton(self, sig_tr, s_n, log_dt, p: AnandParams):
+        """Newton on both backward-Euler equations at once, z = (y, s), from the nested
+        solve's start, y kept in its bracket: (y, s, converged as bool).  Converged: the
+        last step or both residuals within the nested solve's tolerances (rtol in y,
+        rtol sig_tr in the flow equation, rtol (|s_n| + |s|) in s).  A non-finite or
+        non-positive iterate, or ``max_joint`` iterations, leave it unconverged."""
+        y_lo, y_hi, y0 = self._start(sig_tr, s_n, log_dt, p)
+        args = (sig_tr, s_n, log_dt, p)
+
+        def with_value(z):
+            r = _local_residual(z, args)
+            return r, r
+
+        def cond(c):
+            return ~c[2] & ~c[3] & (c[1] < self.max_joint)
+
+        def body(c):
+            z, it = c[0], c[1]
+            jz, r = jax.jacfwd(with_value, has_aux=True)(z)
+            det = jz[0, 0] * jz[1, 1] - jz[0, 1] * jz[1, 0]
+            safe = jnp.where(det != 0.0, det, 1.0)
+            dy = -(jz[1, 1] * r[0] - jz[0, 1] * r[1]) / safe
+            ds = -(jz[0, 0] * r[1] - jz[1, 0] * r[0]) / safe
+            tol_s = self.rtol * (jnp.abs(s_n) + jnp.abs(z[1]))
+            small_r = (jnp.abs(r[0]) <= self.rtol * sig_tr) & (jnp.abs(r[1]) <= tol_s)
+            small_step = (jnp.abs(dy) <= self.rtol) & (jnp.abs(ds) <= tol_s)
+            zn = jnp.where(small_r, z, jnp.stack([jnp.clip(z[0] + dy, y_lo, y_hi), z[1] + ds]))
+            bad = (det == 0.0) | ~jnp.all(jnp.isfinite(zn)) | (zn[1] <= 0.0)
+            return zn, it + 1, (small_r | small_step) & ~bad, bad
+
+        init = (jnp.stack([y0, s_n]), jnp.asarray(0), jnp.asarray(False), jnp.asarray(False))
+        z, _, done, _ = jax.lax.while_loop(cond, body, init)
+        return z[0], z[1], done
+
+    def nested_solve(self, sig_tr, s_n, log_dt, p: AnandParams):
+        """The nested safeguarded solve alone: (y = log d_eqps, s_new, converged as
+        1.0/0.0), differentiable root by root (the reference of the tests)."""
+        y_lo, y_hi, y0 = self._start(sig_tr, s_n, log_dt, p)
         args = (sig_tr, s_n, log_dt, p)
         y, conv_y = root_scalar(
-            self._y_residual,
-            args,
-            y_lo,
-            y_hi,
-            y0,
-            self.rtol,
-            self.rtol * sig_tr,
-            self.max_outer,
+            self._y_residual, args, y_lo, y_hi, y0, self.rtol, self.rtol * sig_tr, self.max_outer
         )
         s_new, conv_s = self._s_of_y(y, s_n, log_dt, p)
         return y, s_new, conv_y * conv_s
+
+    def local_solve(self, sig_tr, s_n, log_dt, p: AnandParams):
+        """(y = log d_eqps, s_new, converged as 1.0/0.0): :meth:`joint_newton`, and the
+        nested solve where it did not converge (not differentiable itself: see
+        ``_local_solution``)."""
+        y_j, s_j, joint = self.joint_newton(sig_tr, s_n, log_dt, p)
+        y_lo, y_hi, y0 = self._start(sig_tr, s_n, log_dt, p)
+        y, conv_y = _bracketed_newton(
+            self._y_residual,
+            (sig_tr, s_n, log_dt, p),
+            (y_lo, y_hi),
+            jnp.where(joint, y_j, y0),
+            self.rtol,
+            self.rtol * sig_tr,
+            self.max_outer,
+            joint,
+        )
+        s_new, conv_s = self._s_of_y(y, s_n, log_dt, p, known=(s_j, joint))
+        return y, s_new, conv_y.astype(y.dtype) * conv_s
 
     def return_map(self, sig_tr, s_n, dt, p: AnandParams, solution=None):
         """Solve eq. 4.6b given the trial equivalent stress (> 0).
