@@ -58,6 +58,15 @@ class RigidDie:
     mu: jax.Array  # Coulomb friction coefficient (-)
     m: jax.Array  # shear friction factor (-), tau = m sigma_eq / sqrt(3)
     corner_radius: jax.Array  # radius R of the arcs that round the vertices (mm), > 0
+    # the rounded profile of `points` at t = 0 (:func:`rounded_profile`), computed once per
+    # step by :meth:`prepared` (a step's gaps are evaluated at many sites of its program,
+    # each of which would round the profile again); None: rounded where a gap needs it
+    profile: dict | None = None
+
+    def prepared(self) -> RigidDie:
+        """The die with its rounded profile computed (translation-invariant: a gap at time
+        t is the gap of x - offset(t) against it)."""
+        return replace(self, profile=rounded_profile(self.points, self.corner_radius))
 
     def travel(self, t):
         """Downward travel d(t) in mm (linear in the table; constant past its ends)."""
@@ -74,12 +83,14 @@ class RigidDie:
 
     def gap(self, x, t):
         """(g, n, tangent) of a node at current position x (2,) at time t."""
-        return closest_point_gap(self.points + self.offset(t)[None, :], self.corner_radius, x)
+        off = self.offset(t)
+        return closest_point_gap(self.points, self.corner_radius, x - off, self.profile)
 
     def facet_gap(self, xa, xb, t):
         """(g, engaged) of the workpiece facet xa -> xb against the convex arcs at time t
         (:func:`corner_gap`)."""
-        return corner_gap(self.points + self.offset(t)[None, :], self.corner_radius, xa, xb)
+        off = self.offset(t)
+        return corner_gap(self.points, self.corner_radius, xa - off, xb - off, self.profile)
 
     @property
     def members(self) -> tuple[RigidDie, ...]:
@@ -214,6 +225,10 @@ class DieSet:
         g, engaged, _ = self.facet_frame(xa, xb, t)
         return g, engaged
 
+    def prepared(self) -> DieSet:
+        """The set with every die's rounded profile computed (:meth:`RigidDie.prepared`)."""
+        return self.replace_each(lambda d: d.prepared())
+
     def replace_each(self, fn) -> DieSet:
         """The set with ``fn`` applied to every die (a friction coefficient or a speed
         given for the scene holds for every die)."""
@@ -269,9 +284,10 @@ def rounded_profile(points, corner_radius):
     )
 
 
-def closest_point_gap(points, corner_radius, x):
-    """(g, n, tangent) of x against the rounded profile (see the module docstring)."""
-    pr = rounded_profile(points, corner_radius)
+def closest_point_gap(points, corner_radius, x, profile=None):
+    """(g, n, tangent) of x against the rounded profile (see the module docstring);
+    ``profile``: :func:`rounded_profile` of (points, corner_radius) if already computed."""
+    pr = rounded_profile(points, corner_radius) if profile is None else profile
     # straight pieces
     s = jnp.clip(jnp.sum((x - pr["start"]) * pr["t"], axis=1), pr["lo"], pr["hi"])
     q_seg = pr["start"] + s[:, None] * pr["t"]
@@ -313,9 +329,9 @@ def has_convex_corner(points, corner_radius) -> bool:
     return bool(np.any(np.asarray(pr["turns"]) & (np.asarray(pr["sign"]) > 0)))
 
 
-def corner_gap(points, corner_radius, xa, xb):
+def corner_gap(points, corner_radius, xa, xb, profile=None):
     """(g, engaged) of the workpiece facet xa -> xb (material on its left) against the
-    convex arcs of the rounded profile.
+    convex arcs of the rounded profile (``profile``: as for :func:`closest_point_gap`).
 
     For each convex arc the point deepest into the facet's material side is the arc point
     whose outward normal is minus the facet's (or, outside the arc's span, the nearer
@@ -329,7 +345,7 @@ def corner_gap(points, corner_radius, xa, xb):
     above it): under a facet parallel to a straight piece between two arcs, the two arc
     ends lie at one depth and a hard minimum would move the facet's force from one node to
     the other in a jump (Newton then cycles)."""
-    pr = rounded_profile(points, corner_radius)
+    pr = rounded_profile(points, corner_radius) if profile is None else profile
     d = xb - xa
     length = jnp.sqrt(jnp.sum(d * d))
     tau = d / length

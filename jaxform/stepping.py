@@ -167,7 +167,7 @@ def step_context(
         t=t_new,
         dt=dt,
         params=inp.params,
-        die=inp.die,
+        die=None if inp.die is None else inp.die.prepared(),  # rounded once, not per gap site
         c_contact=inp.c_contact,
         cstep=contact_step(model, state, inp, idx),
         idx=idx,
