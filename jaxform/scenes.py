@@ -398,6 +398,7 @@ def build_scene(cfg: dict | Config) -> Scene:
         mesh, form.n_fields, piece.contact_sets(mesh), corner, temperature=thermal is not None
     )
     fr = cfg.friction
+    law = law.for_points(4 * layout.n_elements)  # its local solve for the mesh's size
     model = Model(form, law, layout, ContactLaw(fr.model if fr is not None else "none"))
     c = _contact_scale(mesh, float(law.shear_modulus(params)), axi)
     remesh = None

@@ -206,6 +206,24 @@ def seed_run():
     return sc, simulate(sc)
 
 
+def test_joint_local_solve_runs_the_seed_scene_as_the_nested_one():
+    """A scene's Anand law picks its local solve by size (``Anand.for_points``: the nested
+    bracketed solve alone below JOINT_MIN_POINTS Gauss points, as on this 10 x 10 mesh;
+    Newton on both equations first from there).  Reference: the nested solve's run.  The
+    joint solve forced on the same scene gives the same force history and unknowns to
+    1e-10 relative (both solve the return map to rtol 1e-13 and Newton to 1e-10)."""
+    from jaxform.materials.anand import JOINT_MIN_POINTS
+
+    sc, ref = seed_run()
+    law = sc.model.law
+    assert not law.joint and law.for_points(JOINT_MIN_POINTS).joint
+    res = simulate(replace(sc, model=replace(sc.model, law=replace(law, joint=True))))
+    f, f_ref = res.history["force_N"][1:], ref.history["force_N"][1:]
+    assert np.max(np.abs(f - f_ref) / np.abs(f_ref)) <= 1e-10
+    u, u_ref = res.fields["x"][-1], ref.fields["x"][-1]
+    assert np.max(np.abs(u - u_ref)) <= 1e-10 * np.max(np.abs(u_ref))
+
+
 def test_newton_quadratic_tail_on_seed_scene():
     """Quadratic tail: for 1e-7 < e_k < 1e-2 (e = ||R||/F; below 1e-7, e_k^2 is under the
     round-off floor ~1e-14), e_{k+1} <= 10 e_k^2.  Measured on the seed scene: the ratios

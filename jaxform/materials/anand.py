@@ -139,6 +139,10 @@ def _local_residual(z, args):
     return jnp.stack([_flow_residual(y, s, sig_tr, log_dt, p), _s_residual(s, (y, s_n, log_dt, p))])
 
 
+JOINT_MIN_POINTS = 4_000  # Gauss points (1 000 four-point elements) from which the
+# joint local solve pays for its compile time within one run (:meth:`Anand.for_points`)
+
+
 @dataclass(frozen=True)
 class Anand:
     """Anand elasto-viscoplastic law (strategy: local-solve tolerances and caps)."""
@@ -150,6 +154,15 @@ class Anand:
     max_inner: int = 80
     max_joint: int = 12
     rtol: float = 1e-13
+    joint: bool = True  # Newton on both equations first (False: the nested solve alone)
+
+    def for_points(self, n_points: int) -> Anand:
+        """The strategy for a mesh of ``n_points`` Gauss points: the joint Newton first
+        from JOINT_MIN_POINTS on, the nested solve alone below.  The joint solve halves
+        the local solves' run time but adds ~1k equations to every program holding the
+        update (~0.5 s of compile, docs/benchmarks.md); on a 10 x 10 mesh the local solves
+        of a whole run cost ~0.05 s, so a small scene compiles the smaller program."""
+        return replace(self, joint=n_points >= JOINT_MIN_POINTS)
 
     def initial_state(self, params: AnandParams) -> MaterialState:
         s0 = jnp.asarray(params.s0_MPa)
@@ -245,7 +258,9 @@ class Anand:
     def local_solve(self, sig_tr, s_n, log_dt, p: AnandParams):
         """(y = log d_eqps, s_new, converged as 1.0/0.0): :meth:`joint_newton`, and the
         nested solve where it did not converge (not differentiable itself: see
-        ``_local_solution``)."""
+        ``_local_solution``).  ``joint = False``: the nested solve alone."""
+        if not self.joint:
+            return self.nested_solve(sig_tr, s_n, log_dt, p)
         y_j, s_j, joint = self.joint_newton(sig_tr, s_n, log_dt, p)
         y_lo, y_hi, y0 = self._start(sig_tr, s_n, log_dt, p)
         y, conv_y = _bracketed_newton(
