@@ -139,6 +139,17 @@ def _local_residual(z, args):
     return jnp.stack([_flow_residual(y, s, sig_tr, log_dt, p), _s_residual(s, (y, s_n, log_dt, p))])
 
 
+def _newton_2x2(j, b):
+    """(d0, d1, regular): d = -j^-1 b for a 2x2 j by Cramer's rule, and whether j is
+    regular (d = 0 where it is not: no division by zero, no NaN derivative)."""
+    det = j[0, 0] * j[1, 1] - j[0, 1] * j[1, 0]
+    regular = det != 0.0
+    inv_det = jnp.where(regular, 1.0 / jnp.where(regular, det, 1.0), 0.0)
+    d0 = -(j[1, 1] * b[0] - j[0, 1] * b[1]) * inv_det
+    d1 = -(j[0, 0] * b[1] - j[1, 0] * b[0]) * inv_det
+    return d0, d1, regular
+
+
 JOINT_MIN_POINTS = 4_000  # Gauss points (1 000 four-point elements) from which the
 # joint local solve pays for its compile time within one run (:meth:`Anand.for_points`)
 
@@ -229,15 +240,12 @@ class Anand:
         def body(c):
             z, it = c[0], c[1]
             jz, r = jax.jacfwd(with_value, has_aux=True)(z)
-            det = jz[0, 0] * jz[1, 1] - jz[0, 1] * jz[1, 0]
-            safe = jnp.where(det != 0.0, det, 1.0)
-            dy = -(jz[1, 1] * r[0] - jz[0, 1] * r[1]) / safe
-            ds = -(jz[0, 0] * r[1] - jz[1, 0] * r[0]) / safe
+            dy, ds, regular = _newton_2x2(jz, r)
             tol_s = self.rtol * (jnp.abs(s_n) + jnp.abs(z[1]))
             small_r = (jnp.abs(r[0]) <= self.rtol * sig_tr) & (jnp.abs(r[1]) <= tol_s)
             small_step = (jnp.abs(dy) <= self.rtol) & (jnp.abs(ds) <= tol_s)
             zn = jnp.where(small_r, z, jnp.stack([jnp.clip(z[0] + dy, y_lo, y_hi), z[1] + ds]))
-            bad = (det == 0.0) | ~jnp.all(jnp.isfinite(zn)) | (zn[1] <= 0.0)
+            bad = ~regular | ~jnp.all(jnp.isfinite(zn)) | (zn[1] <= 0.0)
             return zn, it + 1, (small_r | small_step) & ~bad, bad
 
         init = (jnp.stack([y0, s_n]), jnp.asarray(0), jnp.asarray(False), jnp.asarray(False))
@@ -346,11 +354,7 @@ def _implicit_tangent(y, s, primals, tangents):
     z = jnp.stack([y, s])
     jz = jax.jacfwd(_local_residual)(z, primals)
     _, dr = jax.jvp(lambda a: _local_residual(z, a), (primals,), (tangents,))
-    det = jz[0, 0] * jz[1, 1] - jz[0, 1] * jz[1, 0]
-    regular = det != 0.0
-    inv_det = jnp.where(regular, 1.0 / jnp.where(regular, det, 1.0), 0.0)
-    dy = -(jz[1, 1] * dr[0] - jz[0, 1] * dr[1]) * inv_det
-    ds = -(jz[0, 0] * dr[1] - jz[1, 0] * dr[0]) * inv_det
+    dy, ds, _ = _newton_2x2(jz, dr)
     return dy, ds
 
 
