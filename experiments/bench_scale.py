@@ -37,6 +37,7 @@ import resource
 import subprocess
 import sys
 import time
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -147,12 +148,12 @@ def full(n: int, newton: str, config: str, depths: list[int], sets: list[str]) -
         scenes[d] = build_scene(cfg)
         simulate(scenes[d])
         print(f"anderson_depth={d}: first run {time.perf_counter() - t0:.1f} s", flush=True)
-    best, results = {d: np.inf for d in depths}, {}
-    for _ in range(2):
-        for d in depths:
-            t0 = time.perf_counter()
-            results[d] = simulate(scenes[d])
-            best[d] = min(best[d], time.perf_counter() - t0)
+    results = {}
+
+    def run(d):
+        results[d] = simulate(scenes[d])
+
+    best = dict(zip(depths, interleaved([partial(run, d) for d in depths], 2, warm_up=False)))
     for d in depths:
         h, scene = results[d].history, scenes[d]
         its = h["newton_iterations"][1:]

@@ -21,16 +21,16 @@ def best_of(fn, repeats: int) -> float:
     return best
 
 
-def interleaved(fns, repeats: int, release=None) -> list[float]:
-    """Best wall time (s) of each of ``fns`` (after one warm-up call each), the calls made
-    in turn ``repeats`` times: a machine whose speed drifts (a shared host) slows all of
-    them alike, so their ratios hold better than with one best-of after another.
-    ``release``: {index: function} called untimed on that call's result (e.g. to free a
-    sparse factorization)."""
+def interleaved(fns, repeats: int, release=None, warm_up: bool = True) -> list[float]:
+    """Best wall time (s) of each of ``fns`` (after one warm-up call each, unless the
+    caller made it: ``warm_up=False``), the calls made in turn ``repeats`` times: a
+    machine whose speed drifts (a shared host) slows all of them alike, so their ratios
+    hold better than with one best-of after another.  ``release``: {index: function}
+    called untimed on that call's result (e.g. to free a sparse factorization)."""
     import jax
 
     release = release or {}
-    for i, fn in enumerate(fns):
+    for i, fn in enumerate(fns if warm_up else ()):
         out = jax.block_until_ready(fn())
         if i in release:
             jax.block_until_ready(release[i](out))
