@@ -244,7 +244,8 @@ def _anderson_step(mem, x, f):
     residual reaches its root in at most depth + 1 steps of this (a multisecant update of
     J_old^-1); a nonlinear one contracts faster than with plain steps.  ``mem`` holds the
     differences (newest first), the last iterate and its f, and how many differences are
-    usable (-1: no last iterate).  Returns the step and the memory with (x, f) pushed."""
+    usable (-1: no last iterate, which empties it: the rest is then never read).  Returns
+    the step and the memory with (x, f) pushed."""
     d_x, d_f, x_last, f_last, n = mem["dx"], mem["df"], mem["x"], mem["f"], mem["n"]
     depth = d_x.shape[0]
     has_last = n >= 0
@@ -326,9 +327,7 @@ def modified_newton(
             fac.valid, lambda: solve_factored(fac, -r), lambda: jnp.full_like(r, jnp.nan)
         )  # never solve with no factors
         if s.anderson_depth > 0:  # a refreshed step is Newton's, and starts the memory
-            mem = jax.tree_util.tree_map(
-                lambda a, b: jnp.where(fresh, a, b), _anderson_memory(s.anderson_depth, x), c["aa"]
-            )
+            mem = dict(c["aa"], n=jnp.where(fresh, -1, c["aa"]["n"]))  # n < 0: empty
             dx, mem = _anderson_step(mem, x, dx)
         finite = jnp.isfinite(dx).all()
 
@@ -374,9 +373,7 @@ def modified_newton(
             # a mixed step that is rejected is retried plainly, with the same factorization
             mixed = reject & (mem["n"] > 0)
             new["refresh"] = jnp.where(mixed, False, new["refresh"])
-            new["aa"] = jax.tree_util.tree_map(
-                lambda a, b: jnp.where(mixed, a, b), _anderson_memory(s.anderson_depth, x), mem
-            )
+            new["aa"] = dict(mem, n=jnp.where(mixed, -1, mem["n"]))
         return new
 
     init = dict(
