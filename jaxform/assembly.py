@@ -156,6 +156,13 @@ class Layout:
         return x[: self.n_node_dofs].reshape(self.n_nodes, self.n_fields)
 
 
+def _device_int32(a) -> jax.Array:
+    """An index array on the device as int32, converted on the host and put there by
+    ``jax.device_put`` (``jnp.asarray`` of a host array compiles, or loads, a small copy
+    program per shape and dtype; so does a conversion on the device)."""
+    return jax.device_put(np.asarray(a, dtype=np.int32))
+
+
 def build_indices(
     mesh,
     n_fields: int,
@@ -199,27 +206,26 @@ def build_indices(
     uniq, slot = np.unique(keys, return_inverse=True)
     layout = Layout(n_nodes, nf, n_c, len(elements), len(uniq), n_fc)
     idx = Indices(
-        edofs=jnp.asarray(edofs, dtype=jnp.int32),
-        elements=jnp.asarray(elements, dtype=jnp.int32),
-        fixed=jnp.asarray(np.asarray(fixed_dofs, dtype=np.int64), dtype=jnp.int32),
-        contact_nodes=jnp.asarray(contact_nodes, dtype=jnp.int32),
-        contact_dofs=jnp.asarray(cdofs, dtype=jnp.int32),
-        mult_dofs=jnp.asarray(mdofs, dtype=jnp.int32),
-        contact_facets=jnp.asarray(_local_facets(contact_nodes, walked), jnp.int32),
-        contact_fixed=jnp.asarray(np.isin(cdofs[:, :2], np.asarray(fixed_dofs))),
-        facet_dofs=jnp.asarray(fdofs, dtype=jnp.int32),
-        facet_mult=jnp.asarray(fmult, dtype=jnp.int32),
-        rows=jnp.asarray(uniq // n, dtype=jnp.int32),
-        cols=jnp.asarray(uniq % n, dtype=jnp.int32),
-        slot=jnp.asarray(slot.ravel(), dtype=jnp.int32),
-        bottom_reaction_dofs=jnp.asarray(
-            reaction_dofs if reaction_dofs is not None else np.zeros(0, np.int64), dtype=jnp.int32
+        edofs=_device_int32(edofs),
+        elements=_device_int32(elements),
+        fixed=_device_int32(np.asarray(fixed_dofs, dtype=np.int64)),
+        contact_nodes=_device_int32(contact_nodes),
+        contact_dofs=_device_int32(cdofs),
+        mult_dofs=_device_int32(mdofs),
+        contact_facets=_device_int32(_local_facets(contact_nodes, walked)),
+        contact_fixed=jax.device_put(np.isin(cdofs[:, :2], np.asarray(fixed_dofs))),
+        facet_dofs=_device_int32(fdofs),
+        facet_mult=_device_int32(fmult),
+        rows=_device_int32(uniq // n),
+        cols=_device_int32(uniq % n),
+        slot=_device_int32(slot.ravel()),
+        bottom_reaction_dofs=_device_int32(
+            reaction_dofs if reaction_dofs is not None else np.zeros(0, np.int64)
         ),
-        load_facets=jnp.asarray(
+        load_facets=_device_int32(
             np.zeros((0, 2), np.int64)
             if load_facets is None
-            else np.asarray(load_facets, dtype=np.int64),
-            dtype=jnp.int32,
+            else np.asarray(load_facets, dtype=np.int64)
         ),
     )
     return layout, idx

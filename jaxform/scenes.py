@@ -434,7 +434,7 @@ def build_scene(cfg: dict | Config) -> Scene:
             anderson_depth=so.anderson_depth,
         ),
         inputs=Inputs(
-            coords=jnp.asarray(mesh.coords),
+            coords=jax.device_put(np.asarray(mesh.coords, dtype=float)),
             params=params,
             die=die,
             c_contact=jnp.asarray(c),

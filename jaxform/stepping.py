@@ -75,10 +75,11 @@ class SimState:
     heat_mJ: jax.Array
 
 
+@partial(jit, static_argnums=0)
 def initial_state(model: Model, inputs: Inputs) -> SimState:
     """The state at t = 0: no displacement, the material's initial Gauss state, the
     workpiece at ``inputs.thermal.billet_temperature_K`` (with a temperature field, whose
-    unknown is the change from it: 0)."""
+    unknown is the change from it: 0).  One compiled program (not a dozen eager ones)."""
     lay = model.layout
     z = jnp.zeros(lay.n_dofs)
     return SimState(

@@ -40,7 +40,8 @@ CPU_OPTIONS = {
 @functools.cache
 def _cpu_options_supported() -> bool:
     try:
-        jax.jit(lambda a: a + 1.0, compiler_options=CPU_OPTIONS).lower(jnp.zeros(2)).compile()
+        arg = jax.ShapeDtypeStruct((2,), jnp.float32)  # no eager program to make one
+        jax.jit(lambda a: a + 1.0, compiler_options=CPU_OPTIONS).lower(arg).compile()
     except Exception:  # an older jaxlib: unknown option
         return False
     return True

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -53,7 +54,7 @@ class MaterialParams:
     name: str = "material"
 
     def initial(self):
-        return jnp.zeros(len(self.names))
+        return _zeros(len(self.names))
 
     def bounds(self):
         b = jnp.full(len(self.names), self.bound_log)
@@ -100,7 +101,7 @@ class RamSpeed:
     name: str = "speed"
 
     def initial(self):
-        return jnp.zeros(1)
+        return _zeros(1)
 
     def bounds(self):
         return jnp.full(1, -self.bound_log), jnp.full(1, self.bound_log)
@@ -176,7 +177,7 @@ class PreformCosine:
         return id(self)
 
     def initial(self):
-        return jnp.zeros(self.n_modes)
+        return _zeros(self.n_modes)
 
     def bounds(self):
         b = jnp.full(self.n_modes, self.amplitude_max)
@@ -225,7 +226,7 @@ class NodalCoordinates:
         return id(self)
 
     def initial(self):
-        return jnp.zeros(len(self.nodes))
+        return _zeros(len(self.nodes))
 
     def bounds(self):
         b = jnp.full(len(self.nodes), self.offset_max_mm)
@@ -249,7 +250,7 @@ class DieProfile:
     name: str = "die"
 
     def initial(self):
-        return jnp.zeros(len(self.points))
+        return _zeros(len(self.points))
 
     def bounds(self):
         b = jnp.full(len(self.points), self.offset_max_mm)
@@ -263,6 +264,12 @@ class DieProfile:
 
     def physical(self, u):
         return {f"die_dz{i}_mm": float(u[k]) for k, i in enumerate(self.points)}
+
+
+def _zeros(n: int) -> jax.Array:
+    """A start design on the device without compiling a program for it (``jnp.zeros``
+    compiles, or loads, one per shape)."""
+    return jax.device_put(np.zeros(n))
 
 
 def apply_all(groups, design: dict, inputs, times):

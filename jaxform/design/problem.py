@@ -325,11 +325,16 @@ def build_problem(
     built = tuple(build_group(scene, n) for n in names)
     start = par.initial_design(built)
     if "material" in start:
-        start["material"] = start["material"] + np.log(scene.settings.design.material_start_factor)
+        shifted = np.asarray(start["material"]) + np.log(
+            scene.settings.design.material_start_factor
+        )
+        start["material"] = jax.device_put(shifted)
     objective = build_objective(scene) if objective is None else objective
     plan = None
     if times is None:
-        inputs, _ = par.apply_all(built, start, scene.inputs, jnp.asarray(scene.step_targets()))
+        # one program, not ~60 eager operations (each lowered and compiled or loaded)
+        apply = jit(partial(par.apply_all, built))
+        inputs, _ = apply(start, scene.inputs, jnp.asarray(scene.step_targets()))
         times, plan = remeshed_schedule(scene, inputs)
     elif scene.remesh is not None and scene.remesh.on:
         raise ValueError(
