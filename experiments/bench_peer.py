@@ -20,7 +20,8 @@ punch force per mm of depth on the half model (N/mm).
   Newton with backtracking line search and a rate predictor inside one compiled
   ``lax.scan``, klujax sparse LU; ``solver.rtol`` = 1e-8 (||R|| <= 1e-8 x the step's
   force scale).  Elements: ``q4`` (displacement, 2 x 2 Gauss: the peer's element) and
-  ``q1p0`` (mean dilatation, what jaxform recommends: q4 locks under plastic flow).
+  ``q1p0`` (mean dilatation, what jaxform recommends: q4 locks under plastic flow), with
+  ``solver.newton = 'auto'``; ``q4:modified`` runs q4 with modified Newton at every size.
 * **JAX-FEM** (``jax_fem``, PyPI ``jax-fem`` 0.0.11; https://github.com/deepmodeling/jax-fem):
   a ``Problem`` subclass with QUAD4 elements (2 x 2 Gauss) whose ``get_tensor_map`` is the
   small-strain radial return of the same J2 law (plane strain: eps_zz = 0; the 3 x 3
@@ -120,6 +121,9 @@ def _rss_mib() -> float:
 
 
 def jaxform_config(n: int, element: str) -> dict:
+    """The scene for mesh n x n; ``element`` is 'q4' or 'q1p0', or with the Newton method
+    after a colon ('q4:modified'; otherwise solver.newton = 'auto')."""
+    element, _, newton = element.partition(":")
     g = geometry(n)
     return {
         "block": {
@@ -137,7 +141,12 @@ def jaxform_config(n: int, element: str) -> dict:
             "corner_radius_mm": 0.1 * g["h"],
         },
         "time": {"dt_s": TRAVEL / STEPS},
-        "solver": {"rtol": RTOL, "linear": "sparse", "chunk_steps": STEPS},
+        "solver": {
+            "rtol": RTOL,
+            "linear": "sparse",
+            "chunk_steps": STEPS,
+            "newton": newton or "auto",
+        },
         "output": {"fields": False, "plots": False},
     }
 
@@ -191,14 +200,15 @@ def run_jaxform(n: int, element: str, split: bool = True) -> dict:
         rf = jax.jit(model.residual)
         solve = jax.jit(lambda r, c, v, b: scene.linear.solve(r, c, v, b, lay.n_dofs))
         r, vals, *_ = rj(x, ctx)
-        fn = model._element_fn(inp.params, dt)
-        elem = jax.jit(
-            lambda x, g: jax.vmap(jax.jacfwd(fn, has_aux=True))(
-                model._gather(x, idx), inp.coords[idx.elements], g
-            )
-        )
+
+        def element_jacobians(x, ctx):
+            fn = model._element_fn(ctx)
+            xe, data, _, gnew, *_ = model._element_residuals(fn, x, ctx)
+            return model._element_jacobians(fn, xe, data, ctx.gauss, gnew)
+
+        elem = jax.jit(element_jacobians)
         out["assembly_s"] = best_of(lambda: rj(x, ctx), 3)
-        out["element_s"] = best_of(lambda: elem(x, st.gauss), 3)
+        out["element_s"] = best_of(lambda: elem(x, ctx), 3)
         out["residual_s"] = best_of(lambda: rf(x, ctx), 3)
         out["linear_s"] = best_of(lambda: solve(idx.rows, idx.cols, vals, -r), 3)
     out["peak_rss_mib"] = _rss_mib()
@@ -465,7 +475,12 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--meshes", type=int, nargs="+", default=[20, 50, 100])
     ap.add_argument("--quick", action="store_true", help="one small mesh (10 x 10)")
-    ap.add_argument("--elements", nargs="+", default=["q4", "q1p0"], help="jaxform elements to run")
+    ap.add_argument(
+        "--elements",
+        nargs="+",
+        default=["q4", "q1p0", "q4:modified"],
+        help="jaxform elements to run, each optionally with its solver.newton (q4:modified)",
+    )
     ap.add_argument(
         "--peer-python",
         default=os.environ.get("JAXFEM_PYTHON", sys.executable),
@@ -502,7 +517,7 @@ def main():
                 continue
             rows.append(r)
             print(
-                f"  {which:>7}: F = {r['force_N'][-1]:.3f} N/mm, "
+                f"  {which:>11}: F = {r['force_N'][-1]:.3f} N/mm, "
                 f"{r['newton_iterations']} iterations {r['iterations_per_step']}, "
                 f"setup {r['setup_s']:.2f} s, compile {r['compile_s']:.1f} s, "
                 f"solve {r['solve_s']:.3f} s",
@@ -521,7 +536,7 @@ def main():
 def report(rows: list[dict], have_peer: bool) -> None:
     peer = {r["n"]: r for r in rows if r["code"] == "jax-fem"}
     print(
-        f"\n{'mesh':>7} {'code':>12} {'unknowns':>8} {'setup':>7} {'compile':>8} "
+        f"\n{'mesh':>7} {'code':>20} {'unknowns':>8} {'setup':>7} {'compile':>8} "
         f"{'solve':>8} {'its':>4} {'per it':>9} {'assembly':>9} {'element':>8} {'linear':>8} "
         f"{'force':>9} {'vs peer':>8} {'time / peer':>11}"
     )
@@ -537,7 +552,7 @@ def report(rows: list[dict], have_peer: bool) -> None:
         lin = r.get("linear_s", float("nan"))
         el = r.get("element_s", float("nan"))
         print(
-            f"{r['n']:>3}x{r['n']:<3} {name:>12} {r['unknowns']:>8} {r['setup_s']:>6.2f}s "
+            f"{r['n']:>3}x{r['n']:<3} {name:>20} {r['unknowns']:>8} {r['setup_s']:>6.2f}s "
             f"{r['compile_s']:>7.1f}s {r['solve_s']:>7.3f}s {r['newton_iterations']:>4} "
             f"{r['per_iteration_s'] * 1e3:>7.1f}ms {a * 1e3:>7.1f}ms {el * 1e3:>6.1f}ms "
             f"{lin * 1e3:>6.1f}ms "
