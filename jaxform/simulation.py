@@ -467,6 +467,8 @@ def step(
     scene: Scene, state: SimState, control: StepControl, inputs: Inputs | None = None
 ) -> tuple[SimState, StepControl, dict]:
     """One converged step from ``state`` (adaptive size; the last one ends at t_end).
+    With modified Newton the step factors at its first iteration and frees its
+    factorization before returning (none is kept from one call to the next).
 
     Arguments:
         scene: from :func:`jaxform.scenes.build_scene`.
@@ -482,7 +484,11 @@ def step(
         None; the state passed in is the last good one).
     """
     inp = scene.inputs if inputs is None else inputs
-    new, info, _ = _attempt(stepper_of(scene), state, control, inp, scene.idx)
+    fac = None
+    if scene.newton.method == "modified":  # a factorization of this step alone
+        fac = scene.linear.empty_factorization(scene.model.layout.n_dofs, state.x.dtype)
+    new, info, fac = _attempt(stepper_of(scene), state, control, inp, scene.idx, fac)
+    scene.linear.release_now(fac)
     if int(info["code"]) != OK:
         row = {"cutbacks": info["cutbacks"], "code": info["code"]}
         raise SimulationError(_failure_message(scene, inp, state, None, row), None)

@@ -312,13 +312,15 @@ class Stepper:
     # only a scene that remeshes on them pays for them (jaxform.triggers)
     shape_triggers: bool = False
 
-    def next_step(self, h_used, iterations, cutbacks, dt_max):
-        """The size of the next step after one of size h_used."""
+    def next_step(self, h_used, jacobians, cutbacks, dt_max):
+        """The size of the next step after one of size h_used that took ``jacobians``
+        Newton iterations with a new Jacobian (all of them for full Newton; for modified
+        Newton its refreshes, so that both methods grow the step on the same effort)."""
         # no shrinking ahead on many iterations: halving after a hard but converged step
         # made the 20 x 20 q1p0 friction scene fail at 54.8 % (72-82 steps, 12-37
         # cutbacks) where the full step completes it (57 steps, no cutback)
-        n = self.newton.max_total_iterations
-        easy = (cutbacks == 0) & (iterations <= max(n // 5, 1))
+        n = self.newton.max_iterations
+        easy = (cutbacks == 0) & (jacobians <= max(n // 5, 1))
         grown = jnp.minimum(dt_max, h_used * self.dt_growth)
         return jnp.where(easy, grown, h_used)
 
@@ -341,6 +343,14 @@ class StepControl:
     pause_stroke_mm: jax.Array = 0.0  # after the step that reaches this stroke (mm)
     corner_depth_ratio: jax.Array = 0.0  # a die corner deeper in a facet than this x length
     fold_angle_deg: jax.Array = 0.0  # a free-surface fold narrower than this (deg)
+
+
+def _jacobians(stepper: Stepper, sol: StepSolution, fac_before):
+    """Newton iterations of ``sol`` with a new Jacobian: modified Newton's factorizations
+    (the count its kept factorization carries), full Newton's iterations."""
+    if stepper.newton.method == "modified" and fac_before is not None:
+        return sol.fac.count - fac_before.count
+    return sol.iterations
 
 
 def attempt_step(
@@ -378,7 +388,7 @@ def attempt_step(
             h_used=hh,
             done=ok | failed,
             iterations=c["iterations"] + sol.iterations,
-            last_iterations=sol.iterations,
+            last_jacobians=_jacobians(stepper, sol, c["fac"]),
             cutbacks=c["cutbacks"] + (~ok).astype(jnp.int32),
             code=jnp.where(ok, OK, sol.code),
             hist=sol.hist,
@@ -392,7 +402,7 @@ def attempt_step(
         h_used=zero,
         done=jnp.asarray(False),
         iterations=jnp.asarray(0),
-        last_iterations=jnp.asarray(0),
+        last_jacobians=jnp.asarray(0),
         cutbacks=jnp.asarray(0, jnp.int32),
         code=jnp.asarray(OK),
         hist=jnp.full(n_hist, jnp.inf),
@@ -401,7 +411,7 @@ def attempt_step(
     out = jax.lax.while_loop(cond, body, init)
     info = {k: out[k] for k in ("iterations", "cutbacks", "code", "hist", "h_used")}
     info["h_next"] = stepper.next_step(
-        out["h_used"], out["last_iterations"], out["cutbacks"], control.dt_max
+        out["h_used"], out["last_jacobians"], out["cutbacks"], control.dt_max
     )
     return out["state"], info, out["fac"]
 
