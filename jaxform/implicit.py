@@ -32,8 +32,9 @@ def _value_and_slope(fn: Fn, x, args):
     return jax.jvp(lambda z: fn(z, args), (x,), (one,))
 
 
-def _bracketed_newton(fn: Fn, args, bracket, x0, xtol, ftol, maxiter, known=False):
-    """The safeguarded iteration in ``bracket = (lo, hi)``: at most ``maxiter + 1``
+def bracketed_newton(fn: Fn, args, bracket, x0, xtol, ftol, maxiter, known=False):
+    """The safeguarded iteration in ``bracket = (lo, hi)``, not differentiated (its
+    caller differentiates the solution, as :func:`root_scalar` does): at most ``maxiter + 1``
     evaluations of fn, the first at x0.  fn is evaluated in one place only, the loop body
     (the first pass evaluates x0): a root nested inside fn is traced and compiled once,
     not once per evaluation site.
@@ -80,7 +81,7 @@ def root_scalar(fn: Fn, args, lo, hi, x0, xtol, ftol, maxiter):
     root, so they carry no derivative); ``maxiter`` an int scalar.
     """
     sg = jax.lax.stop_gradient
-    x, conv = _bracketed_newton(fn, args, (sg(lo), sg(hi)), sg(x0), sg(xtol), sg(ftol), maxiter)
+    x, conv = bracketed_newton(fn, args, (sg(lo), sg(hi)), sg(x0), sg(xtol), sg(ftol), maxiter)
     return x, conv.astype(x.dtype)
 
 

@@ -348,7 +348,7 @@ class StepControl:
 def _jacobians(stepper: Stepper, sol: StepSolution, fac_before):
     """Newton iterations of ``sol`` with a new Jacobian: modified Newton's factorizations
     (the count its kept factorization carries), full Newton's iterations."""
-    if stepper.newton.method == "modified" and fac_before is not None:
+    if stepper.newton.method == "modified":
         return sol.fac.count - fac_before.count
     return sol.iterations
 

@@ -45,7 +45,7 @@ from typing import ClassVar
 import jax
 import jax.numpy as jnp
 
-from jaxform.implicit import _bracketed_newton, root_scalar
+from jaxform.implicit import bracketed_newton, root_scalar
 from jaxform.kinematics import StepKinematics
 from jaxform.materials.base import (
     MaterialState,
@@ -202,7 +202,7 @@ class Anand:
         if known is None:
             return root_scalar(_s_residual, args, lo, hi, s_n, tol, tol, self.max_inner)
         s0, flag = known
-        s, conv = _bracketed_newton(
+        s, conv = bracketed_newton(
             _s_residual, args, (lo, hi), jnp.where(flag, s0, s_n), tol, tol, self.max_inner, flag
         )
         return s, conv.astype(s.dtype)
@@ -271,7 +271,7 @@ class Anand:
             return self.nested_solve(sig_tr, s_n, log_dt, p)
         y_j, s_j, joint = self.joint_newton(sig_tr, s_n, log_dt, p)
         y_lo, y_hi, y0 = self._start(sig_tr, s_n, log_dt, p)
-        y, conv_y = _bracketed_newton(
+        y, conv_y = bracketed_newton(
             self._y_residual,
             (sig_tr, s_n, log_dt, p),
             (y_lo, y_hi),
