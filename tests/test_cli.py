@@ -1,5 +1,9 @@
 """The command line writes what it promises (CSV columns, PNG), and rejects bad input."""
 
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 from cli_harness import Reached, assert_refused, run_cli
@@ -8,6 +12,18 @@ from jaxform.cli import main
 from jaxform.io import read_csv
 
 SEED = "configs/upsetting_seed.toml"
+ROOT = Path(__file__).resolve().parents[1]
+
+# the console script's body (jaxform.cli.entry) with an exit handler that leaves a mark
+ENTRY = """
+import atexit, sys
+marker = sys.argv.pop(1)
+atexit.register(lambda: open(marker, "w").write("ran"))
+sys.argv[0] = "jaxform"
+from jaxform.cli import entry
+entry()
+print("not reached")
+"""
 
 
 def test_material_point_cli_writes_csv_and_png(tmp_path):
@@ -36,6 +52,36 @@ def test_material_point_cli_writes_csv_and_png(tmp_path):
     assert 13.0 < table["stress_MPa"][-1] < 17.0
     assert np.all(np.diff(table["eqps"]) >= 0)
     assert (tmp_path / "stress_strain.png").stat().st_size > 10_000
+
+
+def test_console_entry_ends_with_the_status_after_the_exit_handlers(tmp_path):
+    """The console script (jaxform.cli.entry) ends the process as soon as main() returns:
+    with main()'s status, after the exit handlers ran (the mark is written) and with
+    everything printed flushed (the last line arrives, the files are complete); a
+    refused input still exits 2 with its one line."""
+
+    def console(*argv):
+        marker = tmp_path / f"mark{len(list(tmp_path.glob('mark*')))}"
+        proc = subprocess.run(
+            [sys.executable, "-c", ENTRY, str(marker), *argv],
+            cwd=ROOT,
+            capture_output=True,
+            text=True,
+            timeout=600,
+            check=False,
+        )
+        return proc, marker.read_text() if marker.exists() else None
+
+    out = tmp_path / "mp"
+    argv = ["material-point", "--rates", "0.1", "--steps", "20", "--strain", "0.2"]
+    proc, mark = console(*argv, "--out", str(out))
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert mark == "ran" and "not reached" not in proc.stdout
+    assert proc.stdout.rstrip().splitlines()[-1] == f"wrote {out / 'stress_strain.png'}"
+    assert len(read_csv(out / "uniaxial_rate_0.1_1_s.csv")["strain"]) == 21
+    proc, mark = console(*argv[:-2], "--strain", "0", "--out", str(out))
+    assert proc.returncode == 2 and mark == "ran"
+    assert len(proc.stderr.strip().splitlines()) == 1 and "--strain" in proc.stderr
 
 
 @pytest.mark.parametrize(
