@@ -16,13 +16,9 @@ directory, under a key of everything that shapes it:
 
 A stored program is loaded and called through a small wrapper program (traced in
 milliseconds; its XLA compile comes from the persistent cache), so a warm first call
-skips the tracing and lowering.  Where the wrapper was compiled in the process, its
-executable is stored beside it, under the key and :func:`machine_tag` (the device, the
-CPU's instruction-set features, ``XLA_FLAGS``): the next process loads that directly and
-skips the wrapper's lowering and the persistent cache's key and decompression too (a
-warm seed run 0.2-0.3 s sooner, docs/benchmarks.md).  What a program reads must come
-in through its arguments or be described by ``static``: a closed-over array that the
-description left out would be baked in unseen by the key.
+skips the tracing and lowering.  What a program reads must come in through its
+arguments or be described by ``static``: a closed-over array that the description left
+out would be baked in unseen by the key.
 
 Static settings whose ``repr`` shows an object address (no stable description), a
 program that cannot be exported, no cache directory (``jaxform.cache`` off) or
@@ -38,7 +34,6 @@ import enum
 import hashlib
 import os
 import pickle
-import platform
 import re
 import tempfile
 from functools import cache
@@ -48,7 +43,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import export
-from jax.experimental import serialize_executable
 
 from jaxform.cache import OFF, version_tag
 from jaxform.klu_free import register_ffi_targets
@@ -204,140 +198,38 @@ def _write(path: Path, data: bytes) -> None:
     os.replace(tmp, path)
 
 
-def _exported(key: str, fn, leaves, tree, folder: Path):
-    """(exported program, output tree) of program ``key``: from the disk, or exported now
-    (and stored)."""
-    blob_path, tree_path = folder / f"{key}.bin", folder / f"{key}.tree"
-    if blob_path.is_file() and tree_path.is_file():
-        try:
-            return (
-                export.deserialize(bytearray(blob_path.read_bytes())),
-                pickle.loads(tree_path.read_bytes()),
-            )
-        except Exception:  # a damaged or foreign file: export it again
-            pass
-    try:
-        exported, out_tree = _export(fn, leaves, tree)
-    except (ValueError, TypeError, NotImplementedError, ImportError) as err:
-        # jax.export refuses the program (a primitive or custom call it cannot
-        # serialize; ImportError: no flatbuffers serializer); an error of fn itself
-        # comes back when call() runs it unstored
-        raise NotStorable(key) from err
-    try:
-        _write(blob_path, bytes(exported.serialize()))
-        _write(tree_path, pickle.dumps(out_tree))
-    except OSError:
-        pass  # a read-only cache: the program still runs, exported afresh next time
-    return exported, out_tree
-
-
-@cache
-def machine_tag() -> str | None:
-    """What a compiled executable depends on besides its program and the versions in the
-    key: the device (platform, kind, the backend's platform version), the machine and its
-    CPU's instruction-set features (Linux: /proc/cpuinfo), and ``XLA_FLAGS``; a short hash,
-    or None where the CPU's features cannot be read (no executable is stored then)."""
-    dev = jax.devices()[0]
-    features = None
-    try:
-        with open("/proc/cpuinfo") as f:
-            features = next(
-                (ln for ln in f if ln.split(":")[0].strip() in ("flags", "Features")), None
-            )
-    except OSError:
-        pass
-    if dev.platform == "cpu" and not features:
-        return None
-    parts = (dev.platform, dev.device_kind, dev.client.platform_version, platform.machine(),
-             os.environ.get("XLA_FLAGS", ""), features or "")  # fmt: skip
-    return hashlib.sha256("\0".join(parts).encode()).hexdigest()[:16]
-
-
-_written = [0]  # entries JAX wrote to its persistent cache (programs compiled, not loaded)
-
-
-@cache
-def _count_written() -> None:
-    """Count JAX's cache writes from now on (one listener per process, added at the first
-    compile of a stored program, not on import)."""
-
-    def on_event(event, **kwargs):
-        if event == "/jax/compilation_cache/cache_misses":  # JAX's name for an entry written
-            _written[0] += 1
-
-    jax.monitoring.register_event_listener(on_event)
-
-
-def _executable_path(folder: Path, key: str) -> Path | None:
-    tag = machine_tag()
-    return None if tag is None else folder / f"{key}.{tag}.exe"
-
-
-@cache
-def _cpu_kernels_ready() -> bool:
-    """jaxlib's LAPACK kernels (dense LU and the like, called from inside a program) made
-    ready, as lowering a program that calls them does, and jax.export's call: an executable
-    loaded as it is calls them unlowered (with them unset it crashed).  False where this
-    jaxlib has no such call: then no executable is loaded."""
-    try:
-        from jaxlib import lapack
-
-        lapack.prepare_lapack_call("getrf_ffi", np.float64)
-    except (ImportError, AttributeError, TypeError, ValueError):
-        return False
-    return True
-
-
-def _load_executable(path: Path | None):
-    """(compiled wrapper, output tree) from a stored executable, or None."""
-    if path is None or not path.is_file():
-        return None
-    if jax.default_backend() == "cpu" and not _cpu_kernels_ready():
-        return None
-    try:
-        payload, in_tree, out_tree, result_tree = pickle.loads(path.read_bytes())
-        return serialize_executable.deserialize_and_load(payload, in_tree, out_tree), result_tree
-    except Exception:  # a damaged or foreign file: compiled (or loaded from the cache) again
-        return None
-
-
-def _store_executable(path: Path | None, entry) -> None:
-    if path is None:
-        return
-    try:
-        payload, in_tree, out_tree = serialize_executable.serialize(entry[0])
-        _write(path, pickle.dumps((payload, in_tree, out_tree, entry[1])))
-    except (OSError, TypeError, ValueError, NotImplementedError, pickle.PicklingError):
-        pass  # a read-only cache, or an executable XLA cannot serialize: none stored
-
-
 def _prepared(key: str, fn, leaves, tree):
-    """(compiled wrapper, output tree) of program ``key``: from this process, from a
-    stored executable, or compiled (JAX's persistent cache applies) from the program
-    stored on the disk or exported now.
-
-    The executable is stored (``{key}.{machine_tag}.exe``) where it was compiled in this
-    process: a warm start then loads it directly, without lowering the wrapper, hashing
-    it for the persistent cache's key and decompressing the cache's entry.  One that was
-    itself loaded from the persistent cache is not stored: XLA:CPU serializes such an
-    executable without its compiled kernels (the copy fails when run)."""
+    """(compiled wrapper, output tree) of program ``key``: from this process, from the
+    disk, or exported now (and stored)."""
     if key in _loaded:
         return _loaded[key]
     register_ffi_targets()  # a loaded program calls them without being traced here
     folder = store_dir()
-    exe_path = _executable_path(folder, key)
-    entry = _load_executable(exe_path)
-    if entry is None:
-        exported, out_tree = _exported(key, fn, leaves, tree, folder)
-        # compiled ahead of time for these leaves (the persistent cache applies): called
-        # through jit, the wrapper compiled a second time once the leaves came out of a
-        # program (committed to the device)
-        lowered = jit(exported.call).lower(*leaves)
-        _count_written()
-        written = _written[0]
-        entry = (lowered.compile(), out_tree)
-        if _written[0] > written:  # this one program compiled here, not loaded
-            _store_executable(exe_path, entry)
+    blob_path, tree_path = folder / f"{key}.bin", folder / f"{key}.tree"
+    exported = None
+    if blob_path.is_file() and tree_path.is_file():
+        try:
+            exported = export.deserialize(bytearray(blob_path.read_bytes()))
+            out_tree = pickle.loads(tree_path.read_bytes())
+        except Exception:  # a damaged or foreign file: export it again
+            exported = None
+    if exported is None:
+        try:
+            exported, out_tree = _export(fn, leaves, tree)
+        except (ValueError, TypeError, NotImplementedError, ImportError) as err:
+            # jax.export refuses the program (a primitive or custom call it cannot
+            # serialize; ImportError: no flatbuffers serializer); an error of fn itself
+            # comes back when call() runs it unstored
+            raise NotStorable(key) from err
+        try:
+            _write(blob_path, bytes(exported.serialize()))
+            _write(tree_path, pickle.dumps(out_tree))
+        except OSError:
+            pass  # a read-only cache: the program still runs, exported afresh next time
+    # compiled ahead of time for these leaves (the persistent cache applies): called
+    # through jit, the wrapper compiled a second time once the leaves came out of a
+    # program (committed to the device)
+    entry = (jit(exported.call).lower(*leaves).compile(), out_tree)
     _loaded[key] = entry
     return entry
 
