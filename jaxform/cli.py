@@ -431,13 +431,21 @@ def entry() -> None:
     down the interpreter with XLA's runtime and the compiled programs loaded in it would
     still take 0.3-0.6 s, a fifth of a warm seed run (docs/benchmarks.md, "Time to first
     result"), so the exit handlers run (``atexit``: logging, JAX's own), the streams are
-    flushed and the process ends at once with the command's status.  An exception, a
-    traceback or ``--help`` leave the usual way."""
-    code = main()
+    flushed and the process ends at once with the command's status.  A reader of stdout
+    that went away (``jaxform ... | head``) ends the command with status 1 and no
+    traceback; any other exception, and ``--help``, leave the usual way."""
+    try:
+        code = main()
+    except BrokenPipeError:  # the reader of stdout went away (jaxform ... | head)
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        code = 1
     atexit._run_exitfuncs()
     for stream in (sys.stdout, sys.stderr):
-        stream.flush()
-    os._exit(code)
+        try:
+            stream.flush()
+        except (OSError, ValueError):  # a closed pipe (jaxform ... | head): nothing to keep
+            pass
+    os._exit(int(code or 0))  # as sys.exit: None is success
 
 
 if __name__ == "__main__":

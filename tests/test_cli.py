@@ -82,6 +82,18 @@ def test_console_entry_ends_with_the_status_after_the_exit_handlers(tmp_path):
     proc, mark = console(*argv[:-2], "--strain", "0", "--out", str(out))
     assert proc.returncode == 2 and mark == "ran"
     assert len(proc.stderr.strip().splitlines()) == 1 and "--strain" in proc.stderr
+    # the reader of stdout gone before the command prints (jaxform ... | head): status 1,
+    # no traceback
+    child = subprocess.Popen(
+        [sys.executable, "-c", ENTRY, str(tmp_path / "mark_pipe"), *argv, "--out", str(out)],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    child.stdout.close()
+    err = child.stderr.read()
+    assert child.wait(timeout=600) == 1 and "Traceback" not in err, err[-2000:]
 
 
 @pytest.mark.parametrize(
