@@ -32,7 +32,7 @@ from jaxform.precision import require_x64
 from jaxform.remesh import RemeshError, remesh
 from jaxform.rezone import RezoneError, corner_qualities, min_quality, rezone
 from jaxform.scenes import Inputs, Scene
-from jaxform.status import CAUSES, OK, SINGULAR
+from jaxform.status import CAUSES, NOT_FINITE, OK, SINGULAR
 from jaxform.stepping import (
     SimState,
     StepControl,
@@ -134,8 +134,29 @@ def _failure_message(scene: Scene, inp: Inputs, state: SimState, step: int | Non
         f"{min(t + h_min, scene.t_end):g} s) failed after {int(row['cutbacks'])} attempts, "
         f"the last at the smallest step dt = {h_min:g} s (time.dt_s / 2**solver.max_cutbacks): "
         f"{CAUSES.get(int(row['code']), 'unknown')}; worst element {e} at "
-        f"({centre[0]:.4g}, {centre[1]:.4g}) mm, corner quality {q[e]:.3g}"
+        f"({centre[0]:.4g}, {centre[1]:.4g}) mm, corner quality {q[e]:.3g}{_remedy(scene, q[e])}"
     )
+
+
+def _remedy(scene: Scene, quality: float) -> str:
+    """The setting that lets a run stopped by a distorted element go on: a new mesh
+    before the elements fold (remeshing, or a higher trigger than the one set)."""
+    if quality >= 0.3:
+        return ""
+    rm = scene.remesh
+    if rm is not None and rm.on and rm.quality_below < 0.3:
+        return (
+            f"; remesh.quality_below = {rm.quality_below:g} fired too late: 0.3 replaces the "
+            f"mesh earlier"
+        )
+    if rm is not None and rm.on:
+        return "; remesh.element_size_mm smaller (a finer new mesh) may let the run go on"
+    if scene.rezone_quality > 0.0:
+        return (
+            "; the mesh folds faster than rezoning can mend it: remeshing "
+            "(mesh.rezone_quality = 0, remesh.quality_below = 0.3) replaces it"
+        )
+    return "; to go on, let the run replace the mesh before it folds: remesh.quality_below = 0.3"
 
 
 HISTORY_KEYS = (
@@ -164,6 +185,15 @@ def _initial_row(scene: Scene, state: SimState) -> dict:
                 pause_cause=0)  # fmt: skip
 
 
+def _host_failure(row: dict, err: Exception) -> str:
+    """The one line for an error raised between the compiled chunks (a remesh, a
+    transfer, the history): where the run was and what was raised."""
+    return (
+        f"the run stopped after the converged time {float(row['time_s']):g} s (stroke "
+        f"{float(row['stroke_mm']):.4g} mm): {type(err).__name__}: {err}"
+    )
+
+
 def _progress(scene: Scene, step: int, row: dict, chunk_end: bool) -> dict:
     """What the progress callback gets after a step: its number, an estimate of the
     number of steps (the rest at the largest step), whether it is the last converged step
@@ -174,6 +204,11 @@ def _progress(scene: Scene, step: int, row: dict, chunk_end: bool) -> dict:
     return dict(step=step, n_steps=n_steps, chunk_end=chunk_end, remeshed=remeshed,
                 remesh_trigger=causes(int(row["pause_cause"])) if remeshed else "",
                 **{k: row[k] for k in PROGRESS_KEYS})  # fmt: skip
+
+
+def _finite(row: dict) -> bool:
+    """Whether a converged step's force and unknowns are finite numbers."""
+    return bool(np.isfinite(row["force_N"]) and np.all(np.isfinite(row["x"])))
 
 
 def _singular(err: Exception) -> bool:
@@ -341,6 +376,8 @@ def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Re
         return stepped.linear.empty_factorization(stepped.model.layout.n_dofs, state.x.dtype)
 
     owned = [new_factorization()]
+    before = None  # (state, inputs) of the last converged step, before the last remesh
+    reporting = False
     try:
         while float(state.t) < t_stop and failure is None:
             every = settings.every_steps if remeshing else 0
@@ -361,6 +398,8 @@ def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Re
                 row = {k: v[j] for k, v in outs.items()}
                 if not row["active"]:
                     break
+                if int(row["code"]) == OK and not _finite(row):
+                    row["code"] = NOT_FINITE  # converged to a meaningless (overflowed) state
                 if int(row["code"]) != OK:
                     failure = _failure_message(current, inp, state_new, len(rows), row)
                     break
@@ -381,21 +420,23 @@ def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Re
                     failure = f"step {len(rows) - 1}: remeshing failed: {err}"
                 else:
                     report = replace(done.report, trigger=causes(int(rows[-1]["pause_cause"])))
-                    current, state = done.scene, done.state
-                    if owned[0] is not None:
-                        jax.block_until_ready(stepped.linear.release(owned[0]))
                     start_pad = time.perf_counter()
-                    padder = padded(current)
-                    stepped = padder.scene
+                    new_padder = padded(done.scene)
                     # the padding to the bucket is part of the remesh's host time
                     report = replace(
                         report, seconds=report.seconds + time.perf_counter() - start_pad
                     )
+                    if owned[0] is not None:
+                        jax.block_until_ready(stepped.linear.release(owned[0]))
+                        owned[0] = None
+                    before = (state, inp)
+                    current, state, padder = done.scene, done.state, new_padder
+                    stepped = padder.scene
+                    segments.append(Segment(len(rows), current, done.transfer, padder))
+                    remeshes.append(report)
                     owned[0] = new_factorization()
                     inp, stepper, since = current.inputs, stepper_of(stepped), 0
                     programs.add(stepped.model.layout)
-                    segments.append(Segment(len(rows), current, done.transfer, padder))
-                    remeshes.append(report)
                     rows[-1].update(remeshed=1, new_nodes=report.nodes_after)
                     control = _remesh_triggers(control, settings, rows[-1], report)
             elif pause and failure is None:
@@ -406,13 +447,26 @@ def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Re
                 else:
                     rezones.append(report)
                     rows[-1]["rezoned"] = int(report.improved)
+            reporting = True  # an error of the caller's callback is the caller's
             for k in range(first, len(rows) if progress is not None else first):
                 progress(_progress(current, k, rows[k], k == len(rows) - 1))
+            reporting = False
+    except Exception as err:  # a failure of the host loop itself: the last state is kept
+        if reporting:
+            raise
+        failure = _host_failure(rows[-1], err)
     finally:
         # the last factorization modified Newton kept is freed here; one a raising chunk
         # held is lost, never freed twice
         if owned[0] is not None:
             jax.block_until_ready(stepped.linear.release(owned[0]))
+    if len(segments) > 1 and segments[-1].first_row == len(rows):
+        # the first step on the newest mesh failed: the run ends on the mesh before it
+        segments.pop()
+        remeshes.pop()
+        state, inp = before
+        rows[-1].update(remeshed=0, new_nodes=0)
+        failure = f"the first step after the remesh at {rows[-1]['time_s']:g} s: {failure}"
     fields = _fields(rows, len(segments) == 1)
     history = _history(segments, rows, fields)
     # a remeshed scene may switch Newton method with its size ('auto'), and with it the
