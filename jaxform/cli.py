@@ -1,10 +1,11 @@
-"""Command line: the only module that prints.
+"""jaxform: differentiable finite-element simulation of metal forming (mm, MPa, s, N, K).
 
 jaxform run CONFIG [--set section.key=value ...] --out DIR
 jaxform material-point [--material NAME] [--rates R ...] [--strain E] --out DIR
 jaxform taylor-test CONFIG [--set section.key=value ...] [--groups G ...]
 jaxform design CONFIG [--set section.key=value ...] --out DIR
 """
+# The command line: the only module that prints.
 
 from __future__ import annotations
 
@@ -74,6 +75,24 @@ class Progress:
             self.bar.close()
 
 
+class ForwardProgress:
+    """The progress of a gradient command's forward run: a line per compiled chunk, and
+    when it ends, that the gradient program is compiled next (minutes on a large scene)."""
+
+    def __init__(self, t0: float):
+        self.t0 = t0
+
+    def __call__(self, p: dict) -> None:
+        if not (p["chunk_end"] or p.get("remeshed")):
+            return
+        took = f"({time.perf_counter() - self.t0:.1f} s)"
+        print(f"  forward step {p['step']}/{p['n_steps']}: {Progress.describe(p)} {took}",
+              flush=True)  # fmt: skip
+        if p["chunk_end"] and p["step"] >= p["n_steps"]:
+            print("  forward run done; compiling the gradient program and evaluating the "
+                  "start design", flush=True)  # fmt: skip
+
+
 def check_out_dir(out: str) -> None:
     """``--out`` is, or can be made, a writable folder (checked before any computation)."""
     p = Path(out)
@@ -125,14 +144,24 @@ def _check_taylor_steps(h) -> None:
 
 def _load_checked(args, gradient: bool = False):
     """The validated config of a scene command, or ConfigError: everything that can be
-    checked before a scene is built (for gradient commands also the design set-up)."""
-    from jaxform.config import check_design_run, check_gradient_run, load_config
+    checked before a scene is built (for gradient commands also the design set-up).  The
+    sections that the scene takes from the defaults and a user would expect to write
+    ([material]; for ``design`` [design]) are named on stdout."""
+    from jaxform.config import (
+        check_design_run,
+        check_gradient_run,
+        defaulted_sections,
+        given_sections,
+        load_config,
+    )
 
     cfg = load_config(args.config, args.set)
     if gradient and args.command == "design":
         check_design_run(cfg)
     elif gradient:
         check_gradient_run(cfg, args.groups, "--groups")
+    for line in defaulted_sections(cfg, given_sections(args.config, args.set), args.command):
+        print(line, flush=True)
     return cfg
 
 
@@ -251,7 +280,23 @@ def _taylor(args) -> int:
     _check_taylor_steps(args.h)
     cfg = _load_checked(args, gradient=True)
     t0 = time.perf_counter()
-    rows, code = _guarded("taylor-test", lambda: run_taylor(cfg, (), groups=args.groups, h=args.h))
+    print("taylor-test: the forward run of the initial design (it fixes the step schedule)",
+          flush=True)  # fmt: skip
+
+    def evaluated(group, h, j):
+        print(f"  {group}: h = {h:g}, J = {j:.10g} ({time.perf_counter() - t0:.1f} s)", flush=True)
+
+    rows, code = _guarded(
+        "taylor-test",
+        lambda: run_taylor(
+            cfg,
+            (),
+            groups=args.groups,
+            h=args.h,
+            progress=evaluated,
+            forward_progress=ForwardProgress(t0),
+        ),  # fmt: skip
+    )
     if code:
         return code
     print(format_table(rows))
@@ -295,7 +340,14 @@ def _design(args) -> int:
             flush=True,
         )
 
-    out, code = _guarded("design", lambda: run_design(cfg, (), out_dir=args.out, progress=progress))
+    print("design: the forward run of the initial design (it fixes the step schedule)",
+          flush=True)  # fmt: skip
+    out, code = _guarded(
+        "design",
+        lambda: run_design(
+            cfg, (), out_dir=args.out, progress=progress, forward_progress=ForwardProgress(t0)
+        ),  # fmt: skip
+    )
     if code:
         return code
     problem, hist = out

@@ -50,6 +50,9 @@ MAX_ELEMENTS = 250_000  # mesh.nr x mesh.nz (e.g. 500 x 500)
 # Every length (key ending in _mm) and speed (_mm_s) is at most this: a 1 km scene is
 # already far outside forging, and 1e300 mm overflows the contact scale and the plots.
 MAX_LENGTH_MM = 1e6
+# the largest load resultant (N per mm of depth): stresses, energies and their squares stay
+# far inside float64 (a resultant of 1e300 N overflows to inf in the strain energy)
+MAX_FORCE_N = 1e12
 
 
 @dataclass(frozen=True)
@@ -236,11 +239,15 @@ class LoadConfig:
     )
     force_x_N: float = key(
         0.0,
+        low=-MAX_FORCE_N,
+        high=MAX_FORCE_N,
         doc="x-resultant of the traction (N per mm of depth), spread uniformly over the edge's "
         "initial length",
     )
     force_y_N: float = key(
         0.0,
+        low=-MAX_FORCE_N,
+        high=MAX_FORCE_N,
         doc="y-resultant of the traction (N per mm of depth), spread uniformly over the edge's "
         "initial length",
     )
@@ -317,7 +324,8 @@ class RemeshConfig:
         high=1.0,
         high_open=True,
         doc="remesh after a step whose worst element corner quality (1 for squares, 0 for a "
-        "degenerate corner) falls below this (0 = never)",
+        "degenerate corner) falls below this (0 = never; default 0.3 for a closed die "
+        "whose config sets no remesh trigger and no mesh.rezone_quality, else 0)",
     )
     every_steps: int = key(
         0, low=0, high=100_000, doc="remesh after every this many converged steps (0 = never)"
@@ -347,6 +355,14 @@ class RemeshConfig:
         high=90.0,
         doc="remesh after a step where the free surface folds: a free vertex off the die "
         "whose air-side angle between its two edges falls below this (deg; 0 = never)",
+    )
+    elements_across: int = key(
+        0,
+        low=0,
+        high=10,
+        doc="the new mesh has at least this many elements across the section's local "
+        "thickness (a flash, a thin web), down to a quarter of the die size (0 = off; "
+        "default 3 for a closed die whose config sets no remesh trigger)",
     )
     die_size_ratio: float = key(
         0.5,
@@ -1337,9 +1353,55 @@ def load_config(path_or_dict: str | PathLike | dict, overrides: Iterable[str] = 
                 )
             else:
                 out[section][key] = copy.deepcopy(f.default)
+    _closed_die_remeshing(raw, out)
     _cross_checks(raw, out)
     _size_checks(out)
     return out
+
+
+# the quality trigger a closed die remeshes on when its config sets no trigger of its own
+CLOSED_DIE_QUALITY = 0.3
+
+
+def _closed_die_remeshing(raw: dict, out: dict) -> None:
+    """A closed die (die.closed = true) whose config sets no remesh trigger and no
+    rezoning remeshes when an element's corner quality falls below CLOSED_DIE_QUALITY:
+    material wraps the die's corners there, which no fixed mesh follows.  The trigger
+    costs a pause only where it fires; the resolved config (config.toml) shows it."""
+    die = out.get("die")
+    if die is None or not die["closed"] or "remesh" not in out:
+        return
+    given = raw.get("remesh", {})
+    if any(k in given for k in TRIGGERS) or out["mesh"].get("rezone_quality", 0.0) > 0.0:
+        return
+    out["remesh"]["quality_below"] = CLOSED_DIE_QUALITY
+
+
+def given_sections(path_or_dict: str | PathLike | dict, overrides: Iterable[str] = ()) -> set:
+    """The sections a config document (and its ``--set`` overrides) writes itself; every
+    other section of the scene takes its defaults.  The document must have loaded
+    (:func:`load_config`)."""
+    raw = path_or_dict if isinstance(path_or_dict, dict) else _read_toml(path_or_dict)
+    return set(raw) | {_parse_override(text)[0] for text in overrides}
+
+
+def defaulted_sections(cfg: dict, given: set, command: str) -> list[str]:
+    """One line for each section that a user would expect to write but that the
+    validated config ``cfg`` took from the defaults (``given``: :func:`given_sections`):
+    [material] always, [design] for ``jaxform design``."""
+    lines = []
+    if "material" in cfg and "material" not in given:
+        lines.append(
+            f"material: {cfg['material']['preset']} (default: the config has no [material] section)"
+        )
+    if command == "design" and "design" not in given:
+        d = cfg["design"]
+        lines.append(
+            f"design: the config has no [design] section: the defaults, variables "
+            f"{', '.join(d['variables'])}, objective {d['objective']}, {d['iterations']} "
+            f"iterations of {d['optimizer']}"
+        )
+    return lines
 
 
 def _read_toml(path: str | PathLike) -> dict:

@@ -454,6 +454,16 @@ def check_profile(points: np.ndarray, key: str, workpiece_below: bool = True) ->
     if np.any(seg <= 1e-9):
         k = int(np.argmin(seg))
         raise DieError(f"{key}: points {k} and {k + 1} coincide (segments must have length > 0)")
+    d = np.diff(p, axis=0) / seg[:, None]
+    cross = d[:-1, 0] * d[1:, 1] - d[:-1, 1] * d[1:, 0]
+    back = np.nonzero((np.abs(cross) <= 1e-9) & (np.sum(d[:-1] * d[1:], axis=1) < 0.0))[0]
+    if back.size:
+        k = int(back[0])
+        raise DieError(
+            f"{key}: segment {k + 1}-{k + 2} runs back along segment {k}-{k + 1} (the "
+            f"profile turns by 180 deg at point {k + 1}); a die profile is a walk that "
+            f"never retraces itself"
+        )
     crossing = first_crossing(p)
     if crossing is not None:
         i, j = crossing

@@ -191,7 +191,9 @@ def _contact_plot(path: Path, result: Result) -> None:
     plot.contact_profiles(profiles, path)
 
 
-def run_design(config, overrides=(), out_dir: str | Path = "out/design", progress=None):
+def run_design(
+    config, overrides=(), out_dir: str | Path = "out/design", progress=None, forward_progress=None
+):
     """Optimize the config's [design] problem; write the history and plots to out_dir.
 
     Arguments:
@@ -199,6 +201,8 @@ def run_design(config, overrides=(), out_dir: str | Path = "out/design", progres
         out_dir: folder for design_history.csv, objective.png, shapes.png, config.toml.
         progress: called after each optimizer iteration (iteration, objective,
             projected gradient norm, design).
+        forward_progress: the progress callback of the forward run that fixes the step
+            schedule (:func:`jaxform.simulation.simulate`).
 
     Returns:
         (the design problem, its optimization history)."""
@@ -208,7 +212,7 @@ def run_design(config, overrides=(), out_dir: str | Path = "out/design", progres
     require_x64()
     cfg = typed(load_config(config, overrides))
     scene = build_scene(cfg)
-    problem = build_problem(scene)
+    problem = build_problem(scene, progress=forward_progress)
     d = cfg.design
     settings = OptimizerSettings(d.optimizer, d.iterations, d.learning_rate)
     hist = optimize(problem, settings, progress=progress)
@@ -237,12 +241,17 @@ def run_design(config, overrides=(), out_dir: str | Path = "out/design", progres
     return problem, hist
 
 
-def run_taylor(config, overrides=(), groups=None, h=(1.0, 0.5, 0.25, 0.125), progress=None):
-    """Taylor test of every design group of the scene (or the ones named)."""
+def run_taylor(
+    config, overrides=(), groups=None, h=(1.0, 0.5, 0.25, 0.125), progress=None,
+    forward_progress=None,
+):  # fmt: skip
+    """Taylor test of every design group of the scene (or the ones named); ``progress``
+    is called with (group, h, J) after each evaluation, ``forward_progress`` by the
+    forward run that fixes the step schedule (:func:`jaxform.simulation.simulate`)."""
     from jaxform.design import available_groups, build_problem, taylor_test
 
     require_x64()
     scene = build_scene(load_config(config, overrides))
     names = available_groups(scene) if not groups else tuple(groups)
-    problem = build_problem(scene, groups=names)
+    problem = build_problem(scene, groups=names, progress=forward_progress)
     return taylor_test(problem, h=h, progress=progress)

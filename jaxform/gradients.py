@@ -296,11 +296,12 @@ def schedule(scene: Scene, inputs: Inputs | None = None) -> np.ndarray:
 
 
 def remeshed_schedule(
-    scene: Scene, inputs: Inputs | None = None
+    scene: Scene, inputs: Inputs | None = None, progress=None
 ) -> tuple[np.ndarray, RemeshPlan | None]:
     """(step end times, :class:`RemeshPlan`) of the forward run of ``scene`` with
     ``inputs``: the schedule of :func:`schedule` and, for a scene with ``[remesh]``, the
-    meshes the run went through and the maps between them (None without ``[remesh]``)."""
+    meshes the run went through and the maps between them (None without ``[remesh]``).
+    ``progress``: the forward run's progress callback (:func:`jaxform.simulation.simulate`)."""
     from jaxform.simulation import simulate
 
     if scene.rezone_quality > 0.0:
@@ -310,7 +311,7 @@ def remeshed_schedule(
             "gradient runs"
         )
     run = scene if inputs is None else replace(scene, inputs=inputs)
-    res = simulate(run)
+    res = simulate(run, progress)
     times = np.asarray(res.history["time_s"][1:])
     if scene.remesh is None or not scene.remesh.on:
         return times, None

@@ -223,6 +223,9 @@ def test_design_without_variables_is_refused(tmp_path):
         # the seed billet's top is z = 3.75 mm, its radius 2.5 mm
         ("[[0.0, 3.0], [5.0, 3.0]]", "(0, 3.75) mm lies 0.75 mm inside the die"),
         ("[[0.0, 4.0], [2.0, 4.0], [2.0, 0.0]]", "(2.5, 3.75) mm lies 0.5 mm inside the die"),
+        # the walk back over itself to its first point ran to the end at 0 N
+        ("[[0.0, 7.5], [10.0, 7.5], [0.0, 7.5]]", "runs back along segment 0-1"),
+        ("[[0.0, 7.5], [0.0, 7.5], [10.0, 7.5]]", "points 0 and 1 coincide"),
     ],
 )
 def test_bad_die_profile_is_refused(profile, needle, tmp_path):
@@ -255,6 +258,51 @@ def test_meaningless_run_is_refused(override, needle, tmp_path):
     if override.startswith("mesh.nr"):
         argv += ["--set", "mesh.nz=2000"]
     assert_refused(argv, needle)
+
+
+def test_a_load_whose_results_overflow_is_refused(tmp_path):
+    """load.force_y_N = 1e300 on Cook's membrane exited 0 with inf and NaN in history.csv:
+    a resultant beyond 1e12 N per mm is refused with its range."""
+    line = assert_refused(
+        ["run", "configs/cooks_membrane.toml", "--set", "load.force_y_N=1e300", "--out",
+         str(tmp_path)], "load.force_y_N = 1e+300",
+    )  # fmt: skip
+    assert "must lie in [-1000000000000, 1000000000000]" in line
+
+
+def _stdout_of(argv: list[str]) -> str:
+    import contextlib
+    import io
+
+    from cli_harness import no_compilation
+
+    out = io.StringIO()
+    with (
+        no_compilation(),
+        contextlib.redirect_stdout(out),
+        contextlib.redirect_stderr(io.StringIO()),
+    ):
+        with pytest.raises(Reached):
+            main(argv)
+    return out.getvalue()
+
+
+def test_defaulted_material_and_design_are_named(tmp_path):
+    """A config without [material] ran silently as the default material; `jaxform design`
+    without [design] ran the defaults without a word.  Both are named on stdout before
+    the run (and nothing is said where the config writes the section)."""
+    doc = Path("configs/upsetting_seed.toml").read_text().replace("[material]", "[mmm]")
+    doc = doc.replace('preset = "al1100_673K"', "")
+    bare = tmp_path / "bare.toml"
+    bare.write_text(doc.replace("[mmm]", ""))
+    out = _stdout_of(["run", str(bare), "--out", str(tmp_path / "o")])
+    assert "material: al1100_673K (default: the config has no [material] section)" in out
+    assert "material:" not in _stdout_of(["run", SEED, "--out", str(tmp_path / "o")])
+    out = _stdout_of(["design", SEED, "--out", str(tmp_path / "d")])
+    assert "design: the config has no [design] section: the defaults, variables" in out
+    assert "design: the config has no" not in _stdout_of(
+        ["design", "configs/preform_design.toml", "--out", str(tmp_path / "d")]
+    )
 
 
 def test_bad_flag_is_one_line():

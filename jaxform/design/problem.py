@@ -195,7 +195,7 @@ def build_group(scene: Scene, name: str):
         nodes, comps = np.nonzero(~held)
         return par.NodalCoordinates(nodes, comps, offset_max_mm=d.node_offset_max_mm)
     if name == "die":
-        n_pts = int(scene.inputs.die.points.shape[0])
+        n_pts = int(scene.inputs.die.members[0].points.shape[0])  # the top die
         pts = d.die_points or tuple(range(n_pts))
         if any(p != int(p) or not 0 <= p < n_pts for p in pts):
             raise ConfigError(
@@ -298,6 +298,7 @@ def build_problem(
     objective=None,
     times=None,
     single_program: bool = False,
+    progress=None,
 ) -> DesignProblem:
     """A design problem for ``scene``: design groups, objective and a fixed step schedule.
 
@@ -311,6 +312,8 @@ def build_problem(
             remeshes takes the steps and meshes of its forward run
             (:func:`jaxform.gradients.remeshed_schedule`): no ``times`` then.
         single_program: value() runs the gradient program too (one compile, not two).
+        progress: the forward run's progress callback (with ``times`` None), as
+            :func:`jaxform.simulation.simulate` takes it.
 
     Returns:
         the :class:`DesignProblem`: ``start`` (the initial design), ``value(design)``,
@@ -335,7 +338,7 @@ def build_problem(
         # one program, not ~60 eager operations (each lowered and compiled or loaded)
         apply = jit(partial(par.apply_all, built))
         inputs, _ = apply(start, scene.inputs, jnp.asarray(scene.step_targets()))
-        times, plan = remeshed_schedule(scene, inputs)
+        times, plan = remeshed_schedule(scene, inputs, progress)
     elif scene.remesh is not None and scene.remesh.on:
         raise ValueError(
             "build_problem: a scene that remeshes takes its forward run's steps: no times"
