@@ -103,8 +103,44 @@ def simplify(points: np.ndarray, labels: list[str], tol: float):
     return kept, [labels[i] for i in kept]
 
 
+def local_thickness(points: np.ndarray) -> np.ndarray:
+    """The section's thickness at each vertex of the closed polygon ``points`` (mm): the
+    distance to the nearest part of the boundary that faces it across the material, i.e.
+    to the nearest edge whose distance along the boundary is more than twice its straight
+    distance (the vertex's own sides and the legs of a corner it sits in are not across:
+    along them the boundary is about as long as the straight line).  Where no edge faces
+    it, inf."""
+    a, b = points, np.roll(points, -1, axis=0)
+    d = b - a
+    length = np.linalg.norm(d, axis=1)
+    s = np.einsum("pmi,mi->pm", points[:, None] - a[None], d) / np.maximum(length**2, 1e-300)
+    s = np.clip(s, 0.0, 1.0)
+    dist = np.linalg.norm(points[:, None] - (a[None] + s[..., None] * d[None]), axis=2)
+    arc = np.concatenate([[0.0], np.cumsum(length)])
+    total = arc[-1]
+    along = np.abs(arc[None, :-1] + s * length[None] - arc[:-1, None])
+    along = np.minimum(along, total - along)
+    across = np.where(along > 2.0 * dist, dist, np.inf)
+    return across.min(axis=1)
+
+
+def densified(points: np.ndarray, labels: list[str], spacing: float):
+    """The closed polygon with its edges split into equal pieces no longer than
+    ``spacing`` (each piece keeps its edge's label)."""
+    nxt = np.roll(points, -1, axis=0)
+    pieces = np.maximum(1, np.ceil(np.linalg.norm(nxt - points, axis=1) / spacing)).astype(int)
+    out, out_labels = [], []
+    for p, q, n, lab in zip(points, nxt, pieces, labels):
+        f = np.arange(n)[:, None] / n
+        out.append(p + f * (q - p))
+        out_labels += [lab] * n
+    return np.vstack(out), out_labels
+
+
 def _sizes(points: np.ndarray, touching: np.ndarray, settings: RemeshConfig) -> np.ndarray:
-    """The element size wanted at each vertex: fine at die contact and sharp corners."""
+    """The element size wanted at each vertex: fine at die contact and sharp corners, and
+    with ``remesh.elements_across`` > 0 at most the local thickness over that many (a
+    flash or a thin web gets elements across it, not one squeezed element)."""
     d_in = points - np.roll(points, 1, axis=0)
     d_out = np.roll(points, -1, axis=0) - points
     turn = np.abs(
@@ -114,7 +150,14 @@ def _sizes(points: np.ndarray, touching: np.ndarray, settings: RemeshConfig) -> 
     )
     fine = touching | (turn > _CORNER_TURN)
     h = settings.element_size_mm
-    return np.where(fine, settings.die_size_ratio * h, h)
+    sizes = np.where(fine, settings.die_size_ratio * h, h)
+    if settings.elements_across > 0:
+        # never finer than a quarter of the die size: a gap that closes to nothing (the
+        # flash's last step) must not ask for an unbounded number of elements
+        floor = 0.25 * settings.die_size_ratio * h
+        thin = np.maximum(local_thickness(points) / settings.elements_across, floor)
+        sizes = np.minimum(sizes, thin)
+    return sizes
 
 
 def new_section_mesh(scene, pos: np.ndarray, t: float, settings: RemeshConfig):
@@ -123,11 +166,14 @@ def new_section_mesh(scene, pos: np.ndarray, t: float, settings: RemeshConfig):
     try:
         points, labels, _ = boundary_polygon(scene.mesh, pos)
         kept, kept_labels = simplify(points, labels, 1e-6 * settings.element_size_mm)
-        touching = np.zeros(len(kept), dtype=bool)
+        pts = points[kept]
+        if settings.elements_across > 0:  # the thickness is measured along every edge
+            pts, kept_labels = densified(pts, kept_labels, settings.element_size_mm)
+        touching = np.zeros(len(pts), dtype=bool)
         if scene.inputs.die is not None:
-            touching = gap_function(scene.inputs.die, t)(points[kept])[0] <= TOUCH_GAP_MM
-        sizes = _sizes(points[kept], touching, settings)
-        return polygon_quads(points[kept], kept_labels, sizes)
+            touching = gap_function(scene.inputs.die, t)(pts)[0] <= TOUCH_GAP_MM
+        sizes = _sizes(pts, touching, settings)
+        return polygon_quads(pts, kept_labels, sizes)
     except MeshError as err:
         raise RemeshError(str(err)) from None
 
