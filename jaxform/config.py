@@ -364,6 +364,12 @@ class RemeshConfig:
         "thickness (a flash, a thin web), down to a quarter of the die size (0 = off; "
         "default 3 for a closed die whose config sets no remesh trigger)",
     )
+    onto_dies: bool = key(
+        False,
+        doc="the new mesh's nodes along the dies lie on the dies (gmsh adds them on the "
+        "chords between contact nodes, off a concave arc or inside a convex one), the "
+        "material volume kept by the free surface",
+    )
     die_size_ratio: float = key(
         0.5,
         low=0.05,

@@ -173,9 +173,87 @@ def new_section_mesh(scene, pos: np.ndarray, t: float, settings: RemeshConfig):
         if scene.inputs.die is not None:
             touching = gap_function(scene.inputs.die, t)(pts)[0] <= TOUCH_GAP_MM
         sizes = _sizes(pts, touching, settings)
-        return polygon_quads(pts, kept_labels, sizes)
+        mesh = polygon_quads(pts, kept_labels, sizes)
     except MeshError as err:
         raise RemeshError(str(err)) from None
+    if scene.inputs.die is None or not settings.onto_dies:
+        return mesh
+    axi = scene.model.formulation.axisymmetric
+    return onto_dies(mesh, (pts, touching), gap_function(scene.inputs.die, t), axi)
+
+
+def _polygon_vertex_of(loop_pos: np.ndarray, vertices: np.ndarray) -> np.ndarray:
+    """For each boundary node (in loop order) the index of the polygon vertex it is, or -1
+    for a node that gmsh added along an edge."""
+    d = np.linalg.norm(loop_pos[:, None] - vertices[None], axis=2)
+    k = np.argmin(d, axis=1)
+    return np.where(d[np.arange(len(k)), k] <= 1e-9 * max(1.0, np.abs(vertices).max()), k, -1)
+
+
+def onto_dies(mesh, polygon: tuple[np.ndarray, np.ndarray], gap_fn, axisymmetric: bool):
+    """The mesh with the nodes gmsh added on polygon edges between two vertices that touch
+    a die moved onto the die, and the material volume kept.
+
+    An edge between two contact vertices is a chord of the die's surface: along a concave
+    arc (a fillet the material fills) the added nodes sit off the die by the chord's
+    sagitta, along a convex one inside it, so the first step on the new mesh begins with
+    part of the contact open or overlapping and the die force dips (docs/remeshing.md).
+    Each such node moves to its closest point on the die (where it lies within a quarter
+    of its edge's length of it); the volume this adds or cuts is given back by moving the
+    free surface (the boundary nodes off the dies, the axis and the mid-plane) along its
+    outward normals by one distance, found by Newton steps (the first exact to first
+    order) until the volume is the polygon's to 1e-13.
+
+    Arguments:
+        mesh: the new mesh; polygon: (its boundary polygon's vertices, which touch a die);
+        gap_fn: ``points -> (gap, normal)`` of the dies at the remesh's time;
+        axisymmetric: volumes by Pappus (True) or areas (plane strain)."""
+    vertices, touching = polygon
+    pos, labels, loop = boundary_polygon(mesh, mesh.coords)
+    vertex = _polygon_vertex_of(pos, vertices)
+    # for each loop node, the polygon vertices before and after it along the loop
+    idx = np.arange(len(loop))
+    is_v = vertex >= 0
+    prev_v = np.maximum.accumulate(np.where(is_v, idx, -1))
+    prev_v = np.where(prev_v < 0, np.nonzero(is_v)[0][-1], prev_v)
+    nxt_v = np.minimum.accumulate(np.where(is_v, idx, len(idx))[::-1])[::-1]
+    nxt_v = np.where(nxt_v >= len(idx), np.nonzero(is_v)[0][0], nxt_v)
+    on_chord = ~is_v & touching[vertex[prev_v]] & touching[vertex[nxt_v]]
+    if not on_chord.any():
+        return mesh
+    g, n = gap_fn(pos[on_chord])
+    chord = np.linalg.norm(pos[nxt_v[on_chord]] - pos[prev_v[on_chord]], axis=1)
+    near = np.abs(g) <= 0.25 * chord
+    coords = mesh.coords.copy()
+    moved = loop[on_chord][near]
+    coords[moved] -= (g[near])[:, None] * n[near]
+    free_gap, _ = gap_fn(coords[loop])
+    free = (free_gap > TOUCH_GAP_MM) & ~np.isin(loop, moved)
+    for name in ("axis", "symmetry"):  # held by Dirichlet conditions: never moved
+        free &= ~np.isin(loop, np.asarray(mesh.node_sets.get(name, []), dtype=np.int64))
+    if free.any():
+        target = float(np.sum(polygon_measure(mesh.coords[mesh.elements], axisymmetric)))
+        for _ in range(4):  # Newton on the one distance: the first step is exact to first order
+            change = float(np.sum(polygon_measure(coords[mesh.elements], axisymmetric))) - target
+            if abs(change) <= 1e-13 * target:
+                break
+            unit, share = _outward(coords[loop], axisymmetric)
+            coords[loop[free]] -= change / float(np.sum(share[free])) * unit[free]
+    return replace(mesh, coords=coords)
+
+
+def _outward(p: np.ndarray, axisymmetric: bool):
+    """(unit outward normals (n, 2), surface shares (n,)) at the vertices of the closed
+    counter-clockwise polygon p: the share is half of each adjacent edge's length (times
+    2 pi r in an axisymmetric section), the volume a unit outward move of the vertex adds."""
+    e_out = np.roll(p, -1, axis=0) - p
+    length = np.linalg.norm(e_out, axis=1)
+    normal_out = np.stack([e_out[:, 1], -e_out[:, 0]], axis=1)  # |edge| x outward unit
+    nrm = normal_out + np.roll(normal_out, 1, axis=0)
+    share = 0.5 * (length + np.roll(length, 1))
+    if axisymmetric:
+        share = share * 2.0 * np.pi * p[:, 0]
+    return nrm / np.maximum(np.linalg.norm(nrm, axis=1), 1e-300)[:, None], share
 
 
 def _nearest_on_boundary(points: np.ndarray, a: np.ndarray, b: np.ndarray):
