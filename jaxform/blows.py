@@ -53,6 +53,7 @@ from jaxform.scenes import Inputs, Scene
 from jaxform.status import CAUSES, OK
 from jaxform.stepping import (
     Stepper,
+    contact_step,
     converged_state,
     die_force,
     die_forces,
@@ -61,6 +62,7 @@ from jaxform.stepping import (
 )
 from jaxform.xla_options import jit
 
+SOLVES = 3  # Newton solves of a step: the predictor and two secant corrections
 FIRST_STROKE = 0.01  # the first step's stroke guess, as a fraction of the reference height
 
 
@@ -100,45 +102,58 @@ def _blow_scan(stepper: Stepper, inputs: Inputs, press: EnergyPress, idx, factor
         dw = jnp.maximum((target - work) / (n_b - j), 1e-6 * target / n_b)
         left = jnp.maximum(target - work, dw)
         v_start = press.speed(left)
-        v_end = jnp.where(last, 0.0, press.speed(left - dw))
+        # (no sqrt at 0 on the last step: its derivative would be infinite)
+        v_end = jnp.where(last, 0.0, press.speed(jnp.where(last, left, left - dw)))
 
-        def solve(ds, guess):
+        def path(ds):
             t1 = st.t + 2.0 * ds / (v_start + v_end)
             inp = replace(inputs, die=with_path(inputs.die, jnp.stack([st.t, t1]),
                                                 jnp.stack([d, d + ds / factor])))  # fmt: skip
+            return t1, inp
+
+        def solve(c, i):
+            """Solve at the stroke increment c['ds'] and choose the next one on the force
+            line through this solve and the last point (the step's start, then the
+            previous solve); the first choice is at most the one that holds this solve's
+            force over the step (a force curve that bends over: the elastic-plastic
+            knee of the first step, where the secant under-predicts the force)."""
+            ds, ok = c["ds"], c["code"] == OK
+            guess = jnp.where(ok, st.x + (c["x"] - st.x) * (ds / c["ds_prev"]), st.x)
+            t1, inp = path(ds)
             sol = solve_step(stepper, st, t1, inp, idx, x_guess=guess)
-            return sol, die_force(model, sol.x, inp, t1, idx), t1, inp
+            f = die_force(model, sol.x, inp, t1, idx)
+            gap = ds - c["ds_line"]
+            apart = jnp.abs(gap) > 1e-6 * ds
+            slope = jnp.where(apart, (f - c["f_line"]) / jnp.where(apart, gap, 1.0), c["k"])
+            slope = jnp.where(i == 0, jnp.maximum(slope, 0.0), slope)
+            ds_next = _stroke_for_line(force + f - slope * ds, slope, dw)
+            ds_next = jnp.where(i == 0, jnp.minimum(ds_next, 2.0 * dw / (force + f)), ds_next)
+            its = c["its"] + sol.iterations
+            return dict(ds=ds_next, ds_prev=ds, ds_line=ds, f_line=f, k=slope, x=sol.x,
+                        gauss=sol.gauss, code=sol.code, its=its, ds_used=ds, f=f), None  # fmt: skip
 
         ds_a = _stroke_for_work(force, k, dw)
-        sol_a, f_a, _, _ = solve(ds_a, st.x + ds_a * x_per_mm)
-        k_a = jnp.maximum((f_a - force) / ds_a, 0.0)
-        # the secant through the predictor, or the predictor's force held over the step
-        # where that is less: on a force curve that bends over (the elastic-plastic knee
-        # of the first step) the secant under-predicts the force short of ds_a
-        ds_b = jnp.minimum(_stroke_for_work(force, k_a, dw), 2.0 * dw / (force + f_a))
-        guess = jnp.where(sol_a.code == OK, st.x + (sol_a.x - st.x) * (ds_b / ds_a), st.x)
-        sol_b, f_b, _, _ = solve(ds_b, guess)
-        # second corrector: the force line through the two solves (a secant step on
-        # work(ds) = dW; the ram slowing to rest bends the force curve over the last step)
-        gap = ds_b - ds_a
-        apart = jnp.abs(gap) > 1e-6 * ds_b
-        k_ab = jnp.where(apart, (f_b - f_a) / jnp.where(apart, gap, 1.0), k_a)
-        ds_c = _stroke_for_line(force + f_b - k_ab * ds_b, k_ab, dw)
-        guess = jnp.where(sol_b.code == OK, st.x + (sol_b.x - st.x) * (ds_c / ds_b), st.x)
-        sol, f_c, t1, inp = solve(ds_c, guess)
-        ds_b, f_b = ds_c, f_c
-        new = converged_state(model, st, sol.x, sol.gauss, t1, inp, sol.cstep, idx)
+        zero = jnp.zeros_like(force)
+        # the predictor's guess: the last step's displacement per mm of stroke
+        c0 = dict(ds=ds_a, ds_prev=ds_a, ds_line=zero, f_line=force, k=k,
+                  x=st.x + ds_a * x_per_mm, gauss=st.gauss, code=jnp.asarray(OK),
+                  its=jnp.asarray(0), ds_used=zero, f=zero)  # fmt: skip
+        c, _ = jax.lax.scan(solve, c0, jnp.arange(SOLVES))
+        ds_b, f_b = c["ds_used"], c["f"]
+        t1, inp = path(ds_b)
+        cstep = contact_step(model, st, inp, idx)
+        new = converged_state(model, st, c["x"], c["gauss"], t1, inp, cstep, idx)
         work_new = work + 0.5 * (force + f_b) * ds_b
         k_new = jnp.maximum((f_b - force) / ds_b, 0.0)
-        per_mm = jax.lax.stop_gradient((sol.x - st.x) / ds_b)
+        per_mm = jax.lax.stop_gradient((c["x"] - st.x) / ds_b)
         out = dict(
             time_s=t1,
             stroke_mm=factor * (d + ds_b / factor),
             force_N=f_b,
             blow_work_Nmm=work_new,
             ram_speed_mm_s=v_end,
-            code=sol.code,
-            iterations=sol_a.iterations + sol_b.iterations + sol.iterations,
+            code=c["code"],
+            iterations=c["its"],
             friction_work_Nmm=new.friction_work,
             x=new.x,
             stress=new.gauss.mat.stress,
@@ -173,6 +188,8 @@ def blow_run(scene: Scene, inputs: Inputs | None = None, press: EnergyPress | No
                       symmetric_z=scene.symmetric_z)  # fmt: skip
     factor = 2.0 if scene.symmetric_z else 1.0
     first_mm = FIRST_STROKE * scene.workpiece.reference_height_mm
+    # the capacity and the name are the host's: runs that differ in them share a program
+    press = replace(press, capacity_N=0.0, name="")
     return _blow_scan(stepper, inputs, press, scene.idx, factor, first_mm)
 
 
