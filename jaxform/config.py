@@ -753,6 +753,17 @@ class OutputConfig:
         doc="ram strokes (mm) at which the contact pressure/slip profile is plotted ([] = "
         "25/50/75/100 %)",
     )
+    animation: bool = key(
+        False,
+        doc="write animation.gif: the section through the run (deformed mesh, equivalent "
+        "plastic strain, the dies) from the stored fields; needs output.plots",
+    )
+    animation_frames: int = key(
+        40,
+        low=2,
+        high=1000,
+        doc="the animation's frames at most (history rows evenly spread, first and last kept)",
+    )
     lap_angle_deg: float = key(
         10.0,
         low=0.0,
