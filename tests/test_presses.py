@@ -8,6 +8,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from PIL import Image
 
 from jaxform.blows import blow_run, blows_to_height, final_height
 from jaxform.config import ConfigError, load_config
@@ -103,10 +104,13 @@ def test_press_capacity_stops_the_run_with_the_history_written(tmp_path):
     force rises from 264 N at step 1 to 344 N at step 10): with press.capacity_N = 300
     the run stops at the first step whose force reaches 300 N (step 5, stroke 0.375 mm),
     with the message naming the capacity, the stroke and the step, and history.csv
-    holding the rows up to that step."""
+    holding the rows up to that step; the pictures are written too (the animation with
+    output.animation_frames = 4 frames of the 6 rows)."""
     with pytest.raises(SimulationError, match=r"press capacity 300 N reached at stroke "
                                               r"[0-9.]+ mm, step \d+") as err:  # fmt: skip
-        run(SEED, TINY + ["die.reduction=0.1", "press.capacity_N=300"], out_dir=tmp_path)
+        run(SEED, TINY + ["die.reduction=0.1", "press.capacity_N=300", "output.plots=true",
+                          "output.animation=true", "output.animation_frames=4"],
+            out_dir=tmp_path)  # fmt: skip
     h = err.value.result.history
     assert h["force_N"][-1] >= 300.0 and np.all(h["force_N"][:-1] < 300.0)
     assert h["stroke_mm"][-1] == pytest.approx(0.375, abs=1e-12)
@@ -115,6 +119,10 @@ def test_press_capacity_stops_the_run_with_the_history_written(tmp_path):
     rows = (tmp_path / "history.csv").read_text().strip().splitlines()
     assert len(rows) == 1 + len(h["time_s"])  # header + rows
     assert "press capacity 300 N" in (tmp_path / "FAILED.txt").read_text()
+    # the pictures of the run up to there: 6 rows, 4 animation frames
+    with Image.open(tmp_path / "animation.gif") as gif:
+        assert gif.n_frames == 4
+    assert (tmp_path / "eqps.png").stat().st_size > 5_000
 
 
 @pytest.mark.slow
