@@ -140,20 +140,26 @@ def test_crank_run_strokes_follow_the_closed_form():
 
 @pytest.mark.slow
 def test_blows_to_a_height_are_stable_under_step_refinement():
-    """Reference: the same hammer on the seed billet (3 x 3) with 3 and 6 steps a blow:
-    the same number of blows to bring the height to 7.48 mm, and each blow's end height
-    within 1e-4 mm (0.5 % of a blow's ~4 um stroke... the run's stroke 1e-4 relative)."""
+    """Reference: the same hammer on the seed billet (3 x 3, 6 blows of 1.6 N mm of work)
+    with 3 and 6 steps a blow.  Both need the same number of blows (5) to bring the height
+    from 7.5 to 7.48 mm (after 4 blows ~7.4817 mm, after 5 ~7.4776 mm: the target lies
+    ~2e-3 mm from either, more than 10 x the refinement's change).  The height after each
+    blow changes by under 2e-4 mm (measured 1.3e-4, from the first step's elastic-plastic
+    knee, which the trapezoid rule of a coarser first step resolves less well); the
+    stroke of each later blow changes by under 0.5 % (measured 0.1 %)."""
     runs = {}
     for n in (3, 6):
-        over = [o for o in HAMMER if not o.startswith("press.steps_per_blow")]
+        over = [o for o in HAMMER if not o.startswith("press.")]
+        over += [o for o in HAMMER if o.startswith("press.") and "blows" not in o]
         h = simulate(build_scene(load_config(SEED, over + [f"press.steps_per_blow={n}",
                                                            "press.blows=6"]))).history  # fmt: skip
         runs[n] = h
     counts = {n: blows_to_height(h, 7.48, 7.5) for n, h in runs.items()}
-    assert counts[3] is not None and counts[3] == counts[6]
+    assert counts[3] == counts[6] == 5
     ends = {n: h["stroke_mm"][np.r_[np.flatnonzero(np.diff(h["blow"]))[1:], -1]]
             for n, h in runs.items()}  # fmt: skip
-    np.testing.assert_allclose(ends[3], ends[6], rtol=2e-2)
+    np.testing.assert_allclose(7.5 - ends[3], 7.5 - ends[6], rtol=0, atol=2e-4)
+    np.testing.assert_allclose(np.diff(ends[3]), np.diff(ends[6]), rtol=5e-3)
 
 
 @pytest.mark.slow
