@@ -1629,6 +1629,16 @@ def _check_groups(cfg: dict, groups: list[str], where: str) -> None:
         raise ConfigError(
             f"{shown}: 'thermal' needs thermal.model = 'coupled' and thermal.htc_die_W_m2K > 0"
         )
+    model = cfg["press"]["model"] if "press" in cfg else "speed"
+    if model in ("screw", "hammer"):
+        raise ConfigError(
+            f"press.model = {model!r}: design and taylor-test run presses that follow "
+            "time ('speed', 'crank'); differentiate blows with jaxform.blows.blow_run"
+        )
+    if "speed" in groups and model != "speed":
+        raise ConfigError(
+            f"{shown}: 'speed' needs press.model = 'speed' (a {model} press sets its own speed)"
+        )
     if "speed" in groups and cfg["die"]["path_time_s"]:
         raise ConfigError(
             f"{shown}: 'speed' needs die.speed_mm_s; this scene moves the die along die.path_time_s"

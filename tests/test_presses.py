@@ -80,6 +80,23 @@ def test_press_keys_refuse_bad_values_in_one_line():
         build_scene(load_config(SEED, TINY + ["press.model=crank", "press.stroke_mm=2"]))
 
 
+def test_screw_press_and_gradient_runs_resolve_or_refuse():
+    """Reference: [press] docs: a screw press is one energy-limited stroke, its energy
+    given in J and used in N mm (x 1000); design and taylor-test refuse energy presses
+    (their differentiable run is blows.blow_run) and the 'speed' group off the 'speed'
+    press, in one line naming the key."""
+    from jaxform.config import check_gradient_run
+    from jaxform.presses import EnergyPress
+
+    sc = build_scene(load_config(SEED, TINY + ["press.model=screw", "press.energy_J=0.05"]))
+    assert isinstance(sc.press, EnergyPress) and sc.press.blows == 1
+    assert float(sc.press.energy_Nmm) == 50.0 and sc.press.name == "screw"
+    with pytest.raises(ConfigError, match="press.model = 'hammer': design and taylor-test"):
+        check_gradient_run(load_config(SEED, ["press.model=hammer"]), ["material"])
+    with pytest.raises(ConfigError, match="'speed' needs press.model = 'speed'"):
+        check_gradient_run(load_config(SEED, CRANK), ["speed"])
+
+
 def test_hammer_blow_does_efficiency_times_energy_of_work():
     """Reference: each blow's work on the part, the trapezoid rule of the history's force
     against the ram stroke over the blow's rows, equals efficiency x blow energy (0.8 x
