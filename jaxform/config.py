@@ -1199,6 +1199,12 @@ def _press_checks(out: dict) -> None:
         )
     if model == "screw" and pr["blows"] != 1:
         raise ConfigError(f"press.blows = {pr['blows']!r}: a screw press makes one stroke (1)")
+    if model in ("screw", "hammer") and (remesh_on(out["remesh"])
+                                         or out["mesh"]["rezone_quality"] > 0.0):  # fmt: skip
+        raise ConfigError(
+            f"press.model = {model!r}: its blows run on one mesh; set mesh.rezone_quality "
+            f"= 0 and leave [remesh] off ({TRIGGERS_OFF})"
+        )
     if model in ("screw", "hammer") and out["thermal"]["dwell_s"] > 0.0:
         raise ConfigError(
             f"thermal.dwell_s > 0 needs press.model = 'speed' or 'crank' (a {model} "
