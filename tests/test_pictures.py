@@ -112,3 +112,21 @@ def test_animation_has_one_frame_per_chosen_row(tmp_path):
     assert n == 4
     with Image.open(tmp_path / "a.gif") as gif:
         assert gif.n_frames == 4
+
+
+def test_force_stroke_draws_each_die_and_each_blow(tmp_path):
+    """Reference: the history columns given: one curve per die beside the ram's, and with
+    a blow column one curve per blow, each from the row before its first (the stroke the
+    blow starts from) to its last."""
+    stroke = np.array([0.0, 0.1, 0.2, 0.3, 0.4])
+    force = np.array([0.0, 10.0, 12.0, 15.0, 16.0])
+    fig = plot.force_stroke(stroke, force, tmp_path / "f.png", "t",
+                            per_die={"top": force, "bottom": 0.5 * force})  # fmt: skip
+    labels = [line.get_label() for line in fig.axes[0].get_lines()]
+    assert labels == ["jaxform", "top die", "bottom die"]
+    blows = np.array([0, 1, 1, 2, 2])
+    fig = plot.force_stroke(stroke, force, tmp_path / "b.png", "t", blows=blows)
+    lines = fig.axes[0].get_lines()
+    assert [line.get_label() for line in lines] == ["blow 1", "blow 2"]
+    np.testing.assert_array_equal(lines[0].get_xdata(), [0.0, 0.1, 0.2])
+    np.testing.assert_array_equal(lines[1].get_xdata(), [0.2, 0.3, 0.4])
