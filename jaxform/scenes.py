@@ -328,7 +328,7 @@ def _die_or_load(cfg: Config, piece: Workpiece, mesh: meshing.Mesh):
             m=fr.m,
             corner_radius=radii[name],
             motion=motion if name == "top" else None,
-        )  # fmt: skip
+        )
         for p, (times, travel), name in zip(profiles, paths, names)
     )
     if len(dies) == 1:
@@ -337,6 +337,7 @@ def _die_or_load(cfg: Config, piece: Workpiece, mesh: meshing.Mesh):
 
 
 def _speed_press(cfg: Config, height_mm: float, share: float):
+    """Today's motion: the die path table or constant speed (set by the caller)."""
     return SpeedPress(capacity_N=cfg.press.capacity_N), None, None
 
 
