@@ -464,6 +464,11 @@ def init(scene: Scene) -> tuple[SimState, StepControl]:
         no rezoning trigger (:func:`step` does not rezone).
     """
     require_x64()
+    if scene.press is not None and scene.press.energy_limited:
+        raise ValueError(
+            f"init: a {scene.press.name} press moves the die with the work done, not with "
+            "time; run it with simulate() or jaxform.blows.blow_run"
+        )
     zero = jnp.asarray(0.0)
     control = StepControl(h=jnp.asarray(scene.dt), dt_max=jnp.asarray(scene.dt),
                           t_end=jnp.asarray(scene.t_end), rezone_quality=zero,
