@@ -116,6 +116,17 @@ def test_hammer_blow_does_efficiency_times_energy_of_work():
     assert np.all(np.diff(h["time_s"]) > 0)
 
 
+def test_a_failed_blow_step_ends_the_history_before_it():
+    """Reference: the hammer scene of the test above with a NaN contact scale (as
+    tests/test_layout.py breaks a step): its first step cannot converge, so the run
+    raises with the step, the blow and the cause, and the history holds row 0 only."""
+    sc = build_scene(load_config(SEED, HAMMER))
+    bad = replace(sc, inputs=replace(sc.inputs, c_contact=jnp.asarray(np.nan)))
+    with pytest.raises(SimulationError, match=r"hammer: step 1 \(blow 1\) failed: ") as err:
+        simulate(bad)
+    assert len(err.value.result.history["time_s"]) == 1
+
+
 def test_press_capacity_stops_the_run_with_the_history_written(tmp_path):
     """Reference: the 3 x 3 seed scene to 10 % (tests/test_upsetting.py's scene; its
     force rises from 264 N at step 1 to 344 N at step 10): with press.capacity_N = 300
