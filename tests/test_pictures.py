@@ -130,3 +130,20 @@ def test_force_stroke_draws_each_die_and_each_blow(tmp_path):
     assert [line.get_label() for line in lines] == ["blow 1", "blow 2"]
     np.testing.assert_array_equal(lines[0].get_xdata(), [0.0, 0.1, 0.2])
     np.testing.assert_array_equal(lines[1].get_xdata(), [0.2, 0.3, 0.4])
+
+
+def test_contact_profile_names_the_die_each_node_faces():
+    """Reference: the seed billet at full height between flat dies: the bottom die's
+    profile is walked from the outside to the axis ([1, z] to [0, z], jaxform.scenes), so
+    a bottom-face node's arc length is 1 - r and a top-face node's is r (1e-12 mm)."""
+    sc = build_scene(load_config(ROOT / "configs" / "upsetting_seed.toml",
+                                 SMALL + ["billet.full_height=true"]))  # fmt: skip
+    lay = sc.model.layout
+    n_c = lay.n_contact
+    prof = contact_profile(sc, np.zeros(lay.n_dofs), np.zeros(n_c), np.ones(n_c, int), 0.0)
+    top = prof["z_mm"] == prof["z_mm"].max()
+    bottom = prof["z_mm"] == prof["z_mm"].min()
+    assert set(prof["die"][top]) == {"top"} and set(prof["die"][bottom]) == {"bottom"}
+    np.testing.assert_allclose(prof["s_mm"][top], prof["r_mm"][top], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(prof["s_mm"][bottom], 1.0 - prof["r_mm"][bottom], rtol=0,
+                               atol=1e-12)  # fmt: skip
