@@ -127,6 +127,18 @@ def test_a_failed_blow_step_ends_the_history_before_it():
     assert len(err.value.result.history["time_s"]) == 1
 
 
+def test_press_capacity_stops_a_hammer_too():
+    """Reference: the hammer test's history (forces 358, 383, ... N; it shares that run's
+    compiled program, the capacity being the host's): with press.capacity_N = 380 the
+    blows stop at the first row whose force reaches 380 N, history up to it."""
+    with pytest.raises(SimulationError, match=r"press capacity 380 N reached at stroke "
+                                              r"[0-9.]+ mm, step \d+") as err:  # fmt: skip
+        simulate(build_scene(load_config(SEED, HAMMER + ["press.capacity_N=380"])))
+    h = err.value.result.history
+    assert h["force_N"][-1] >= 380.0 and np.all(h["force_N"][:-1] < 380.0)
+    assert int(str(err.value).rsplit("step ", 1)[1]) == len(h["time_s"]) - 1
+
+
 def test_press_capacity_stops_the_run_with_the_history_written(tmp_path):
     """Reference: the 3 x 3 seed scene to 10 % (tests/test_upsetting.py's scene; its
     force rises from 264 N at step 1 to 344 N at step 10): with press.capacity_N = 300
