@@ -475,9 +475,9 @@ class PressConfig:
         "speed",
         choices=("speed", "crank", "screw", "hammer"),
         doc="'speed': the die moves at die.speed_mm_s or along the die path table (the "
-        "default); 'crank': a mechanical crank press (slider-crank motion to bottom dead "
-        "centre); 'screw': a screw press, one stroke that ends when the flywheel energy is "
-        "spent; 'hammer': press.blows blows of press.energy_J each",
+        "default; a hydraulic press); 'crank': a mechanical crank press (slider-crank "
+        "motion to bottom dead centre); 'screw': a screw press, one stroke that ends when "
+        "the flywheel energy is spent; 'hammer': press.blows blows of press.energy_J each",
     )
     capacity_N: float = key(
         0.0,
