@@ -488,6 +488,71 @@ class DieConfig:
     )
 
 
+@section("press")
+@dataclass(frozen=True, kw_only=True)
+class PressConfig:
+    """[press]: the machine that drives the top die (docs: presses)."""
+
+    model: str = key(
+        "speed",
+        choices=("speed", "crank", "screw", "hammer"),
+        doc="'speed': the die moves at die.speed_mm_s or along the die path table (the "
+        "default; a hydraulic press); 'crank': a mechanical crank press (slider-crank "
+        "motion to bottom dead centre); 'screw': a screw press, one stroke that ends when "
+        "the flywheel energy is spent; 'hammer': press.blows blows of press.energy_J each",
+    )
+    capacity_N: float = key(
+        0.0,
+        low=0.0,
+        doc="press capacity (N): the run stops where the ram force reaches it, with the "
+        "history up to there written (0 = no limit)",
+    )
+    stroke_mm: float = key(
+        100.0, low=0.0, low_open=True, doc="crank: the press stroke (mm), twice the crank radius"
+    )
+    strokes_per_min: float = key(
+        30.0, low=0.0, high=6000.0, low_open=True, doc="crank: strokes per minute (1/min)"
+    )
+    rod_length_mm: float = key(
+        400.0,
+        low=0.0,
+        low_open=True,
+        doc="crank: connecting-rod length (mm), more than half the stroke; the crank starts at "
+        "the angle from which the ram travels die.reduction x the height to bottom dead centre",
+    )
+    energy_J: float = key(
+        1.0,
+        low=0.0,
+        high=1e9,
+        low_open=True,
+        doc="screw: flywheel energy; hammer: blow energy (J = 1000 N mm), the ram's kinetic "
+        "energy at impact",
+    )
+    efficiency: float = key(
+        0.8,
+        low=0.0,
+        high=1.0,
+        low_open=True,
+        doc="screw, hammer: share of the energy done as work on the part (the rest is lost "
+        "in the frame, the anvil and the foundation)",
+    )
+    impact_speed_mm_s: float = key(
+        5000.0,
+        low=0.0,
+        low_open=True,
+        doc="screw, hammer: ram speed at the start of a blow (mm/s); it falls with the work "
+        "done, v = v0 sqrt(1 - W / (efficiency x energy))",
+    )
+    blows: int = key(1, low=1, high=1000, doc="hammer: number of blows (a screw press: 1)")
+    steps_per_blow: int = key(
+        10,
+        low=2,
+        high=10000,
+        doc="screw, hammer: load steps of each blow (each does an equal share of the work "
+        "left); the step size of an energy-limited run",
+    )
+
+
 @section("bottom_die")
 @dataclass(frozen=True, kw_only=True)
 class BottomDieConfig:
@@ -710,6 +775,17 @@ class OutputConfig:
         doc="ram strokes (mm) at which the contact pressure/slip profile is plotted ([] = "
         "25/50/75/100 %)",
     )
+    animation: bool = key(
+        False,
+        doc="write animation.gif: the section through the run (deformed mesh, equivalent "
+        "plastic strain, the dies) from the stored fields; needs output.plots",
+    )
+    animation_frames: int = key(
+        40,
+        low=2,
+        high=1000,
+        doc="the animation's frames at most (history rows evenly spread, first and last kept)",
+    )
     lap_angle_deg: float = key(
         10.0,
         low=0.0,
@@ -859,6 +935,7 @@ class Config:
     remesh: RemeshConfig
     material: MaterialConfig
     die: DieConfig | None = None
+    press: PressConfig | None = None
     bottom_die: BottomDieConfig | None = None
     side_die: SideDieConfig | None = None
     friction: FrictionConfig | None = None
@@ -904,7 +981,7 @@ def typed(cfg: dict) -> Config:
 # a die) or a membrane (clamped, loaded by a traction; no die).
 WORKPIECES = ("billet", "ring", "block", "membrane")
 # sections that only some workpieces use
-_DIE_SECTIONS = ("die", "friction")
+_DIE_SECTIONS = ("die", "press", "friction")
 _FORGING_SECTIONS = ("bottom_die", "side_die")  # billets and rings only
 _LOAD_SECTIONS = ("load",)
 
@@ -1078,7 +1155,8 @@ def _cross_checks(raw: dict, out: dict) -> None:
                 raise ConfigError(
                     f"block.{fine} = {b[fine]!r}: must be <= block.{full} = {b[full]!r}"
                 )
-    if out["die"]["reduction"] is None:
+    energy = out["press"]["model"] in ("screw", "hammer")
+    if out["die"]["reduction"] is None and not energy:
         f = SCHEMA["die"]["reduction"]
         raise ConfigError(f"missing required key die.reduction (float in {f.allowed()}): {f.doc}")
     if "ring" in out:
@@ -1090,7 +1168,8 @@ def _cross_checks(raw: dict, out: dict) -> None:
             )
     d = out["die"]
     _check_path("die", d, monotone=True)
-    if not d["path_time_s"] and d["speed_mm_s"] is None:
+    _press_checks(out)
+    if not d["path_time_s"] and d["speed_mm_s"] is None and out["press"]["model"] == "speed":
         f = SCHEMA["die"]["speed_mm_s"]
         raise ConfigError(f"missing required key die.speed_mm_s (float in {f.allowed()}): {f.doc}")
     if d["profile_mm"] and len(d["profile_mm"]) < 2:
@@ -1116,6 +1195,43 @@ def _cross_checks(raw: dict, out: dict) -> None:
         raise ConfigError("friction.model = 'coulomb' needs friction.mu (float in [0, 10])")
     if fr["model"] == "shear" and "m" not in raw.get("friction", {}):
         raise ConfigError("friction.model = 'shear' needs friction.m (float in [0, 1])")
+
+
+def _press_checks(out: dict) -> None:
+    """[press]: a machine other than 'speed' drives the top die alone (no path table, no
+    shared bottom-die speed); a screw press makes one stroke; energy presses do not dwell."""
+    pr, d = out["press"], out["die"]
+    model = pr["model"]
+    if model == "speed":
+        return
+    if d["path_time_s"]:
+        raise ConfigError(
+            f"press.model = {model!r} moves the die itself: set die.path_time_s = [] "
+            "(path tables belong to press.model = 'speed')"
+        )
+    if "bottom_die" in out and out["bottom_die"]["speed_share"] > 0.0:
+        raise ConfigError(
+            f"bottom_die.speed_share > 0 needs press.model = 'speed' (a {model} press "
+            "drives the top die; the bottom die stands)"
+        )
+    if model == "crank" and pr["rod_length_mm"] <= 0.5 * pr["stroke_mm"]:
+        raise ConfigError(
+            f"press.rod_length_mm = {pr['rod_length_mm']!r}: must be > press.stroke_mm / 2 = "
+            f"{0.5 * pr['stroke_mm']!r} (the connecting rod must be longer than the crank)"
+        )
+    if model == "screw" and pr["blows"] != 1:
+        raise ConfigError(f"press.blows = {pr['blows']!r}: a screw press makes one stroke (1)")
+    if model in ("screw", "hammer") and (remesh_on(out["remesh"])
+                                         or out["mesh"]["rezone_quality"] > 0.0):  # fmt: skip
+        raise ConfigError(
+            f"press.model = {model!r}: its blows run on one mesh; set mesh.rezone_quality "
+            f"= 0 and leave [remesh] off ({TRIGGERS_OFF})"
+        )
+    if model in ("screw", "hammer") and out["thermal"]["dwell_s"] > 0.0:
+        raise ConfigError(
+            f"thermal.dwell_s > 0 needs press.model = 'speed' or 'crank' (a {model} "
+            "starts at its blow)"
+        )
 
 
 def _check_path(section: str, d: dict, monotone: bool) -> None:
@@ -1262,6 +1378,8 @@ def _end_time(out: dict) -> tuple[float | None, str]:
     kind = next(k for k in ("billet", "ring", "block") if k in out)
     key = f"{kind}.{'depth_mm' if kind == 'block' else 'height_mm'}"
     height = out[kind]["depth_mm" if kind == "block" else "height_mm"]
+    if out["press"]["model"] != "speed":  # set by the press (jaxform.scenes)
+        return None, ""
     if not d["path_time_s"]:
         return d["reduction"] * height / d["speed_mm_s"], f"die.reduction x {key} / die.speed_mm_s"
     full = kind == "block" or out[kind]["full_height"]
@@ -1584,6 +1702,16 @@ def _check_groups(cfg: dict, groups: list[str], where: str) -> None:
     if "thermal" in groups and (th["model"] != "coupled" or th["htc_die_W_m2K"] <= 0.0):
         raise ConfigError(
             f"{shown}: 'thermal' needs thermal.model = 'coupled' and thermal.htc_die_W_m2K > 0"
+        )
+    model = cfg["press"]["model"] if "press" in cfg else "speed"
+    if model in ("screw", "hammer"):
+        raise ConfigError(
+            f"press.model = {model!r}: design and taylor-test run presses that follow "
+            "time ('speed', 'crank'); differentiate blows with jaxform.blows.blow_run"
+        )
+    if "speed" in groups and model != "speed":
+        raise ConfigError(
+            f"{shown}: 'speed' needs press.model = 'speed' (a {model} press sets its own speed)"
         )
     if "speed" in groups and cfg["die"]["path_time_s"]:
         raise ConfigError(

@@ -24,8 +24,9 @@ vertex, residual halving per iteration).  On the rounded profile every surface p
 one normal and the node finds the point whose normal matches its force.
 
 Motion: the die's downward travel d(t) (mm) is linear interpolation in a table
-``path_time_s -> path_travel_mm`` (constant speed is a two-row table); its position at
-time t is the profile shifted by (0, -d(t)).
+``path_time_s -> path_travel_mm`` (constant speed is a two-row table), or a closed-form
+``motion`` (a crank press, :mod:`jaxform.presses`); its position at time t is the profile
+shifted by (0, -d(t)).
 
 Gap: for a node at x the closest point q on the shifted rounded profile is found over all
 straight pieces and arcs at once (no search state, so a node slides from one piece to
@@ -62,6 +63,9 @@ class RigidDie:
     # step by :meth:`prepared` (a step's gaps are evaluated at many sites of its program,
     # each of which would round the profile again); None: rounded where a gap needs it
     profile: dict | None = None
+    # a closed-form motion (:class:`jaxform.presses.CrankMotion`) that replaces the path
+    # table where set (a crank press); None: the table
+    motion: object = None
 
     def prepared(self) -> RigidDie:
         """The die with its rounded profile computed (translation-invariant: a gap at time
@@ -69,12 +73,17 @@ class RigidDie:
         return replace(self, profile=rounded_profile(self.points, self.corner_radius))
 
     def travel(self, t):
-        """Downward travel d(t) in mm (linear in the table; constant past its ends)."""
+        """Downward travel d(t) in mm (linear in the table; constant past its ends), or
+        the die's closed-form motion where it has one."""
+        if self.motion is not None:
+            return self.motion.travel(t)
         return interp_table(t, self.path_time_s, self.path_travel_mm)
 
     def travel_at(self, t) -> float:
         """:meth:`travel` on the host (NumPy) for a time t (s): for post-processing, where
         one JAX call per history row would dispatch (and first compile) a small program."""
+        if self.motion is not None:
+            return self.motion.travel_at(t)
         return float(np.interp(t, np.asarray(self.path_time_s), np.asarray(self.path_travel_mm)))
 
     def offset(self, t):
@@ -569,7 +578,13 @@ def time_at_travel(times: np.ndarray, travel: np.ndarray, target: float, key: st
 
 
 def make_die(
-    points, times, travel, mu: float = 0.0, m: float = 0.0, corner_radius: float = 0.2
+    points,
+    times,
+    travel,
+    mu: float = 0.0,
+    m: float = 0.0,
+    corner_radius: float = 0.2,
+    motion=None,
 ) -> RigidDie:
     if not corner_radius > 0.0:
         raise DieError(f"corner radius {corner_radius!r} mm: must be > 0")
@@ -580,4 +595,5 @@ def make_die(
         mu=jnp.asarray(float(mu)),
         m=jnp.asarray(float(m)),
         corner_radius=jnp.asarray(float(corner_radius)),
+        motion=motion,
     )

@@ -17,7 +17,7 @@ import numpy as np
 from jaxform.cache import enable_compilation_cache
 from jaxform.config import dump_config, load_config, typed
 from jaxform.io import write_csv, write_vtu_series
-from jaxform.postprocess import nodal_temperature, positions
+from jaxform.postprocess import die_outlines, nodal_temperature, positions
 from jaxform.precision import require_x64
 from jaxform.scenes import build_scene
 from jaxform.simulation import HISTORY_KEYS, Result, SimulationError, simulate
@@ -102,13 +102,17 @@ def write_outputs(out_dir: str | Path, result: Result) -> None:
             _membrane_plots(out, result, coords0, coords1, el, mesh_text, axes)
             return
         red = 100.0 * h["stroke_mm"][-1] / scene.workpiece.reference_height_mm
+        press = scene.press
         plot.force_stroke(
             h["stroke_mm"],
             h["force_N"],
             out / "force_stroke.png",
-            f"{mesh_text}, friction {cfg.friction.model}",
+            f"{mesh_text}, friction {cfg.friction.model}, {press.name} press",
             per_die={k[6:-2]: v for k, v in h.items() if k.startswith("force_") and k != "force_N"},
+            blows=h.get("blow"),
         )
+        # the dies where they stand at the last row, in the workpiece's frame
+        axes = plot.SectionFrame(axes, die_outlines(scene, float(h["time_s"][-1])))
         plot.deformed_mesh(
             coords0,
             coords1,
@@ -129,6 +133,8 @@ def write_outputs(out_dir: str | Path, result: Result) -> None:
             axes,
         )
         _contact_plot(out / "contact_profile.png", result)
+        if cfg.output.animation:
+            _animation(out / "animation.gif", result, axes.labels)
         temp = nodal_temperature(final, result.fields["x"][-1])
         if temp is not None:
             plot.nodal_contours(
@@ -186,9 +192,37 @@ def _contact_plot(path: Path, result: Result) -> None:
     for s in strokes:
         k = int(np.argmin(np.abs(h["stroke_mm"] - s)))
         profiles[float(h["stroke_mm"][k])] = contact_profile(
-            result.scene_at(k), f["x"][k], f["slip_mm"][k], f["contact_status"][k]
+            result.scene_at(k),
+            f["x"][k],
+            f["slip_mm"][k],
+            f["contact_status"][k],
+            float(h["time_s"][k]),
         )
     plot.contact_profiles(profiles, path)
+
+
+def animation_rows(n_rows: int, frames: int) -> np.ndarray:
+    """The history rows an animation shows: at most ``frames``, evenly spread over the
+    run, the first and last rows kept."""
+    return np.unique(np.round(np.linspace(0, n_rows - 1, min(frames, n_rows))).astype(int))
+
+
+def _animation(path: Path, result: Result, labels) -> int:
+    """animation.gif: every chosen row's section (equivalent plastic strain, the dies at
+    that row's time), from the fields the run stored."""
+    from jaxform import plot
+
+    h, f = result.history, result.fields
+    rows = animation_rows(len(h["time_s"]), result.scene.settings.output.animation_frames)
+    frames = []
+    for k in rows:
+        sc = result.scene_at(int(k))
+        t = float(h["time_s"][k])
+        frames.append((t, float(h["stroke_mm"][k]), positions(sc, f["x"][k]),
+                       np.asarray(sc.mesh.elements), np.asarray(f["eqps"][k]).mean(axis=1),
+                       die_outlines(sc, t)))  # fmt: skip
+    return plot.animation(frames, path, "equivalent plastic strain", "equivalent plastic "
+                          "strain [-]", labels)  # fmt: skip
 
 
 def run_design(

@@ -224,6 +224,11 @@ def trajectory(
     ignored) and is not for an enclosing jit: each mesh's steps run the compiled program
     of its capacity bucket, shared by the meshes of one bucket."""
     inputs = scene.inputs if inputs is None else inputs
+    if scene.press is not None and scene.press.energy_limited:
+        raise ValueError(
+            f"trajectory: a {scene.press.name} press moves the die with the work done; "
+            "its differentiable run is jaxform.blows.blow_run"
+        )
     if scene.remesh is not None and scene.remesh.on and plan is None:
         raise ValueError(
             "trajectory: this scene remeshes ([remesh]); pass the forward run's plan "

@@ -6,6 +6,7 @@ figure registry as they were (no display needed, nothing to close).
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +17,51 @@ from matplotlib.ticker import FuncFormatter
 # a field whose spread is below this fraction of its magnitude is round-off: it is drawn
 # as the uniform field it is (one colour), not as a pattern of its last bits
 UNIFORM_RTOL = 1e-9
+
+
+DIE_COLOUR = "0.35"  # the dies' outlines: a neutral grey over any colour map
+
+
+@dataclass(frozen=True)
+class SectionFrame:
+    """What a section plot draws around its field: the axis labels (with units) and the
+    die outlines at that instant in the workpiece's frame ({name: (k, 2) polyline, mm},
+    :func:`jaxform.postprocess.die_outlines`).  Section plots take one as ``axes`` (a
+    plain pair of labels still works: no dies)."""
+
+    labels: tuple[str, str] = ("r [mm]", "z [mm]")
+    dies: dict = field(default_factory=dict)
+
+
+def _frame(axes) -> SectionFrame:
+    return axes if isinstance(axes, SectionFrame) else SectionFrame(tuple(axes))
+
+
+def _section_axes(ax, frame: SectionFrame, coords, title: str) -> None:
+    """Equal-aspect axes over ``coords`` (with a margin that shows the dies touching
+    it), the labels, the title, and each die's outline in grey (its line's gid:
+    'die:<name>'), clipped by the axes."""
+    lo, hi = coords.min(axis=0), coords.max(axis=0)
+    pad = 0.06 * float(max(hi - lo)) + 1e-9
+    for name, poly in frame.dies.items():
+        poly = np.asarray(poly)
+        ax.plot(poly[:, 0], poly[:, 1], "-", color=DIE_COLOUR, lw=1.8, gid=f"die:{name}",
+                label=f"{name} die", zorder=5)  # fmt: skip
+    ax.set_xlim(lo[0] - pad, hi[0] + pad)
+    ax.set_ylim(lo[1] - pad, hi[1] + pad)
+    ax.set_aspect("equal")
+    ax.set_xlabel(frame.labels[0])
+    ax.set_ylabel(frame.labels[1])
+    ax.set_title(title)
+
+
+def die_lines(fig: Figure) -> dict[str, np.ndarray]:
+    """The die outlines drawn on a figure's first axes: {name: (k, 2) line data}."""
+    return {
+        line.get_gid()[4:]: np.asarray(line.get_xydata())
+        for line in fig.axes[0].get_lines()
+        if (line.get_gid() or "").startswith("die:")
+    }
 
 
 def _figure(nrows: int = 1, ncols: int = 1, *, figsize, **kw):
@@ -50,11 +96,22 @@ def _finish_curve(fig, ax, path, title, xlabel, ylabel):
     return _save(fig, path)
 
 
-def force_stroke(stroke_mm, force_n, path: Path, title: str, reference=None, per_die=None):
+def force_stroke(
+    stroke_mm, force_n, path: Path, title: str, reference=None, per_die=None, blows=None
+):
     """The ram force against the stroke; ``per_die``: {die name: force (N)} of a scene
-    with several dies, drawn beside it."""
+    with several dies, drawn beside it; ``blows``: the blow of each row (a hammer's
+    history column ``blow``), each blow drawn as its own curve from the row before it."""
     fig, ax = _figure(figsize=(6, 4.2))
-    ax.plot(stroke_mm, force_n, "o-", ms=3, label="jaxform")
+    if blows is None:
+        ax.plot(stroke_mm, force_n, "o-", ms=3, label="jaxform")
+    else:
+        blows = np.asarray(blows)
+        for b in np.unique(blows[blows > 0]):
+            rows = np.flatnonzero(blows == b)
+            span = np.r_[max(rows[0] - 1, 0), rows]
+            ax.plot(np.asarray(stroke_mm)[span], np.asarray(force_n)[span], "o-", ms=3,
+                    label=f"blow {int(b)}")  # fmt: skip
     for name, force in (per_die or {}).items():
         ax.plot(stroke_mm, force, "--", lw=1.2, label=f"{name} die")
     if reference is not None:
@@ -86,7 +143,9 @@ def deformed_mesh(
 ):
     """Deformed mesh (blue) over the initial mesh (grey), as thesis Fig. 6.4; ``elements1``:
     the deformed mesh's elements where it is another mesh (after remeshing); ``marks``:
-    (r, z) points marked with a red cross (laps, where they were found)."""
+    (r, z) points marked with a red cross (laps, where they were found); ``axes``: the
+    labels, or a :class:`SectionFrame` with the dies at the deformed mesh's instant."""
+    frame = _frame(axes)
     fig, ax = _figure(figsize=(6, 5))
     for c, e, style in (
         (coords0, elements, dict(edgecolor="0.6", facecolor="none", lw=0.8)),
@@ -99,14 +158,9 @@ def deformed_mesh(
     if len(marks):
         m = np.asarray(marks, dtype=float).reshape(-1, 2)
         ax.plot(m[:, 0], m[:, 1], "x", color="tab:red", ms=9, mew=2, label="lap")
-        ax.legend(loc="upper right")
-    allc = np.vstack([coords0, coords1])
-    ax.set_xlim(allc[:, 0].min() - 0.1, allc[:, 0].max() * 1.05 + 0.1)
-    ax.set_ylim(allc[:, 1].min() - 0.1, allc[:, 1].max() * 1.05 + 0.1)
-    ax.set_aspect("equal")
-    ax.set_xlabel(axes[0])
-    ax.set_ylabel(axes[1])
-    ax.set_title(title)
+    _section_axes(ax, frame, np.vstack([coords0, coords1]), title)
+    if len(marks) or frame.dies:
+        ax.legend(loc="upper right", fontsize=8)
     return _save(fig, path)
 
 
@@ -122,12 +176,19 @@ def cell_contours(
         coords: (n_nodes, 2) node positions (mm); elements: (n_elements, 4) node ids.
         values: (n_elements,) one value per cell.
         path: the PNG to write; title, label: figure title and colour-bar label.
-        axes: the axis labels.
+        axes: the axis labels, or a :class:`SectionFrame` (labels and die outlines).
 
     Returns:
         the drawn Figure (already saved to ``path``).
     """
     fig, ax = _figure(figsize=(6, 5))
+    _cells(fig, ax, coords, elements, values, label)
+    _section_axes(ax, _frame(axes), np.asarray(coords), title)
+    return _save(fig, path)
+
+
+def _cells(fig, ax, coords, elements, values, label):
+    """The cell field on ``ax`` and its colour bar labelled ``label`` (name [unit])."""
     pc = _quads(coords, elements)
     values = np.asarray(values, dtype=float)
     uniform = _uniform_value(values)
@@ -136,12 +197,6 @@ def cell_contours(
     pc.set_edgecolor("k")
     pc.set_linewidth(0.2)
     ax.add_collection(pc)
-    ax.set_xlim(coords[:, 0].min(), coords[:, 0].max() * 1.02)
-    ax.set_ylim(coords[:, 1].min(), coords[:, 1].max() * 1.02)
-    ax.set_aspect("equal")
-    ax.set_xlabel(axes[0])
-    ax.set_ylabel(axes[1])
-    ax.set_title(title)
     if uniform is None:
         fig.colorbar(pc, ax=ax, label=label)
     else:
@@ -154,7 +209,7 @@ def cell_contours(
             ticks=[uniform],
             format=FuncFormatter(lambda x, _: f"{x:.9g}"),
         )
-    return _save(fig, path)
+    return pc
 
 
 def nodal_contours(
@@ -167,7 +222,7 @@ def nodal_contours(
         coords: (n_nodes, 2) node positions (mm); elements: (n_elements, 4) node ids.
         values: (n_nodes,) one value per node.
         path: the PNG to write; title, label: figure title and colour-bar label.
-        axes: the axis labels.
+        axes: the axis labels, or a :class:`SectionFrame` (labels and die outlines).
 
     Returns:
         the drawn Figure (already saved to ``path``).
@@ -188,10 +243,7 @@ def nodal_contours(
     pc.set_edgecolor("k")
     pc.set_linewidth(0.2)
     ax.add_collection(pc)
-    ax.set_aspect("equal")
-    ax.set_xlabel(axes[0])
-    ax.set_ylabel(axes[1])
-    ax.set_title(title)
+    _section_axes(ax, _frame(axes), coords, title)
     fig.colorbar(cs, ax=ax, label=label)
     return _save(fig, path)
 
@@ -208,28 +260,33 @@ def _uniform_value(values: np.ndarray) -> float | None:
 
 
 def contact_profiles(profiles: dict, path: Path):
-    """profiles: stroke (mm) -> contact_profile dict; pressure and shear vs radius of the
-    nodes in contact, slipping nodes filled, sticking nodes open."""
+    """profiles: stroke (mm) -> contact_profile dict; pressure and shear of the nodes in
+    contact against the arc length along the die they face (``s_mm``, per die: a vertical
+    die wall spreads along it where r stands still), or against r for a profile without
+    it; slipping nodes filled, sticking nodes open."""
     fig, (ax1, ax2) = _figure(2, 1, figsize=(6.5, 6), sharex=True)
+    along = all("s_mm" in p for p in profiles.values())
     for stroke, p in profiles.items():
         on = p["status"] > 0
-        order = np.argsort(p["r_mm"][on])
-        r = p["r_mm"][on][order]
-        (line,) = ax1.plot(r, p["pressure_MPa"][on][order], "-", label=f"stroke {stroke:.2f} mm")
-        ax2.plot(r, p["shear_MPa"][on][order], "-", color=line.get_color())
-        slip = p["status"][on][order] == 2
-        ax2.plot(r[slip], p["shear_MPa"][on][order][slip], "o", ms=3, color=line.get_color())
-        ax2.plot(
-            r[~slip],
-            p["shear_MPa"][on][order][~slip],
-            "o",
-            ms=4,
-            mfc="none",
-            color=line.get_color(),
-        )
+        dies = np.asarray(p["die"]) if along else np.full(len(on), "")
+        colour = None
+        for name in dict.fromkeys(dies[on]):  # each die's nodes, in order along it
+            sel = on & (dies == name)
+            x = np.asarray(p["s_mm"] if along else p["r_mm"])[sel]
+            order = np.argsort(x)
+            x = x[order]
+            label = f"stroke {stroke:.2f} mm" + (f", {name} die" if len(set(dies[on])) > 1 else "")
+            (line,) = ax1.plot(x, p["pressure_MPa"][sel][order], "-", color=colour, label=label)
+            colour = line.get_color()
+            shear = p["shear_MPa"][sel][order]
+            slip = p["status"][sel][order] == 2
+            ax2.plot(x, shear, "-", color=colour)
+            ax2.plot(x[slip], shear[slip], "o", ms=3, color=colour)
+            ax2.plot(x[~slip], shear[~slip], "o", ms=4, mfc="none", color=colour)
     ax1.set_ylabel("contact pressure [MPa]")
     ax2.set_ylabel("shear traction [MPa]")
-    ax2.set_xlabel("r [mm] (filled: slip, open: stick)")
+    what = "arc length along the die s [mm]" if along else "r [mm]"
+    ax2.set_xlabel(f"{what} (filled: slip, open: stick)")
     ax1.legend(fontsize=8)
     for ax in (ax1, ax2):
         ax.grid(True, alpha=0.3)
@@ -287,3 +344,40 @@ def design_shapes(shapes: dict, path: Path, title: str):
     ax.set_title(title)
     ax.legend(fontsize=8)
     return _save(fig, path)
+
+
+def animation(frames, path: Path, title: str, label: str, axes=("r [mm]", "z [mm]"), fps=8):
+    """An animation of a run (GIF through matplotlib's Pillow writer): one frame per
+    entry of ``frames``, each (time s, stroke mm, node positions (n, 2), elements (m, 4),
+    cell values (m,), die outlines {name: (k, 2)}), the field on one colour scale over
+    the run, the dies in grey, the axes fixed to the run's extent.  Returns the number
+    of frames written."""
+    from matplotlib.animation import FuncAnimation, PillowWriter
+
+    frames = list(frames)
+    values = np.concatenate([np.asarray(f[4], dtype=float) for f in frames])
+    lo, hi = float(values.min()), float(values.max())
+    hi = hi if hi > lo else lo + 1.0
+    allc = np.vstack([np.asarray(f[2]) for f in frames])
+    labels = _frame(axes).labels
+    fig, ax = _figure(figsize=(6, 5))
+
+    def draw(k):
+        ax.clear()
+        t, stroke, pos, elements, vals, dies = frames[k]
+        pc = _quads(np.asarray(pos), elements)
+        pc.set_array(np.asarray(vals, dtype=float))
+        pc.set_cmap("viridis")
+        pc.set_clim(lo, hi)
+        pc.set_edgecolor("k")
+        pc.set_linewidth(0.2)
+        ax.add_collection(pc)
+        _section_axes(ax, SectionFrame(labels, dies), allc,
+                      f"{title}: t = {t:.4g} s, stroke {stroke:.4g} mm")  # fmt: skip
+        return (pc,)
+
+    first = draw(0)[0]
+    fig.colorbar(first, ax=ax, label=label)
+    anim = FuncAnimation(fig, draw, frames=len(frames), blit=False)
+    anim.save(str(path), writer=PillowWriter(fps=fps), dpi=80)
+    return len(frames)

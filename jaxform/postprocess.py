@@ -354,9 +354,59 @@ def extra_history(scene, xs: np.ndarray, times: np.ndarray) -> dict[str, np.ndar
 _tributary_areas = jax.jit(tributary_areas, static_argnums=2)
 
 
-def contact_profile(scene, x: np.ndarray, slip_mm: np.ndarray, status: np.ndarray) -> dict:
-    """Per candidate node (sorted along the die by arc position): position, pressure and
-    shear traction (MPa), status, accumulated slip (mm)."""
+def _extended(poly: np.ndarray, reach: float) -> np.ndarray:
+    """The polyline with its first and last segments carried on by ``reach`` mm (a die's
+    end segments run to infinity)."""
+    t0 = poly[1] - poly[0]
+    t1 = poly[-1] - poly[-2]
+    t0, t1 = t0 / np.linalg.norm(t0), t1 / np.linalg.norm(t1)
+    return np.vstack([poly[0] - reach * t0, poly, poly[-1] + reach * t1])
+
+
+def die_outlines(scene, t: float, reach_mm: float | None = None) -> dict[str, np.ndarray]:
+    """Each die's surface at time t in the workpiece's frame (mm): the rounded profile
+    (:func:`jaxform.dies.sample_rounded`) shifted down by the die's travel at t, its end
+    segments carried on by ``reach_mm`` (default: the initial workpiece's size) so that
+    a figure shows the die across the part.  Keys: the die names (top, bottom, side)."""
+    die = scene.inputs.die
+    if die is None:
+        return {}
+    coords = np.asarray(scene.inputs.coords)
+    reach = float(np.ptp(coords, axis=0).max()) if reach_mm is None else reach_mm
+    return {
+        name: _extended(
+            sample_rounded(d.points, d.corner_radius) - np.array([0.0, d.travel_at(t)]), reach
+        )
+        for name, d in zip(die.names, die.members)
+    }
+
+
+def arc_position(poly: np.ndarray, points: np.ndarray, start: float = 0.0):
+    """(s, distance) of each point (n, 2) against the polyline ``poly`` (k, 2): the arc
+    length (mm) of its closest point on the polyline, counted from ``start`` at the first
+    vertex, and its distance (mm) from it.  Along a vertical wall s runs with z where r
+    stands still."""
+    a, b = poly[:-1], poly[1:]
+    d = b - a
+    length = np.linalg.norm(d, axis=1)
+    s0 = start + np.r_[0.0, np.cumsum(length)[:-1]]
+    rel = points[:, None, :] - a[None]
+    u = np.clip(np.sum(rel * d[None], axis=2) / np.maximum(length**2, 1e-300), 0.0, 1.0)
+    q = a[None] + u[..., None] * d[None]
+    dist = np.linalg.norm(points[:, None, :] - q, axis=2)
+    k = np.argmin(dist, axis=1)
+    rows = np.arange(len(points))
+    return s0[k] + u[rows, k] * length[k], dist[rows, k]
+
+
+def contact_profile(
+    scene, x: np.ndarray, slip_mm: np.ndarray, status: np.ndarray, t: float | None = None
+) -> dict:
+    """Per candidate node: position, pressure and shear traction (MPa), status,
+    accumulated slip (mm); with the time t also ``s_mm``, the arc length along the die
+    the node faces (the nearest die at t, from its profile's first point; negative on the
+    extension before it) and ``die``, that die's name: the axis a profile is drawn
+    against (a vertical die wall has one r but spreads along s)."""
     import jax.numpy as jnp
 
     idx = scene.idx
@@ -374,7 +424,17 @@ def contact_profile(scene, x: np.ndarray, slip_mm: np.ndarray, status: np.ndarra
         )
     )
     safe = np.where(area > 0, area, 1.0)
+    along = {}
+    if t is not None and scene.inputs.die is not None:
+        reach = float(np.ptp(np.asarray(scene.inputs.coords), axis=0).max())
+        outlines = die_outlines(scene, t, reach)
+        names = list(outlines)
+        fits = [arc_position(p, pos, -reach) for p in outlines.values()]
+        nearest = np.argmin(np.stack([f[1] for f in fits]), axis=0)
+        s_mm = np.stack([f[0] for f in fits])[nearest, np.arange(len(pos))]
+        along = dict(s_mm=s_mm, die=np.array([names[k] for k in nearest]))
     return dict(
+        **along,
         r_mm=pos[:, 0],
         z_mm=pos[:, 1],
         pressure_MPa=lam[:, 0] / safe,

@@ -43,6 +43,14 @@ from jaxform.linear import LinearSolver, choose_backend
 from jaxform.loads import FacetLoad
 from jaxform.materials import load_material
 from jaxform.precision import require_x64
+from jaxform.presses import (
+    J_TO_NMM,
+    CrankMotion,
+    CrankPress,
+    EnergyPress,
+    SpeedPress,
+    crank_start_angle,
+)
 from jaxform.solver import NewtonSettings, choose_method
 from jaxform.workpieces import Workpiece, workpiece_of
 
@@ -92,6 +100,8 @@ class Scene:
     dt_growth: float = 1.5  # an easy step lets the next one grow by this factor (to dt)
     # when and how to remesh (element_size_mm resolved); None: never
     remesh: RemeshConfig | None = None
+    # the machine that drives the top die (jaxform.presses); None: no die (a membrane)
+    press: object = None
 
     @property
     def n_steps(self) -> int:
@@ -262,26 +272,34 @@ def _contact_scale(mesh: meshing.Mesh, shear_modulus: float, axisymmetric: bool)
 
 
 def _die_or_load(cfg: Config, piece: Workpiece, mesh: meshing.Mesh):
-    """(die, load, end time): the moving die of a pressed workpiece (a :class:`DieSet` of
-    the top, bottom and side dies where there are several), each checked clear of it at
-    t = 0, or the traction load of a membrane."""
+    """(die, load, end time, press): the moving die of a pressed workpiece (a
+    :class:`DieSet` of the top, bottom and side dies where there are several), each
+    checked clear of it at t = 0, driven by the press (:func:`press_of`), or the
+    traction load of a membrane (no press)."""
     if not piece.pressed:
-        return None, membrane_load(cfg, mesh), cfg.load.ramp_time_s
+        return None, membrane_load(cfg, mesh), cfg.load.ramp_time_s, None
     sets = piece.contact_sets(mesh)
     top_z = float(mesh.coords[mesh.node_sets["top"], 1].max())
     profile = die_profile(cfg.die, top_z)
     _check_clearance(profile, mesh, sets, "die.profile_mm")
     full = cfg.bottom_die is not None and not piece.half_height
-    if full:
-        bottom_z = float(mesh.coords[mesh.node_sets["bottom"], 1].min())
+    bottom_z = float(mesh.coords[mesh.node_sets["bottom"], 1].min()) if full else 0.0
+    share = 0.5 if piece.half_height else 1.0  # the top die's share of the ram travel
+    press, motion, driven = press_of(cfg, (top_z - bottom_z) / share, share)
+    if driven is not None:  # the press moves the top die; a bottom die stands
+        paths, t_end = [driven[:2]], driven[2]
+        if full:
+            paths.append((np.array([0.0, t_end]), np.zeros(2)))
+    elif full:
         paths, t_end = _closing_paths(cfg, cfg.die.reduction * (top_z - bottom_z))
+    else:
+        times, travel, t_end = die_path(cfg.die, cfg.die.reduction * top_z, share)
+        paths = [(times, travel)]
+    profiles, names = [profile], ["top"]
+    if full:
         bottom = bottom_die_profile(cfg, profile, bottom_z)
         _check_clearance(bottom, mesh, sets, "bottom_die.profile_mm")
         profiles, names = [profile, bottom], ["top", "bottom"]
-    else:
-        speed_factor = 0.5 if piece.half_height else 1.0
-        times, travel, t_end = die_path(cfg.die, cfg.die.reduction * top_z, speed_factor)
-        paths, profiles, names = [(times, travel)], [profile], ["top"]
     side = cfg.side_die
     if side is not None and side.profile_mm:
         pts = _profile_points(side.profile_mm, "polyline", "side_die.profile_mm", False)
@@ -302,12 +320,81 @@ def _die_or_load(cfg: Config, piece: Workpiece, mesh: meshing.Mesh):
     if side is not None:
         radii["side"] = side.corner_radius_mm
     dies = tuple(
-        make_die(p, times, travel, mu=fr.mu, m=fr.m, corner_radius=radii[name])
+        make_die(
+            p,
+            times,
+            travel,
+            mu=fr.mu,
+            m=fr.m,
+            corner_radius=radii[name],
+            motion=motion if name == "top" else None,
+        )
         for p, (times, travel), name in zip(profiles, paths, names)
     )
     if len(dies) == 1:
-        return dies[0], None, t_end
-    return DieSet(dies, tuple(names)), None, t_end
+        return dies[0], None, t_end, press
+    return DieSet(dies, tuple(names)), None, t_end, press
+
+
+def _speed_press(cfg: Config, height_mm: float, share: float):
+    """Today's motion: the die path table or constant speed (set by the caller)."""
+    return SpeedPress(capacity_N=cfg.press.capacity_N), None, None
+
+
+def _crank_press(cfg: Config, height_mm: float, share: float):
+    """The crank press whose ram travels die.reduction x the height to bottom dead
+    centre (the shut height set for the part): its start angle and motion."""
+    pr = cfg.press
+    ram_mm = cfg.die.reduction * height_mm
+    if ram_mm > pr.stroke_mm:
+        raise ConfigError(
+            f"press.stroke_mm = {pr.stroke_mm!r}: the crank press travels at most its "
+            f"stroke, die.reduction x the height needs {ram_mm:.6g} mm"
+        )
+    theta0 = crank_start_angle(pr.stroke_mm, pr.rod_length_mm, ram_mm)
+    motion = CrankMotion(
+        radius_mm=jnp.asarray(0.5 * pr.stroke_mm),
+        rod_mm=jnp.asarray(float(pr.rod_length_mm)),
+        omega_rad_s=jnp.asarray(2.0 * np.pi * pr.strokes_per_min / 60.0),
+        theta0_rad=jnp.asarray(theta0),
+        share=jnp.asarray(share),
+        delay_s=jnp.asarray(float(cfg.thermal.dwell_s)),
+    )
+    press = CrankPress(motion=motion, stroke_mm=pr.stroke_mm,
+                       strokes_per_min=pr.strokes_per_min, capacity_N=pr.capacity_N)  # fmt: skip
+    t_end = motion.end_s - float(cfg.thermal.dwell_s)  # the dwell is added by the caller
+    return press, motion, (np.array([0.0, t_end]), np.array([0.0, share * ram_mm]), t_end)
+
+
+def _energy_press(cfg: Config, height_mm: float, share: float):
+    """A screw press or a hammer: the die stands until the blows move it
+    (:mod:`jaxform.blows`); the end time is nominal (a uniform deceleration over the
+    reduction, or half the height)."""
+    pr = cfg.press
+    press = EnergyPress(
+        energy_Nmm=jnp.asarray(pr.energy_J * J_TO_NMM),
+        efficiency=jnp.asarray(float(pr.efficiency)),
+        impact_speed_mm_s=jnp.asarray(float(pr.impact_speed_mm_s)),
+        blows=pr.blows,
+        steps_per_blow=pr.steps_per_blow,
+        capacity_N=pr.capacity_N,
+        name=pr.model,
+    )
+    reduction = cfg.die.reduction if cfg.die.reduction is not None else 0.5
+    t_end = press.nominal_duration_s(reduction * height_mm)
+    return press, None, (np.array([0.0, t_end]), np.zeros(2), t_end)
+
+
+_PRESSES = {"speed": _speed_press, "crank": _crank_press, "screw": _energy_press,
+            "hammer": _energy_press}  # fmt: skip
+
+
+def press_of(cfg: Config, height_mm: float, share: float):
+    """(press strategy, closed-form motion of the top die or None, (times, travel, end
+    time) of the top die where the press sets them, else None) for ``[press]``;
+    ``height_mm``: the ram travel that closes the dies on the workpiece's whole height,
+    ``share``: the top die's share of the ram travel (1/2 in a half-height model)."""
+    return _PRESSES[cfg.press.model](cfg, height_mm, share)
 
 
 def _closing_paths(cfg: Config, target_mm: float):
@@ -387,7 +474,7 @@ def build_scene(cfg: dict | Config) -> Scene:
     mesh = piece.build_mesh()
     law, params = load_material(cfg.material.preset)
     form = formulation(m.element, axisymmetric=axi, theta=m.stabilization, alpha=tm.alpha)
-    die, load, t_end = _die_or_load(cfg, piece, mesh)
+    die, load, t_end, press = _die_or_load(cfg, piece, mesh)
     corner = (
         die is not None
         and cfg.die.corner_contact
@@ -451,4 +538,5 @@ def build_scene(cfg: dict | Config) -> Scene:
         grid=piece.grid,
         adjoint_memory_mb=so.adjoint_memory_mb,
         remesh=remesh,
+        press=press,
     )

@@ -29,6 +29,7 @@ from jaxform import program_store
 from jaxform.capacity import padded
 from jaxform.postprocess import HEAT_COLUMNS, extra_history, laps
 from jaxform.precision import require_x64
+from jaxform.presses import capacity_message
 from jaxform.remesh import RemeshError, remesh
 from jaxform.rezone import RezoneError, corner_qualities, min_quality, rezone
 from jaxform.scenes import Inputs, Scene
@@ -350,11 +351,22 @@ def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Re
             remeshed: the nodes of the new mesh after a remesh, else 0, with
             remesh_trigger naming what fired it), or None.
 
+    A press capacity (``scene.press.capacity_N`` > 0) stops the run after the first step
+    whose ram force reaches it: SimulationError ("press capacity ... reached at stroke
+    ... mm, step N") with the history up to that step (the final state is the compiled
+    chunk's last).  A screw press or hammer scene runs its blows
+    (:func:`jaxform.blows.simulate_blows`).
+
     Returns:
         A :class:`Result`: the history (one row per converged step, row 0 the initial
         state), the fields, the final state and the rezoning and remeshing reports."""
+    if scene.press is not None and scene.press.energy_limited:  # a screw press, a hammer
+        from jaxform.blows import simulate_blows
+
+        return simulate_blows(scene, progress)
     state, control = init(scene)
     settings = scene.remesh
+    capacity = scene.press.capacity_N if scene.press is not None else 0.0
     remeshing = settings is not None and settings.on
     trigger = settings.quality_below if remeshing else scene.rezone_quality
     control = replace(control, rezone_quality=jnp.asarray(trigger))
@@ -408,6 +420,9 @@ def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Re
                            rezoned=paused * (not remeshing), remeshed=0,
                            new_nodes=0)  # fmt: skip
                 rows.append(row)
+                if capacity > 0.0 and float(row["force_N"]) >= capacity:  # the press stalls
+                    failure = capacity_message(capacity, float(row["stroke_mm"]), len(rows) - 1)
+                    break
             since += len(rows) - first
             state = state_new
             pause = bool(outs["paused"][len(rows) - first - 1]) if len(rows) > first else False
@@ -503,6 +518,11 @@ def init(scene: Scene) -> tuple[SimState, StepControl]:
         no rezoning trigger (:func:`step` does not rezone).
     """
     require_x64()
+    if scene.press is not None and scene.press.energy_limited:
+        raise ValueError(
+            f"init: a {scene.press.name} press moves the die with the work done, not with "
+            "time; run it with simulate() or jaxform.blows.blow_run"
+        )
     zero = jnp.asarray(0.0)
     control = StepControl(h=jnp.asarray(scene.dt), dt_max=jnp.asarray(scene.dt),
                           t_end=jnp.asarray(scene.t_end), rezone_quality=zero,
