@@ -333,3 +333,34 @@ def test_valid_config_reaches_the_run(command, tmp_path):
     out = ["--out", str(tmp_path / "new" / "dir")] if command != "taylor-test" else []
     with pytest.raises(Reached):
         run_cli([command, "configs/preform_design.toml", *out])
+
+
+def test_die_group_of_a_scene_with_several_dies_reads_the_top_die():
+    """`jaxform taylor-test configs/closed_die_asymmetric.toml` raised AttributeError
+    ('DieSet' object has no attribute 'points'): the die group's points are the top
+    die's (the design group moves the top die)."""
+    import jaxform
+    from jaxform.config import load_config, typed
+    from jaxform.design.problem import build_group
+    from jaxform.scenes import build_scene
+
+    jaxform.enable_x64()
+    scene = build_scene(typed(load_config("configs/closed_die_asymmetric.toml")))
+    group = build_group(scene, "die")
+    n_top = len(load_config("configs/closed_die_asymmetric.toml")["die"]["profile_mm"])
+    assert group.points == tuple(range(n_top))
+
+
+def test_forward_progress_of_gradient_commands(capsys):
+    """A gradient command's forward run prints a line per compiled chunk and says, when it
+    ends, that the gradient program compiles next (it used to be silent for minutes)."""
+    from jaxform.cli import ForwardProgress
+
+    report = ForwardProgress(0.0)
+    row = dict(time_s=1.0, dt_s=1.0, stroke_mm=0.1, force_N=10.0, iterations=3, cutbacks=0)
+    report(dict(row, step=4, n_steps=8, chunk_end=True))
+    report(dict(row, step=5, n_steps=8, chunk_end=False))  # inside a chunk: quiet
+    report(dict(row, step=8, n_steps=8, chunk_end=True))
+    lines = capsys.readouterr().out.splitlines()
+    assert len(lines) == 3 and lines[0].startswith("  forward step 4/8: t=1.000 s")
+    assert "compiling the gradient program" in lines[2]
