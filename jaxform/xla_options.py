@@ -90,8 +90,3 @@ class _Jitted:
 
     def lower(self, *args, **kwargs):
         return self._for(args, kwargs).lower(*args, **kwargs)
-
-    def cache_size(self) -> int:
-        """How many programs (argument shapes and static arguments) this function holds
-        compiled, over all backends: what tests and benchmarks count compiles with."""
-        return sum(f._cache_size() for f in self._built.values())

@@ -16,7 +16,6 @@ from __future__ import annotations
 import csv
 from dataclasses import dataclass, replace
 from functools import cached_property, partial
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -344,12 +343,3 @@ def build_problem(
             "build_problem: a scene that remeshes takes its forward run's steps: no times"
         )
     return DesignProblem(scene, built, objective, np.asarray(times), start, single_program, plan)
-
-
-def write_target_shape(path: str | Path, nodes: np.ndarray, positions: np.ndarray) -> None:
-    """Write a shape_target CSV (node, r_mm, z_mm)."""
-    with open(path, "w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(["node", "r_mm", "z_mm"])
-        for n in nodes:
-            w.writerow([int(n), f"{positions[n, 0]:.12g}", f"{positions[n, 1]:.12g}"])

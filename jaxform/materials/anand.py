@@ -100,11 +100,6 @@ def _log_sinh(x):
     return x + jnp.log(-jnp.expm1(-2.0 * x)) - jnp.log(2.0)
 
 
-def flow_rate(sigma, s, p: AnandParams):
-    """f(sigma, s): equivalent plastic strain rate (1/s). May overflow for huge sigma/s."""
-    return jnp.exp(p.log_a_eff()) * jnp.sinh(p.xi * sigma / s) ** (1.0 / p.m)
-
-
 def flow_stress(rate, s, p: AnandParams):
     """Inverse of f in sigma: the equivalent stress (MPa) that flows at `rate` (1/s)."""
     return s / p.xi * _asinh_exp(p.m * (jnp.log(rate) - p.log_a_eff()))
