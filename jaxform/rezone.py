@@ -362,7 +362,8 @@ def rezone(scene, state, inputs):
         new_nodal[:, k] = move.nodal(nodal[:, k])
     x_new = np.concatenate([new_nodal.ravel(), x[lay.n_node_dofs :]])
     rate_new = np.concatenate([new_rate_nodal.ravel(), rate[lay.n_node_dofs :]])
-    new_state = replace(state, x=jnp.asarray(x_new), gauss=gauss, x_rate=jnp.asarray(rate_new))
+    new_state = replace(state, x=jnp.asarray(x_new), gauss=gauss, x_rate=jnp.asarray(rate_new),
+                        damage=jnp.asarray(move.gauss(state.damage)))  # fmt: skip
     new_inputs = replace(inputs, coords=jnp.asarray(new_pos))
     axi = scene.model.formulation.axisymmetric
     v0 = float(np.sum(polygon_measure(pos[elements], axi)))

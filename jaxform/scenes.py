@@ -44,6 +44,7 @@ from jaxform.loads import FacetLoad
 from jaxform.materials import load_material
 from jaxform.precision import require_x64
 from jaxform.solver import NewtonSettings, choose_method
+from jaxform.wear import WearInputs, die_stations
 from jaxform.workpieces import Workpiece, workpiece_of
 
 # Dirichlet conditions by node set: the displacement components held at 0
@@ -63,6 +64,7 @@ class Inputs:
     c_contact: jax.Array  # complementarity scale (N/mm), set-up constant
     load: FacetLoad | None = None  # traction load on idx.load_facets (None: no load)
     thermal: ThermalInputs | None = None  # temperatures, conductances (None: isothermal)
+    wear: WearInputs | None = None  # Archard's law and die stations (None: no wear)
 
 
 @dataclass(frozen=True)
@@ -310,6 +312,28 @@ def _die_or_load(cfg: Config, piece: Workpiece, mesh: meshing.Mesh):
     return DieSet(dies, tuple(names)), None, t_end
 
 
+def wear_inputs(cfg: Config, die) -> WearInputs | None:
+    """Archard's law of ``[wear]`` and each die's stations (None: wear off or no die)."""
+    w = cfg.wear
+    if w is None or not w.on or die is None:
+        return None
+    members = die.members
+    hard = w.hardness_by_die_MPa or (w.hardness_MPa,) * len(members)
+    if len(hard) != len(members):
+        raise ConfigError(
+            f"wear.hardness_by_die_MPa = {list(hard)}: give one hardness per die "
+            f"({len(members)}: {', '.join(die.names)})"
+        )
+    stations = [die_stations(d.points, float(d.corner_radius), w.stations)[0] for d in members]
+    return WearInputs(
+        stations=jnp.asarray(np.stack(stations)),
+        k=jnp.asarray(w.k),
+        hardness_MPa=jnp.asarray(hard, dtype=float),
+        b=jnp.asarray(w.b),
+        c=jnp.asarray(w.c),
+    )
+
+
 def _closing_paths(cfg: Config, target_mm: float):
     """([(times, travel) of the top die, of the bottom die], end time) of a full-height
     scene whose dies close by ``target_mm``: at die.speed_mm_s shared by
@@ -440,6 +464,7 @@ def build_scene(cfg: dict | Config) -> Scene:
             c_contact=jnp.asarray(c),
             load=load,
             thermal=thermal,
+            wear=wear_inputs(cfg, die),
         ),
         dt=tm.dt_s,
         t_end=t_end,
