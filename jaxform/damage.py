@@ -12,9 +12,11 @@ law).  The three criteria, in the order of the last axis of :func:`integrands`:
   tension, -1/3 in uniaxial compression.
 
 sigma_1 is the largest principal stress, sigma_m the mean stress, sigma_eq von Mises'
-equivalent stress.  A step adds the trapezoid rule's
-0.5 (f(sigma_n) + f(sigma_n+1)) (eqps_n+1 - eqps_n) (:func:`increment`): exact wherever f
-is constant over the step (proportional loading, the homogeneous tests).
+equivalent stress.  A step adds f(sigma_n+1) (eqps_n+1 - eqps_n)
+(:func:`increment`): the backward-Euler rule of the implicit material update, whose plastic
+strain increment flows at the end of step stress; exact wherever f is constant over the
+step (proportional loading, the homogeneous tests), also on the step that starts from the
+stress-free state (where f is undefined and the trapezoid rule would lose half a step).
 
 Stress tensors are 3 x 3 with their shear in the (0, 1) block only: the in-plane block of
 an axisymmetric or plane-strain section (index 2 the hoop or out-of-plane direction), or a
@@ -64,10 +66,10 @@ def integrands(stress):
     return jnp.stack([cl, brozzo, ayada], axis=-1)
 
 
-def increment(stress_old, stress_new, eqps_old, eqps_new):
-    """The damage each criterion gains over a step (..., 3): the trapezoid rule in eqps."""
-    d_eqps = (eqps_new - eqps_old)[..., None]
-    return 0.5 * (integrands(stress_old) + integrands(stress_new)) * d_eqps
+def increment(stress, d_eqps):
+    """The damage each criterion gains over a step (..., 3): f at the end of step stress
+    ``stress`` (..., 3, 3) times the step's plastic strain ``d_eqps`` (...)."""
+    return integrands(stress) * d_eqps[..., None]
 
 
 def initial_damage(n_elements: int, n_points: int = 4, dtype=jnp.float64):

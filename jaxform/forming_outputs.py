@@ -17,7 +17,6 @@ import numpy as np
 from jaxform.damage import CRITERIA
 from jaxform.postprocess import positions
 from jaxform.transfer import gauss_points
-from jaxform.wear import die_stations
 
 
 def damage_flags(damage: np.ndarray, critical: float, criterion: str) -> np.ndarray:
@@ -50,14 +49,14 @@ def damage_history(scene, xs, damages, critical: float = 0.0, criterion: str = "
 
 def wear_profiles(scene, wear_mm) -> dict[str, dict[str, np.ndarray]]:
     """Per die name: its stations' position at t = 0 (``r_mm``, ``z_mm``), arc length from
-    the profile's first point (``s_mm``) and wear depth (``wear_mm``, mm) from ``wear_mm``
+    the first station (``s_mm``) and wear depth (``wear_mm``, mm) from ``wear_mm``
     (n_dies, n_stations), the state's.  Empty without wear stations."""
     law = scene.inputs.wear
     if law is None or scene.inputs.die is None:
         return {}
     out = {}
-    n = int(law.stations.shape[1])
-    for i, (name, die) in enumerate(zip(scene.inputs.die.names, scene.inputs.die.members)):
-        pts, s = die_stations(np.asarray(die.points), float(die.corner_radius), n)
+    for i, name in enumerate(scene.inputs.die.names):
+        pts = np.asarray(law.stations[i])
+        s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
         out[name] = dict(r_mm=pts[:, 0], z_mm=pts[:, 1], s_mm=s, wear_mm=np.asarray(wear_mm)[i])
     return out

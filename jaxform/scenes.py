@@ -312,8 +312,21 @@ def _die_or_load(cfg: Config, piece: Workpiece, mesh: meshing.Mesh):
     return DieSet(dies, tuple(names)), None, t_end
 
 
-def wear_inputs(cfg: Config, die) -> WearInputs | None:
-    """Archard's law of ``[wear]`` and each die's stations (None: wear off or no die)."""
+def _station_profile(points: np.ndarray, reach: float) -> np.ndarray:
+    """The part of a die profile that carries wear stations: the profile itself, but for
+    a flat die (two points at one height, extended both ways for contact) the span from
+    the axis to ``reach`` (mm), in the profile's direction."""
+    flat = len(points) == 2 and points[0, 1] == points[1, 1]
+    if not flat:
+        return points
+    ends = [0.0, reach] if points[1, 0] > points[0, 0] else [reach, 0.0]
+    return np.array([[ends[0], points[0, 1]], [ends[1], points[0, 1]]])
+
+
+def wear_inputs(cfg: Config, die, coords: np.ndarray) -> WearInputs | None:
+    """Archard's law of ``[wear]`` and each die's stations (None: wear off or no die):
+    stations along each die profile, along a flat die from the axis to twice the
+    workpiece's largest radius ``coords`` (mm)."""
     w = cfg.wear
     if w is None or not w.on or die is None:
         return None
@@ -324,7 +337,12 @@ def wear_inputs(cfg: Config, die) -> WearInputs | None:
             f"wear.hardness_by_die_MPa = {list(hard)}: give one hardness per die "
             f"({len(members)}: {', '.join(die.names)})"
         )
-    stations = [die_stations(d.points, float(d.corner_radius), w.stations)[0] for d in members]
+    reach = 2.0 * float(np.max(np.abs(coords[:, 0])))
+    stations = [
+        die_stations(_station_profile(np.asarray(d.points), reach), float(d.corner_radius),
+                     w.stations)[0]
+        for d in members
+    ]  # fmt: skip
     return WearInputs(
         stations=jnp.asarray(np.stack(stations)),
         k=jnp.asarray(w.k),
@@ -464,7 +482,7 @@ def build_scene(cfg: dict | Config) -> Scene:
             c_contact=jnp.asarray(c),
             load=load,
             thermal=thermal,
-            wear=wear_inputs(cfg, die),
+            wear=wear_inputs(cfg, die, np.asarray(mesh.coords)),
         ),
         dt=tm.dt_s,
         t_end=t_end,

@@ -309,7 +309,7 @@ def converged_state(
         slip_mm=state.slip_mm + jnp.abs(slip),
         contact_status=status.astype(state.contact_status.dtype),
         heat_mJ=state.heat_mJ + model.heat_flows(x, ctx, gauss),
-        damage=state.damage + damage_increment(old.stress, new.stress, old.eqps, new.eqps),
+        damage=state.damage + damage_increment(new.stress, new.eqps - old.eqps),
         wear_mm=state.wear_mm + step_wear(model, x, inp, idx, t_new, t_new - state.t, slip, status),
     )
 
