@@ -762,12 +762,23 @@ class DesignConfig:
             "eqps_spread",
             "die_fill",
             "temperature_misfit",
+            "max_damage",
+            "wear_depth",
         ),
         doc="design objective (jaxform design / taylor-test), a function of the run: force "
         "integral over stroke (N mm), peak ram force (N), mean squared deviation of the final"
         " side from straight (mm^2), of chosen nodes from target positions (mm^2), "
         "force-stroke misfit against a target curve, variance of eqps, 1 - die fill, mean "
-        "squared misfit of the mean temperature history against a target (K^2)",
+        "squared misfit of the mean temperature history against a target (K^2), a smooth "
+        "maximum of output.damage_criterion's damage at the end (-) or of the die wear "
+        "depth (mm; needs wear.on) (design.smooth_max_p)",
+    )
+    smooth_max_p: float = key(
+        8.0,
+        low=1.0,
+        high=64.0,
+        doc="exponent p of the power mean (mean of x^p)^(1/p) that objectives max_damage "
+        "and wear_depth take as a smooth maximum: between N^(-1/p) max and max",
     )
     max_temperature_K: float = key(
         0.0,
@@ -1452,8 +1463,9 @@ def describe_schema() -> str:
 
 
 GRADIENT_GROUPS = SCHEMA["design"]["variables"].choices
-# design objectives that read only the force-stroke history: the ones a remeshed run has
-REMESH_OBJECTIVES = ("forging_work", "peak_force", "force_misfit")
+# design objectives that read the force-stroke history or the carried state (damage, wear):
+# the ones a remeshed run has
+REMESH_OBJECTIVES = ("forging_work", "peak_force", "force_misfit", "max_damage", "wear_depth")
 
 
 def check_design_run(cfg: dict) -> None:
@@ -1494,6 +1506,8 @@ def check_gradient_run(
     name = d["objective"]
     if name == "die_fill" and not cfg.get("die", {}).get("closed"):
         raise ConfigError("design.objective = 'die_fill' needs die.closed = true")
+    if name == "wear_depth" and not cfg.get("wear", {}).get("on"):
+        raise ConfigError("design.objective = 'wear_depth' needs wear.on = true")
     if name == "side_straightness" and not ({"billet", "ring"} & set(cfg)):
         raise ConfigError(
             "design.objective = 'side_straightness' needs a [billet] or [ring] scene (a free side)"
