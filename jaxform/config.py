@@ -566,6 +566,17 @@ class WearConfig:
         doc="hardness H of each die (MPa, > 0), in the order top, bottom, side ([] = "
         "wear.hardness_MPa for all)",
     )
+    hardness_slope_MPa_K: float = key(
+        0.0,
+        low=-100.0,
+        high=100.0,
+        doc="change of every die's hardness with its temperature (MPa/K): H(T) = H + slope "
+        "(T - wear.hardness_reference_K), at least 1 MPa; T is thermal.die_temperature_K "
+        "(with its table in coupled runs)",
+    )
+    hardness_reference_K: float = key(
+        293.0, low=1.0, high=5000.0, doc="temperature at which the hardness is given (K)"
+    )
     b: float = key(1.0, low=0.1, high=4.0, doc="exponent of the slip speed |v_slip| (-)")
     c: float = key(1.0, low=0.0, high=4.0, doc="exponent of the hardness H (-)")
     stations: int = key(

@@ -349,6 +349,9 @@ def wear_inputs(cfg: Config, die, coords: np.ndarray) -> WearInputs | None:
         hardness_MPa=jnp.asarray(hard, dtype=float),
         b=jnp.asarray(w.b),
         c=jnp.asarray(w.c),
+        slope_MPa_K=jnp.asarray(w.hardness_slope_MPa_K),
+        reference_K=jnp.asarray(w.hardness_reference_K),
+        die_temperature_K=jnp.asarray(cfg.thermal.die_temperature_K),
     )
 
 

@@ -332,7 +332,9 @@ def step_wear(model: Model, x, inp: Inputs, idx: Indices, t_new, dt, slip, statu
     pressure = jnp.where(areas > 0.0, lam_n / jnp.where(areas > 0.0, areas, 1.0), 0.0)
     q = node_wear(law, pressure, slip, dt)
     offsets = jnp.stack([d.offset(t_new) for d in inp.die.members])
-    return station_wear(law, pos, offsets, frames.which, idx.contact_facets, counted, q)
+    temp = law.die_temperature_K if inp.thermal is None else inp.thermal.die_temperature(t_new)
+    hard = law.hardness(temp)
+    return station_wear(law, pos, offsets, frames.which, idx.contact_facets, counted, q, hard)
 
 
 @dataclass(frozen=True)

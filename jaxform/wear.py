@@ -5,7 +5,8 @@ The wear depth at a point of a die surface grows at the rate
     dw/dt = K p |v_slip|^b / H^c
 
 with p the contact pressure (MPa), v_slip the speed at which the workpiece slides over
-the die there (mm/s), H the die's hardness (MPa) and K, b, c the law's constants (K in
+the die there (mm/s), H the die's hardness (MPa; optionally linear in the die temperature,
+:meth:`WearInputs.hardness`) and K, b, c the law's constants (K in
 mm^(1-b) s^(b-1) MPa^(c-1): dimensionless for Archard's b = c = 1, the wear depth per mm
 slid per unit of p / H).
 
@@ -42,6 +43,16 @@ class WearInputs:
     hardness_MPa: jax.Array  # (n_dies,) hardness H of each die (MPa)
     b: jax.Array  # exponent of the slip speed (-)
     c: jax.Array  # exponent of the hardness (-)
+    # H(T) = hardness_MPa + slope (T - reference_K) at the die temperature T (K), at least
+    # 1 MPa; die_temperature_K: T of a run without a temperature field
+    slope_MPa_K: jax.Array = 0.0
+    reference_K: jax.Array = 293.0
+    die_temperature_K: jax.Array = 293.0
+
+    def hardness(self, temperature_K):
+        """Each die's hardness (MPa) at the die temperature ``temperature_K`` (K)."""
+        h = self.hardness_MPa + self.slope_MPa_K * (temperature_K - self.reference_K)
+        return jnp.maximum(h, 1.0)
 
 
 def die_stations(points, corner_radius: float, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -94,7 +105,7 @@ def _at_stations(stations, pa, pb, ok, qa, qb):
     return jnp.where(found, val, 0.0)
 
 
-def station_wear(law: WearInputs, pos, offsets, which, facets, counted, q):
+def station_wear(law: WearInputs, pos, offsets, which, facets, counted, q, hardness):
     """The step's wear depth at every station (n_dies, n_stations) mm.
 
     Arguments:
@@ -105,6 +116,7 @@ def station_wear(law: WearInputs, pos, offsets, which, facets, counted, q):
         facets: (n_f, 2) contact facets (candidate indices); counted: (n_f,) both ends
             touching.
         q: (n_c,) :func:`node_wear` of each candidate.
+        hardness: (n_dies,) each die's hardness H (MPa; :meth:`WearInputs.hardness`).
     """
     a, b = facets[:, 0], facets[:, 1]
     rows = []
@@ -112,5 +124,5 @@ def station_wear(law: WearInputs, pos, offsets, which, facets, counted, q):
         ok = (counted > 0) & (which[a] == d) & (which[b] == d)
         w = _at_stations(law.stations[d], pos[a] - offsets[d], pos[b] - offsets[d], ok,
                          q[a], q[b])  # fmt: skip
-        rows.append(w / law.hardness_MPa[d] ** law.c)
+        rows.append(w / hardness[d] ** law.c)
     return jnp.stack(rows)

@@ -19,6 +19,7 @@ References:
   turns tensile, so damage is > 0 and largest on the free surface near the mid-plane.
 """
 
+from dataclasses import replace
 from functools import cache
 
 import jax
@@ -161,21 +162,23 @@ def test_barrelled_upsetting_damage_is_largest_at_the_free_equator():
 
 def test_node_wear_exponents():
     """K p |s|^b dt^(1-b) for b = 2 (slip speed squared) and b = 1; 0 where p <= 0 or no
-    slip; the hardness exponent is applied at the stations (here: H^c not yet)."""
+    slip (the hardness H^c divides at the stations); H(T) = 6000 - 5 (T - 293) MPa."""
     law = WearInputs(jnp.zeros((1, 2, 2)), jnp.asarray(1e-3), jnp.asarray([2.0]),
                      jnp.asarray(2.0), jnp.asarray(0.5))  # fmt: skip
     p, s, dt = jnp.asarray([10.0, -1.0, 5.0]), jnp.asarray([0.2, 0.3, 0.0]), 0.5
     assert np.allclose(node_wear(law, p, s, dt), [1e-3 * 10 * 0.04 / 0.5, 0.0, 0.0], rtol=1e-14)
     one = WearInputs(law.stations, law.k, law.hardness_MPa, jnp.asarray(1.0), law.c)
     assert np.allclose(node_wear(one, p, s, dt), [1e-3 * 10 * 0.2, 0.0, 0.0], rtol=1e-14)
+    # hardness linear in the die temperature, at least 1 MPa
+    hot = replace(law, hardness_MPa=jnp.asarray([6000.0]), slope_MPa_K=jnp.asarray(-5.0))
+    assert np.allclose(hot.hardness(693.0), [4000.0], rtol=1e-14)
+    assert np.allclose(hot.hardness(5000.0), [1.0], rtol=1e-14)
 
 
 def test_outputs_written(tmp_path):
     """`write_outputs` with wear, flow lines and a critical damage value: wear_top.csv,
     wear.png, damage.png, flow_lines.png, flow_lines.pvd; the VTU cells carry the damage
     integrals and the flag."""
-    from dataclasses import replace
-
     res = seed_remeshed()
     out = replace(res.scene.settings.output, fields=True, plots=True, damage_critical=1e-9,
                   damage_criterion="ayada")  # fmt: skip
