@@ -243,3 +243,17 @@ def test_flow_lines_are_located_again_after_a_rezoning():
     stale = flow_lines(SimpleNamespace(**{**vars(result), "history": unmarked, "rezones": []}),
                        0.5)  # fmt: skip
     assert np.max(np.abs(stale.points[4] - stale.points[0] * [a[4], b[4]])) > 1e-2
+
+
+@pytest.mark.slow  # its own compiled program (two dies): ~1 min on 2 shared cores
+def test_wear_of_mirrored_dies_is_the_same():
+    """A full-height billet between the top die and its mirror image, closing
+    symmetrically (Coulomb 0.3): the bottom die's wear profile (stations walked from the
+    outside in) is the top die's reversed, to 1e-8 of its peak; both > 0."""
+    over = QUIET + ["mesh.nr=3", "mesh.nz=6", "billet.full_height=true",
+                    "bottom_die.mirror=true", "bottom_die.speed_share=0.5",
+                    "die.reduction=0.2", "time.dt_s=3.0", "wear.on=true"]  # fmt: skip
+    res = jaxform.run(FRICTION, over)
+    top, bottom = np.asarray(res.final_state.wear_mm)
+    assert top.max() > 0.0
+    assert np.max(np.abs(top - bottom[::-1])) <= 1e-8 * top.max()
