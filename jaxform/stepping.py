@@ -84,7 +84,7 @@ class SimState:
 
 
 def _initial_wear(inputs: Inputs):
-    if getattr(inputs, "wear", None) is None:
+    if inputs.wear is None:
         return jnp.zeros((0, 0))
     return jnp.zeros(inputs.wear.stations.shape[:2])
 
@@ -319,7 +319,7 @@ def step_wear(model: Model, x, inp: Inputs, idx: Indices, t_new, dt, slip, statu
     (:mod:`jaxform.wear`; (0, 0) without wear stations): pressures from the end of step's
     multipliers over the tributary areas of the facets in contact (both ends touching),
     ``slip`` the step's slip of each candidate (mm), ``status`` their contact status."""
-    law = getattr(inp, "wear", None)
+    law = inp.wear
     if law is None:
         return jnp.zeros((0, 0))
     if inp.die is None or not model.layout.n_contact:
