@@ -128,6 +128,7 @@ class Padded:
             gauss=jax.tree_util.tree_map(pad, state.gauss, ghost),
             slip_mm=xp.concatenate([state.slip_mm, xp.zeros(pad_c)]),
             contact_status=xp.concatenate([status, xp.zeros(pad_c, status.dtype)]),
+            damage=pad(state.damage, 0.0),
         )
         return jax.tree_util.tree_map(jnp.asarray, out) if host else out
 
@@ -144,6 +145,7 @@ class Padded:
             gauss=jax.tree_util.tree_map(lambda a: part(a, ne), state.gauss),
             slip_mm=part(state.slip_mm, nc),
             contact_status=part(state.contact_status, nc),
+            damage=part(state.damage, ne),
         )
 
     def trim_outputs(self, outs: dict) -> dict:
@@ -152,7 +154,7 @@ class Padded:
         out = dict(outs)  # (a chunk that failed singular has no fields)
         if "x" in outs:
             out["x"] = self._trim_x(outs["x"])
-        for k in ("stress", "s", "eqps"):
+        for k in ("stress", "s", "eqps", "damage"):
             if k in outs:
                 out[k] = outs[k][:, :ne]
         for k in ("slip_mm", "contact_status"):

@@ -631,6 +631,46 @@ class FrictionConfig:
     )
 
 
+@section("wear")
+@dataclass(frozen=True, kw_only=True)
+class WearConfig:
+    """[wear]: die wear by Archard's law, dw/dt = k p |v_slip|^b / H^c (docs: outputs)."""
+
+    on: bool = key(False, doc="integrate the wear depth along every die surface (wear.csv)")
+    k: float = key(
+        1e-4,
+        low=0.0,
+        high=1.0,
+        low_open=True,
+        doc="wear coefficient K (-, for b = c = 1: wear depth per mm slid per unit p / H; "
+        "else mm^(1-b) s^(b-1) MPa^(c-1))",
+    )
+    hardness_MPa: float = key(
+        6000.0, low=1.0, high=1e5, doc="die hardness H (MPa), every die unless by_die is given"
+    )
+    hardness_by_die_MPa: tuple[float, ...] = key(
+        [],
+        doc="hardness H of each die (MPa, > 0), in the order top, bottom, side ([] = "
+        "wear.hardness_MPa for all)",
+    )
+    hardness_slope_MPa_K: float = key(
+        0.0,
+        low=-100.0,
+        high=100.0,
+        doc="change of every die's hardness with its temperature (MPa/K): H(T) = H + slope "
+        "(T - wear.hardness_reference_K), at least 1 MPa; T is thermal.die_temperature_K "
+        "(with its table in coupled runs)",
+    )
+    hardness_reference_K: float = key(
+        293.0, low=1.0, high=5000.0, doc="temperature at which the hardness is given (K)"
+    )
+    b: float = key(1.0, low=0.1, high=4.0, doc="exponent of the slip speed |v_slip| (-)")
+    c: float = key(1.0, low=0.0, high=4.0, doc="exponent of the hardness H (-)")
+    stations: int = key(
+        101, low=2, high=2001, doc="stations along each die surface, equally spaced in arc length"
+    )
+
+
 @section("thermal")
 @dataclass(frozen=True, kw_only=True)
 class ThermalConfig:
@@ -793,6 +833,26 @@ class OutputConfig:
         doc="report a lap (fold) where the narrowest air wedge of the free surface (history "
         "fold_angle_deg: against itself or against a die) closes below this (deg; 0 = never)",
     )
+    damage_critical: float = key(
+        0.0,
+        low=0.0,
+        high=100.0,
+        doc="critical value of output.damage_criterion: elements at or above it are flagged "
+        "(cell field damage_flag, damage.png; history damage_flagged) (0 = no flag)",
+    )
+    damage_criterion: str = key(
+        "cl",
+        choices=("cl", "brozzo", "ayada"),
+        doc="the damage integral output.damage_critical applies to: normalized "
+        "Cockcroft-Latham, Brozzo or Ayada (docs: outputs)",
+    )
+    flow_line_spacing_mm: float = key(
+        0.0,
+        low=0.0,
+        high=1e4,
+        doc="follow material lines of the initial section at this spacing (mm) through the "
+        "run and its remeshes: flow_lines.png, fields/flow_lines_*.vtu (0 = none)",
+    )
 
 
 @section("design")
@@ -811,12 +871,23 @@ class DesignConfig:
             "eqps_spread",
             "die_fill",
             "temperature_misfit",
+            "max_damage",
+            "wear_depth",
         ),
         doc="design objective (jaxform design / taylor-test), a function of the run: force "
         "integral over stroke (N mm), peak ram force (N), mean squared deviation of the final"
         " side from straight (mm^2), of chosen nodes from target positions (mm^2), "
         "force-stroke misfit against a target curve, variance of eqps, 1 - die fill, mean "
-        "squared misfit of the mean temperature history against a target (K^2)",
+        "squared misfit of the mean temperature history against a target (K^2), a smooth "
+        "maximum of output.damage_criterion's damage at the end (-) or of the die wear "
+        "depth (mm; needs wear.on) (design.smooth_max_p)",
+    )
+    smooth_max_p: float = key(
+        8.0,
+        low=1.0,
+        high=64.0,
+        doc="exponent p of the power mean (mean of x^p)^(1/p) that objectives max_damage "
+        "and wear_depth take as a smooth maximum: between N^(-1/p) max and max",
     )
     max_temperature_K: float = key(
         0.0,
@@ -939,6 +1010,7 @@ class Config:
     bottom_die: BottomDieConfig | None = None
     side_die: SideDieConfig | None = None
     friction: FrictionConfig | None = None
+    wear: WearConfig | None = None
     thermal: ThermalConfig
     time: TimeConfig
     solver: SolverConfig
@@ -981,7 +1053,7 @@ def typed(cfg: dict) -> Config:
 # a die) or a membrane (clamped, loaded by a traction; no die).
 WORKPIECES = ("billet", "ring", "block", "membrane")
 # sections that only some workpieces use
-_DIE_SECTIONS = ("die", "press", "friction")
+_DIE_SECTIONS = ("die", "press", "friction", "wear")
 _FORGING_SECTIONS = ("bottom_die", "side_die")  # billets and rings only
 _LOAD_SECTIONS = ("load",)
 
@@ -1133,6 +1205,9 @@ def _cross_checks(raw: dict, out: dict) -> None:
         )
     if times and (times[0] != 0.0 or any(b <= a for a, b in zip(times, times[1:]))):
         raise ConfigError("thermal.die_path_time_s: must start at 0 s and increase")
+    wear = out.get("wear")
+    if wear and any(not v > 0.0 or v > 1e5 for v in wear["hardness_by_die_MPa"]):
+        raise ConfigError("wear.hardness_by_die_MPa: every entry must lie in (0, 100000] MPa")
     rm = out["remesh"]
     if remesh_on(rm):
         if out["mesh"]["rezone_quality"] > 0.0:
@@ -1585,8 +1660,9 @@ def describe_schema() -> str:
 
 
 GRADIENT_GROUPS = SCHEMA["design"]["variables"].choices
-# design objectives that read only the force-stroke history: the ones a remeshed run has
-REMESH_OBJECTIVES = ("forging_work", "peak_force", "force_misfit")
+# design objectives that read the force-stroke history or the carried state (damage, wear):
+# the ones a remeshed run has
+REMESH_OBJECTIVES = ("forging_work", "peak_force", "force_misfit", "max_damage", "wear_depth")
 
 
 def check_design_run(cfg: dict) -> None:
@@ -1627,6 +1703,8 @@ def check_gradient_run(
     name = d["objective"]
     if name == "die_fill" and not cfg.get("die", {}).get("closed"):
         raise ConfigError("design.objective = 'die_fill' needs die.closed = true")
+    if name == "wear_depth" and not cfg.get("wear", {}).get("on"):
+        raise ConfigError("design.objective = 'wear_depth' needs wear.on = true")
     if name == "side_straightness" and not ({"billet", "ring"} & set(cfg)):
         raise ConfigError(
             "design.objective = 'side_straightness' needs a [billet] or [ring] scene (a free side)"

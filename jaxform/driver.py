@@ -4,7 +4,8 @@
 
 config (TOML path or dict) --load_config--> validated document --typed--> Config
   --build_scene--> Scene --simulate--> Result
-  --write_outputs--> history.csv, config.toml, fields.pvd + VTUs, PNGs
+  --write_outputs--> history.csv, config.toml, fields.pvd + VTUs, PNGs (with [wear]:
+  wear_<die>.csv, wear.png; with output.flow_line_spacing_mm: flow_lines.png/.pvd)
 """
 
 from __future__ import annotations
@@ -16,7 +17,10 @@ import numpy as np
 
 from jaxform.cache import enable_compilation_cache
 from jaxform.config import dump_config, load_config, typed
-from jaxform.io import write_csv, write_vtu_series
+from jaxform.damage import CRITERIA
+from jaxform.flowlines import flow_lines
+from jaxform.forming_outputs import damage_flags, wear_profiles
+from jaxform.io import write_csv, write_flow_lines, write_vtu_series, write_wear
 from jaxform.postprocess import die_outlines, nodal_temperature, positions
 from jaxform.precision import require_x64
 from jaxform.scenes import build_scene
@@ -88,6 +92,7 @@ def write_outputs(out_dir: str | Path, result: Result) -> None:
         (out / "FAILED.txt").unlink(missing_ok=True)
     if cfg.output.fields:
         write_vtu_series(out, result)
+    _forming_outputs(out, result)
     if cfg.output.plots:
         final = result.final_scene  # the last mesh (the first one without remeshing)
         coords0 = np.asarray(scene.inputs.coords)
@@ -133,6 +138,7 @@ def write_outputs(out_dir: str | Path, result: Result) -> None:
             axes,
         )
         _contact_plot(out / "contact_profile.png", result)
+        _damage_plot(out / "damage.png", result, coords1, el1, red, axes)
         if cfg.output.animation:
             _animation(out / "animation.gif", result, axes.labels)
         temp = nodal_temperature(final, result.fields["x"][-1])
@@ -146,6 +152,61 @@ def write_outputs(out_dir: str | Path, result: Result) -> None:
                 "temperature [K]",
                 axes,
             )
+
+
+def _forming_outputs(out: Path, result: Result) -> None:
+    """Die wear profiles (CSV and plot) and flow lines (PNG, ParaView) where asked for."""
+    from jaxform import plot
+
+    cfg = result.scene.settings
+    wear = wear_profiles(result.final_scene, result.final_state.wear_mm)
+    if wear:
+        write_wear(out, wear)
+        if cfg.output.plots:
+            plot.wear_profiles(wear, out / "wear.png")
+    spacing = cfg.output.flow_line_spacing_mm
+    if spacing > 0.0 and result.scene.workpiece.pressed:
+        lines = flow_lines(result, spacing)
+        if cfg.output.fields:
+            write_flow_lines(out, lines, result.history["time_s"])
+        if cfg.output.plots:
+            final = result.final_scene
+            axi = final.model.formulation.axisymmetric
+            plot.flow_lines(
+                positions(final, result.fields["x"][-1]),
+                np.asarray(final.mesh.elements),
+                lines.polylines(-1),
+                out / "flow_lines.png",
+                f"flow lines ({spacing:g} mm apart at the start), stroke "
+                f"{result.history['stroke_mm'][-1]:.3g} mm",
+                ("r [mm]", "z [mm]") if axi else ("x [mm]", "y [mm]"),
+            )
+
+
+def _damage_plot(path: Path, result: Result, coords1, elements, red: float, axes) -> None:
+    """The chosen damage integral (largest Gauss point of each element) on the deformed
+    section; with output.damage_critical, the flagged elements outlined in red."""
+    from jaxform import plot
+
+    o = result.scene.settings.output
+    dmg = np.asarray(result.fields["damage"][-1])[..., CRITERIA.index(o.damage_criterion)]
+    fig = plot.cell_contours(
+        coords1,
+        elements,
+        dmg.max(axis=1),
+        path,
+        f"damage ({o.damage_criterion}), {red:.1f} % reduction",
+        f"damage integral {o.damage_criterion} [-]",
+        axes,
+    )
+    flags = damage_flags(result.fields["damage"][-1], o.damage_critical, o.damage_criterion)
+    if flags.any():
+        ax = fig.axes[0]
+        for e in np.asarray(elements)[flags > 0]:
+            q = coords1[np.r_[e, e[0]]]
+            ax.plot(q[:, 0], q[:, 1], "-", color="tab:red", lw=1.5)
+        ax.set_title(ax.get_title() + f", red: >= {o.damage_critical:g}")
+        fig.savefig(path, dpi=120)
 
 
 def _membrane_plots(out: Path, result: Result, coords0, coords1, el, mesh_text: str, axes) -> None:

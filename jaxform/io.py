@@ -6,6 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
+from jaxform.damage import CRITERIA
+from jaxform.forming_outputs import damage_flags
 from jaxform.postprocess import contact_profile, nodal_fields, nodal_temperature
 
 
@@ -44,6 +46,18 @@ def _contact_point_data(scene, result, k: int, n_nodes: int) -> dict:
     return out
 
 
+def _damage_cell_data(result, k: int) -> dict:
+    """Damage integrals (the largest of each element's Gauss points) and the crack-risk
+    flag (1 where output.damage_critical is reached; :func:`damage_flags`)."""
+    if "damage" not in result.fields:
+        return {}
+    dmg = np.asarray(result.fields["damage"][k])
+    out = {f"damage_{name}": [dmg[..., i].max(axis=1)] for i, name in enumerate(CRITERIA)}
+    o = result.scene.settings.output
+    out["damage_flag"] = [damage_flags(dmg, o.damage_critical, o.damage_criterion)]
+    return out
+
+
 def write_vtu_series(out_dir: Path, result, every: int = 1) -> Path:
     """ParaView fields: one VTU per written step and a .pvd time series that indexes them.
     Each row is written on its own mesh (:meth:`jaxform.simulation.Result.scene_at`):
@@ -54,7 +68,8 @@ def write_vtu_series(out_dir: Path, result, every: int = 1) -> Path:
     q1q1), temperature_K (K; coupled thermal runs), contact pressure / shear traction
     (MPa), contact status and slip (mm). Cell data (averages of the 4 Gauss points):
     Cauchy stress components (MPa), pressure (MPa), equivalent plastic strain,
-    deformation resistance s (MPa).
+    deformation resistance s (MPa); damage integrals damage_cl, damage_brozzo,
+    damage_ayada (largest Gauss point) and damage_flag (1: output.damage_critical reached).
     """
     import meshio
 
@@ -87,6 +102,7 @@ def write_vtu_series(out_dir: Path, result, every: int = 1) -> Path:
             "eqps": [result.fields["eqps"][k].mean(axis=1)],
             "s": [result.fields["s"][k].mean(axis=1)],
         }
+        cell_data.update(_damage_cell_data(result, k))
         name = f"step_{k:05d}.vtu"
         meshio.write(
             fields_dir / name, meshio.Mesh(pts, cells, point_data=point_data, cell_data=cell_data)
@@ -98,3 +114,42 @@ def write_vtu_series(out_dir: Path, result, every: int = 1) -> Path:
     lines += ["  </Collection>", "</VTKFile>"]
     pvd.write_text("\n".join(lines) + "\n")
     return pvd
+
+
+def write_flow_lines(out_dir: Path, lines, times, every: int = 1) -> Path:
+    """Flow lines (:class:`jaxform.flowlines.FlowLines`) for ParaView: one VTU of line
+    cells per written row (``fields/flow_lines_*.vtu``, point data ``line`` and
+    ``family``: 0 a line of constant z, 1 of constant r at t = 0) and ``flow_lines.pvd``."""
+    import meshio
+
+    out_dir = Path(out_dir)
+    (out_dir / "fields").mkdir(parents=True, exist_ok=True)
+    cells = [("line", lines.segments())]
+    data = {"line": lines.line.astype(float), "family": lines.family[lines.line].astype(float)}
+    n = len(lines.points)
+    rows = list(range(0, n, every)) + ([n - 1] if (n - 1) % every else [])
+    entries = []
+    for k in rows:
+        pts = np.column_stack([lines.points[k], np.zeros(len(lines.line))])
+        name = f"fields/flow_lines_{k:05d}.vtu"
+        meshio.write(out_dir / name, meshio.Mesh(pts, cells, point_data=data))
+        entries.append((float(times[k]), name))
+    return _write_pvd(out_dir / "flow_lines.pvd", entries)
+
+
+def _write_pvd(path: Path, entries) -> Path:
+    lines = ['<?xml version="1.0"?>', '<VTKFile type="Collection" version="0.1">', "  <Collection>"]
+    lines += [f'    <DataSet timestep="{t:.10g}" part="0" file="{f}"/>' for t, f in entries]
+    lines += ["  </Collection>", "</VTKFile>"]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def write_wear(out_dir: Path, profiles: dict) -> list[Path]:
+    """One ``wear_<die>.csv`` per die (s_mm, r_mm, z_mm at t = 0, wear_mm)."""
+    paths = []
+    for name, p in profiles.items():
+        path = Path(out_dir) / f"wear_{name}.csv"
+        write_csv(path, {k: p[k] for k in ("s_mm", "r_mm", "z_mm", "wear_mm")})
+        paths.append(path)
+    return paths

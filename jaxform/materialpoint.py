@@ -1,4 +1,4 @@
-"""Material-point driver: homogeneous uniaxial compression of one point.
+"""Material-point driver: homogeneous uniaxial compression (or tension) of one point.
 
 The point is a cylinder compressed along z with a traction-free side: the deformation
 gradient is F = diag(lam_r, lam_r, lam_z) with lam_z prescribed and lam_r found in every
@@ -21,6 +21,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxform.damage import N_CRITERIA
+from jaxform.damage import increment as damage_increment
 from jaxform.kinematics import step_kinematics
 from jaxform.materials.base import MaterialState
 
@@ -40,6 +42,7 @@ class UniaxialResult:
     newton_iterations: np.ndarray
     ok: np.ndarray
     lateral_stretch: np.ndarray  # current radius / initial radius
+    damage: np.ndarray  # (n+1, 3) damage integrals (jaxform.damage.CRITERIA)
 
 
 @jax.tree_util.register_dataclass
@@ -120,7 +123,7 @@ def uniaxial_compression(
     state0 = law.initial_state(params)
 
     def step(carry, tt):
-        state, lam_z, lam_r = carry
+        state, lam_z, lam_r, dmg = carry
         t_new, t_old = tt
         dt = t_new - t_old
         lam_z_new = _axial_stretch(t_new, rate, speed, height)
@@ -129,6 +132,7 @@ def uniaxial_compression(
         f = jnp.diag(jnp.stack([jnp.exp(x), jnp.exp(x), fz]))
         _, new, ok_m = law.update(step_kinematics(f, alpha), state, params, dt)
         lam_r_new = lam_r * jnp.exp(x)
+        dmg = dmg + damage_increment(new.stress, new.eqps - state.eqps)
         out = (
             t_new,
             -jnp.log(lam_z_new),
@@ -138,12 +142,14 @@ def uniaxial_compression(
             iters,
             ok & ok_m,
             lam_r_new,
+            dmg,
         )
-        return (new, lam_z_new, lam_r_new), out
+        return (new, lam_z_new, lam_r_new, dmg), out
 
     one = jnp.asarray(1.0)
-    _, outs = jax.lax.scan(step, (state0, one, one), (times_s, t_prev))
-    t, eps, sig, s, ep, it, ok, lam_r = outs
+    dmg0 = jnp.zeros(N_CRITERIA)
+    _, outs = jax.lax.scan(step, (state0, one, one, dmg0), (times_s, t_prev))
+    t, eps, sig, s, ep, it, ok, lam_r, dmg = outs
 
     def prepend(x, v):
         return jnp.concatenate([jnp.asarray([v], dtype=x.dtype), x])
@@ -157,6 +163,7 @@ def uniaxial_compression(
         newton_iterations=prepend(it, 0),
         ok=prepend(ok, True),
         lateral_stretch=prepend(lam_r, 1.0),
+        damage=jnp.concatenate([dmg0[None], dmg]),
     )
 
 

@@ -381,3 +381,35 @@ def animation(frames, path: Path, title: str, label: str, axes=("r [mm]", "z [mm
     anim = FuncAnimation(fig, draw, frames=len(frames), blit=False)
     anim.save(str(path), writer=PillowWriter(fps=fps), dpi=80)
     return len(frames)
+
+
+def flow_lines(coords, elements, polylines, path: Path, title: str, axes=("r [mm]", "z [mm]")):
+    """Material lines (``polylines``: a list of (m, 2) arrays, mm) over the deformed section
+    (its mesh in light grey): the grain-flow picture."""
+    fig, ax = _figure(figsize=(6, 5))
+    pc = _quads(coords, elements)
+    pc.set(edgecolor="0.85", facecolor="none", lw=0.5)
+    ax.add_collection(pc)
+    for p in polylines:
+        ax.plot(p[:, 0], p[:, 1], "-", color="tab:blue", lw=1.0)
+    ax.set_xlim(coords[:, 0].min() - 0.05, coords[:, 0].max() * 1.03 + 0.05)
+    ax.set_ylim(coords[:, 1].min() - 0.05, coords[:, 1].max() * 1.03 + 0.05)
+    ax.set_aspect("equal")
+    ax.set_xlabel(axes[0])
+    ax.set_ylabel(axes[1])
+    ax.set_title(title)
+    return _save(fig, path)
+
+
+def wear_profiles(profiles: dict, path: Path):
+    """profiles: die name -> dict(s_mm, wear_mm) (:func:`jaxform.forming_outputs.wear_profiles`):
+    the wear depth along each die surface (micrometres against arc length)."""
+    fig, ax = _figure(figsize=(6.5, 4))
+    for name, p in profiles.items():
+        ax.plot(p["s_mm"], 1e3 * np.asarray(p["wear_mm"]), "-", label=f"{name} die")
+    ax.set_xlabel("arc length along the die surface from its first station [mm]")
+    ax.set_ylabel("wear depth [µm]")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8)
+    ax.set_title("die wear (Archard)")
+    return _save(fig, path)

@@ -334,7 +334,8 @@ class StateMap:
     nodes a rounding outside the old mesh); Gauss-point fields by :class:`Transfer`
     (patch recovery, then interpolation), F = I; nodal fields besides u (pressure,
     temperature) and the predictor's rates by interpolation; contact by
-    :class:`ContactMap`; time, friction work and heat carry over."""
+    :class:`ContactMap`; the damage integrals (Gauss-point fields) like the material
+    state; time, friction work, heat and die wear carry over."""
 
     old: Layout
     new: Layout
@@ -357,8 +358,10 @@ class StateMap:
         eye = xp.broadcast_to(xp.eye(3), (new.n_elements, 4, 3, 3))
         mat = jax.tree_util.tree_map(lambda v: self.move.gauss(v, xp), state.gauss.mat)
         status = self.contact.status.astype(state.contact_status.dtype)
+        damage = self.move.gauss(state.damage, xp)
         return replace(state, x=x, gauss=replace(state.gauss, F=eye, mat=mat), x_rate=x_rate,
-                       slip_mm=slip, contact_status=xp.asarray(status)), new_coords  # fmt: skip
+                       slip_mm=slip, contact_status=xp.asarray(status),
+                       damage=damage), new_coords  # fmt: skip
 
 
 def eqps_integral(scene, pos: np.ndarray, eqps: np.ndarray) -> float:

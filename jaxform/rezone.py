@@ -325,6 +325,9 @@ class RezoneReport:
     quality_after: float
     volume_change: float  # relative change of the material volume (chords across corners)
     improved: bool = True  # False: no node move raised the quality; the mesh was kept
+    # (n_nodes, 2) the nodes' positions after rezoning (mm; None where the mesh was kept):
+    # where material lines are located again (jaxform.flowlines)
+    positions: np.ndarray | None = None
 
 
 def rezone(scene, state, inputs):
@@ -362,9 +365,10 @@ def rezone(scene, state, inputs):
         new_nodal[:, k] = move.nodal(nodal[:, k])
     x_new = np.concatenate([new_nodal.ravel(), x[lay.n_node_dofs :]])
     rate_new = np.concatenate([new_rate_nodal.ravel(), rate[lay.n_node_dofs :]])
-    new_state = replace(state, x=jnp.asarray(x_new), gauss=gauss, x_rate=jnp.asarray(rate_new))
+    new_state = replace(state, x=jnp.asarray(x_new), gauss=gauss, x_rate=jnp.asarray(rate_new),
+                        damage=jnp.asarray(move.gauss(state.damage)))  # fmt: skip
     new_inputs = replace(inputs, coords=jnp.asarray(new_pos))
     axi = scene.model.formulation.axisymmetric
     v0 = float(np.sum(polygon_measure(pos[elements], axi)))
     v1 = float(np.sum(polygon_measure(new_pos[elements], axi)))
-    return new_state, new_inputs, RezoneReport(t, q_old, q_new, v1 / v0 - 1.0)
+    return new_state, new_inputs, RezoneReport(t, q_old, q_new, v1 / v0 - 1.0, True, new_pos)

@@ -52,6 +52,7 @@ from jaxform.presses import (
     crank_start_angle,
 )
 from jaxform.solver import NewtonSettings, choose_method
+from jaxform.wear import WearInputs, die_stations
 from jaxform.workpieces import Workpiece, workpiece_of
 
 # Dirichlet conditions by node set: the displacement components held at 0
@@ -71,6 +72,7 @@ class Inputs:
     c_contact: jax.Array  # complementarity scale (N/mm), set-up constant
     load: FacetLoad | None = None  # traction load on idx.load_facets (None: no load)
     thermal: ThermalInputs | None = None  # temperatures, conductances (None: isothermal)
+    wear: WearInputs | None = None  # Archard's law and die stations (None: no wear)
 
 
 @dataclass(frozen=True)
@@ -397,6 +399,49 @@ def press_of(cfg: Config, height_mm: float, share: float):
     return _PRESSES[cfg.press.model](cfg, height_mm, share)
 
 
+def _station_profile(points: np.ndarray, reach: float) -> np.ndarray:
+    """The part of a die profile that carries wear stations: the profile itself, but for
+    a flat die (two points at one height, extended both ways for contact) the span from
+    the axis to ``reach`` (mm), in the profile's direction."""
+    flat = len(points) == 2 and points[0, 1] == points[1, 1]
+    if not flat:
+        return points
+    ends = [0.0, reach] if points[1, 0] > points[0, 0] else [reach, 0.0]
+    return np.array([[ends[0], points[0, 1]], [ends[1], points[0, 1]]])
+
+
+def wear_inputs(cfg: Config, die, coords: np.ndarray) -> WearInputs | None:
+    """Archard's law of ``[wear]`` and each die's stations (None: wear off or no die):
+    stations along each die profile, along a flat die from the axis to twice the
+    workpiece's largest radius ``coords`` (mm)."""
+    w = cfg.wear
+    if w is None or not w.on or die is None:
+        return None
+    members = die.members
+    hard = w.hardness_by_die_MPa or (w.hardness_MPa,) * len(members)
+    if len(hard) != len(members):
+        raise ConfigError(
+            f"wear.hardness_by_die_MPa = {list(hard)}: give one hardness per die "
+            f"({len(members)}: {', '.join(die.names)})"
+        )
+    reach = 2.0 * float(np.max(np.abs(coords[:, 0])))
+    stations = [
+        die_stations(_station_profile(np.asarray(d.points), reach), float(d.corner_radius),
+                     w.stations)[0]
+        for d in members
+    ]  # fmt: skip
+    return WearInputs(
+        stations=jnp.asarray(np.stack(stations)),
+        k=jnp.asarray(w.k),
+        hardness_MPa=jnp.asarray(hard, dtype=float),
+        b=jnp.asarray(w.b),
+        c=jnp.asarray(w.c),
+        slope_MPa_K=jnp.asarray(w.hardness_slope_MPa_K),
+        reference_K=jnp.asarray(w.hardness_reference_K),
+        die_temperature_K=jnp.asarray(cfg.thermal.die_temperature_K),
+    )
+
+
 def _closing_paths(cfg: Config, target_mm: float):
     """([(times, travel) of the top die, of the bottom die], end time) of a full-height
     scene whose dies close by ``target_mm``: at die.speed_mm_s shared by
@@ -527,6 +572,7 @@ def build_scene(cfg: dict | Config) -> Scene:
             c_contact=jnp.asarray(c),
             load=load,
             thermal=thermal,
+            wear=wear_inputs(cfg, die, np.asarray(mesh.coords)),
         ),
         dt=tm.dt_s,
         t_end=t_end,

@@ -27,6 +27,7 @@ from jax.errors import JaxRuntimeError
 
 from jaxform import program_store
 from jaxform.capacity import padded
+from jaxform.forming_outputs import damage_history
 from jaxform.postprocess import HEAT_COLUMNS, extra_history, laps
 from jaxform.precision import require_x64
 from jaxform.presses import capacity_message
@@ -74,7 +75,7 @@ class Result:
     """History (one row per converged load step, row 0 = initial state) and fields."""
 
     history: dict[str, np.ndarray]
-    # per row: x, stress, s, eqps, slip_mm, contact_status; arrays stacked over the rows, or
+    # per row: x, stress, s, eqps, slip_mm, contact_status, damage; arrays stacked over the rows, or
     # after remeshing a list of per-row arrays (each on its row's mesh, scene_at(row))
     fields: dict
     scene: Scene
@@ -173,7 +174,7 @@ HISTORY_KEYS = (
     "rezoned",
     "remeshed",
 )
-FIELD_KEYS = ("x", "stress", "s", "eqps", "slip_mm", "contact_status")
+FIELD_KEYS = ("x", "stress", "s", "eqps", "slip_mm", "contact_status", "damage")
 PROGRESS_KEYS = ("time_s", "stroke_mm", "force_N", "iterations", "cutbacks", "dt_s")
 
 
@@ -321,6 +322,18 @@ def _history(segments: list[Segment], rows: list[dict], fields: dict) -> dict:
         for seg, end in zip(segments, ends)
     ]
     history.update({k: np.concatenate([p[k] for p in parts]) for k in parts[0]})
+    out = segments[0].scene.settings.output
+    damage = [
+        damage_history(
+            seg.scene,
+            fields["x"][seg.first_row : end],
+            fields["damage"][seg.first_row : end],
+            out.damage_critical,
+            out.damage_criterion,
+        )  # fmt: skip
+        for seg, end in zip(segments, ends)
+    ]
+    history.update({k: np.concatenate([p[k] for p in damage]) for k in damage[0]})
     die = segments[0].scene.inputs.die
     if "die_forces_N" in rows[0]:  # several dies: the force each carries
         per_die = np.array([np.asarray(r["die_forces_N"]) for r in rows])

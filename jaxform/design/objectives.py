@@ -22,6 +22,12 @@ sets, targets) with ``__call__(traj, inputs) -> scalar`` (``inputs`` = the run's
 * :class:`TemperatureMisfit` mean squared difference (K^2) of the run's mean temperature
   (weighted by the material each node carries) from a target history, interpolated in time
   (coupled thermal runs: identification of a conductance).
+* :class:`MaxDamage`         a smooth maximum of a ductile damage integral over the Gauss
+  points at the end of the run (:mod:`jaxform.damage`): the power mean
+  (mean over the points of max(D, 0)^p)^(1/p), which lies between N^(-1/p) max D and
+  max D (N points) and tends to max D as p grows.
+* :class:`WearDepth`         the same smooth maximum of the Archard wear depth (mm) over
+  every die's stations at the end of the run (:mod:`jaxform.wear`).
 * :class:`TemperatureLimit`  another objective plus a quadratic penalty on the hottest node
   above a limit: weight x sum over the rows of max(0, T_max - limit)^2 (an exterior penalty:
   the limit holds approximately, better as the weight grows).
@@ -142,6 +148,33 @@ class TemperatureMisfit(_Identity):
         mean = traj.temperature_K @ w / jnp.sum(w)
         at = jnp.interp(jnp.asarray(self.time_s), traj.time_s, mean)
         return jnp.mean((at - jnp.asarray(self.temperature_K)) ** 2)
+
+
+def power_mean(values, p: float):
+    """(mean of max(v, 0)^p)^(1/p): a smooth maximum of non-negative values, between
+    N^(-1/p) max and max; finite derivatives where every value is 0 (the 1e-300 floor
+    inside the root moves the value by at most 1e-300^(1/p))."""
+    v = jnp.maximum(jnp.ravel(values), 0.0)
+    return (jnp.mean(v**p) + 1e-300) ** (1.0 / p)
+
+
+@dataclass(frozen=True, eq=False)
+class MaxDamage(_Identity):
+    criterion: int  # index in jaxform.damage.CRITERIA
+    p: float = 8.0
+    unit = "-"
+
+    def __call__(self, traj, inputs):
+        return power_mean(traj.final_state.damage[..., self.criterion], self.p)
+
+
+@dataclass(frozen=True, eq=False)
+class WearDepth(_Identity):
+    p: float = 8.0
+    unit = "mm"
+
+    def __call__(self, traj, inputs):
+        return power_mean(traj.final_state.wear_mm, self.p)
 
 
 @dataclass(frozen=True, eq=False)

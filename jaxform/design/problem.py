@@ -22,6 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxform import program_store
+from jaxform.damage import CRITERIA
 from jaxform.design import objectives as obj
 from jaxform.design import parametrize as par
 from jaxform.errors import ConfigError
@@ -260,6 +261,12 @@ def _base_objective(scene: Scene):
         return obj.PeakForce()
     if name == "side_straightness":
         return obj.SideStraightness(side_nodes(scene))
+    if name == "max_damage":
+        return obj.MaxDamage(CRITERIA.index(scene.settings.output.damage_criterion), d.smooth_max_p)
+    if name == "wear_depth":
+        if scene.inputs.wear is None:
+            raise ConfigError("design.objective = 'wear_depth' needs wear.on = true")
+        return obj.WearDepth(d.smooth_max_p)
     if name == "eqps_spread":
         return obj.EqpsSpread(np.arange(scene.model.layout.n_elements))
     if name == "die_fill":
