@@ -162,6 +162,7 @@ def _blow_scan(stepper: Stepper, inputs: Inputs, press: EnergyPress, idx, factor
             slip_mm=new.slip_mm,
             contact_status=new.contact_status,
             heat_mJ=new.heat_mJ,
+            damage=new.damage,
         )
         if several:
             out["die_forces_N"] = die_forces(model, new.x, inp, t1, idx)
@@ -217,7 +218,14 @@ def simulate_blows(scene: Scene, progress=None):
     in that blow so far), ``ram_speed_mm_s``.  A step that fails, or one at which the
     ram force reaches the press capacity, ends the history there and raises
     :class:`jaxform.simulation.SimulationError` with the history up to it."""
-    from jaxform.simulation import Result, Segment, SimulationError, _history, _initial_row
+    from jaxform.simulation import (
+        FIELD_KEYS,
+        Result,
+        Segment,
+        SimulationError,
+        _history,
+        _initial_row,
+    )
 
     state0 = initial_state(scene.model, scene.inputs)
     final, outs = jax.device_get(jax.block_until_ready(blow_run(scene)))
@@ -257,8 +265,7 @@ def simulate_blows(scene: Scene, progress=None):
                           remesh_trigger="", iterations=int(row["iterations"]), cutbacks=0,
                           **{k: float(row[k]) for k in ("time_s", "stroke_mm", "force_N",
                                                         "dt_s")}))  # fmt: skip
-    fields = {k: np.stack([np.asarray(r[k]) for r in rows])
-              for k in ("x", "stress", "s", "eqps", "slip_mm", "contact_status")}  # fmt: skip
+    fields = {k: np.stack([np.asarray(r[k]) for r in rows]) for k in FIELD_KEYS}
     history = _history([Segment(0, run_scene)], rows, fields)
     for k in ("blow", "blow_work_Nmm", "ram_speed_mm_s"):
         history[k] = np.array([float(r[k]) for r in rows])

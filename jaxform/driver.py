@@ -24,7 +24,13 @@ from jaxform.io import write_csv, write_flow_lines, write_vtu_series, write_wear
 from jaxform.postprocess import die_outlines, nodal_temperature, positions
 from jaxform.precision import require_x64
 from jaxform.scenes import build_scene
-from jaxform.simulation import HISTORY_KEYS, Result, SimulationError, simulate
+from jaxform.simulation import (
+    HISTORY_KEYS,
+    Result,
+    SimulationError,
+    die_force_column,
+    simulate,
+)
 
 
 def run(
@@ -108,12 +114,13 @@ def write_outputs(out_dir: str | Path, result: Result) -> None:
             return
         red = 100.0 * h["stroke_mm"][-1] / scene.workpiece.reference_height_mm
         press = scene.press
+        die_names = getattr(scene.inputs.die, "names", ())  # several dies: each one's force
         plot.force_stroke(
             h["stroke_mm"],
             h["force_N"],
             out / "force_stroke.png",
             f"{mesh_text}, friction {cfg.friction.model}, {press.name} press",
-            per_die={k[6:-2]: v for k, v in h.items() if k.startswith("force_") and k != "force_N"},
+            per_die={n: h[die_force_column(n)] for n in die_names if die_force_column(n) in h},
             blows=h.get("blow"),
         )
         # the dies where they stand at the last row, in the workpiece's frame

@@ -208,6 +208,11 @@ def _progress(scene: Scene, step: int, row: dict, chunk_end: bool) -> dict:
                 **{k: row[k] for k in PROGRESS_KEYS})  # fmt: skip
 
 
+def die_force_column(name: str) -> str:
+    """The history column of the force die ``name`` carries (N)."""
+    return f"force_{name}_N"
+
+
 def _finite(row: dict) -> bool:
     """Whether a converged step's force and unknowns are finite numbers."""
     return bool(np.isfinite(row["force_N"]) and np.all(np.isfinite(row["x"])))
@@ -337,7 +342,7 @@ def _history(segments: list[Segment], rows: list[dict], fields: dict) -> dict:
     die = segments[0].scene.inputs.die
     if "die_forces_N" in rows[0]:  # several dies: the force each carries
         per_die = np.array([np.asarray(r["die_forces_N"]) for r in rows])
-        history.update({f"force_{name}_N": per_die[:, i] for i, name in enumerate(die.names)})
+        history.update({die_force_column(name): per_die[:, i] for i, name in enumerate(die.names)})
     if segments[0].scene.model.layout.temperature:
         heat = np.array([np.asarray(r["heat_mJ"]) for r in rows])
         history.update({k: heat[:, i] for i, k in enumerate(HEAT_COLUMNS)})
