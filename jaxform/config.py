@@ -800,6 +800,55 @@ class DesignConfig:
     )
 
 
+
+STUDY_PLANS = ("latin_hypercube", "sobol", "monte_carlo", "factorial")
+
+
+@section("study")
+@dataclass(frozen=True, kw_only=True)
+class StudyConfig:
+    """[study]: a design of experiments or a Monte-Carlo study (jaxform study): inputs,
+    plan, responses (docs/doe.md)."""
+
+    inputs: tuple[str, ...] = key(
+        [],
+        doc="the inputs: 'section.key = uniform(low, high)', 'normal(mean, std)', "
+        "'lognormal(mu, sigma)' (of the key's log), or 'levels(a, b, ...)', any numeric key "
+        "(values in its unit; each sample is the scene with these --set overrides)",
+    )
+    plan: str = key(
+        "latin_hypercube",
+        choices=STUDY_PLANS,
+        doc="the samples: Latin hypercube, scrambled Sobol sequence, plain Monte Carlo "
+        "(study.samples of each, from study.seed) or the full factorial of the levels",
+    )
+    samples: int = key(16, low=1, high=100_000, doc="samples of a random or Sobol plan")
+    levels: int = key(
+        3,
+        low=2,
+        high=100,
+        doc="factorial plan: levels of an input given by a distribution (uniform: equally "
+        "spaced from low to high; normal, lognormal: the quantiles (i + 1/2)/levels)",
+    )
+    seed: int = key(0, low=0, high=2**31 - 1, doc="seed of the random and Sobol plans")
+    responses: tuple[str, ...] = key(
+        ["force_N:max"],
+        doc="what each sample reports: 'column:end', 'column:max' or 'column:min' of any "
+        "history column (e.g. force_N:max, mean_temperature_K:end), 'fill' (die_fill at "
+        "the end), 'flash' (flash_volume_mm3 at the end), 'laps' (number of laps found)",
+    )
+    gradients: bool = key(
+        False,
+        doc="also the exact gradient of each response in each input at each sample "
+        "(inputs of the friction, speed and thermal design groups; no remeshing)",
+    )
+    retries: int = key(
+        3,
+        low=0,
+        high=100,
+        doc="times a sample whose worker died (killed, out of memory) runs again elsewhere",
+    )
+
 def _schema_of(cls: type) -> dict[str, Field]:
     return {f.name: Field(_KINDS[f.type], **f.metadata["key"]) for f in dataclasses.fields(cls)}
 
@@ -845,6 +894,7 @@ class Config:
     solver: SolverConfig
     output: OutputConfig
     design: DesignConfig
+    study: StudyConfig
 
     @property
     def workpiece(self) -> str:

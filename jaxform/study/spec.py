@@ -1,0 +1,227 @@
+"""A study's set-up from a validated config: its inputs, plan and responses, checked before
+anything runs (every refusal is one :class:`ConfigError` line naming the key and what is
+allowed).  Imports no JAX.
+
+An input is ``section.key = distribution(parameters)``; each sample of the plan becomes the
+base scene with ``section.key=value`` overrides (the ``--set`` machinery of
+:func:`jaxform.config.load_config`), so a sample is exactly ``jaxform run CONFIG --set ...``.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass
+
+import numpy as np
+
+from jaxform.config import SCHEMA, load_config
+from jaxform.errors import ConfigError
+from jaxform.study import plans
+
+DISTRIBUTIONS = {"uniform": 2, "normal": 2, "lognormal": 2, "levels": None}
+REDUCERS = ("end", "max", "min")
+# the shorthand responses and the history column (at the end) or count they stand for
+SHORTHANDS = {"fill": "die_fill", "flash": "flash_volume_mm3"}
+_INPUT = re.compile(r"^\s*([A-Za-z_]\w*)\.([A-Za-z_]\w*)\s*=\s*([a-z]+)\s*\((.*)\)\s*$")
+
+
+@dataclass(frozen=True)
+class Input:
+    """One input: a numeric config key and its distribution."""
+
+    key: str  # section.key
+    kind: str  # uniform | normal | lognormal | levels
+    params: tuple[float, ...]
+    integer: bool = False  # an int key: values rounded to the nearest integer
+
+    def factorial_levels(self, n: int) -> np.ndarray:
+        """The levels of a factorial plan: given levels, or n per distribution."""
+        if self.kind == "levels":
+            return np.asarray(self.params, dtype=float)
+        if self.kind == "uniform":
+            return np.linspace(self.params[0], self.params[1], n)
+        return self.from_unit((np.arange(n) + 0.5) / n)
+
+    def from_unit(self, u: np.ndarray) -> np.ndarray:
+        """Values of this input at points u in [0, 1) of the unit interval (inverse CDF)."""
+        v = plans.inverse_cdf(self.kind, self.params, np.asarray(u, dtype=float))
+        return np.rint(v) if self.integer else v
+
+
+@dataclass(frozen=True)
+class Response:
+    """One response: ``column`` reduced by ``reducer`` (end, max, min), or the lap count."""
+
+    text: str  # as given (force_N:max, fill, laps)
+    column: str  # history column ('' for laps)
+    reducer: str  # end | max | min | count
+
+    @property
+    def name(self) -> str:
+        """The table column."""
+        return "laps" if self.reducer == "count" else f"{self.column}_{self.reducer}"
+
+
+@dataclass(frozen=True)
+class Study:
+    """Inputs, responses, the sample matrix (samples x inputs) and the settings."""
+
+    inputs: tuple[Input, ...]
+    responses: tuple[Response, ...]
+    values: np.ndarray  # (samples, inputs), in the keys' units
+    gradients: bool
+    retries: int
+
+    def overrides(self, i: int) -> list[str]:
+        """The ``section.key=value`` overrides of sample i (exact: repr of the float)."""
+        return [_override(inp, v) for inp, v in zip(self.inputs, self.values[i])]
+
+    @property
+    def n(self) -> int:
+        return len(self.values)
+
+
+def _override(inp: Input, value: float) -> str:
+    return f"{inp.key}={int(value)}" if inp.integer else f"{inp.key}={float(value)!r}"
+
+
+def parse_input(text: str, where: str) -> Input:
+    """``section.key = kind(a, b, ...)`` -> :class:`Input`, checked against the schema."""
+    m = _INPUT.match(text)
+    if not m:
+        raise ConfigError(
+            f"{where} = {text!r}: expected 'section.key = uniform(low, high)', "
+            f"'normal(mean, std)', 'lognormal(mu, sigma)' or 'levels(a, b, ...)'"
+        )
+    section, name, kind, body = m.groups()
+    key = f"{section}.{name}"
+    if section not in SCHEMA or name not in SCHEMA[section]:
+        raise ConfigError(f"{where}: unknown key {key}; any numeric config key (section.key)")
+    field = SCHEMA[section][name]
+    if field.kind not in ("float", "int") or section == "study":
+        raise ConfigError(
+            f"{where}: {key} is not a numeric key ({field.kind}); a study varies float or int keys"
+        )
+    if kind not in DISTRIBUTIONS:
+        raise ConfigError(f"{where}: {kind!r} is not a distribution; one of "
+                          f"{', '.join(DISTRIBUTIONS)}")  # fmt: skip
+    try:
+        params = tuple(float(p) for p in body.split(",")) if body.strip() else ()
+    except ValueError:
+        raise ConfigError(f"{where} = {text!r}: the parameters must be numbers") from None
+    want = DISTRIBUTIONS[kind]
+    if (want is not None and len(params) != want) or not params:
+        raise ConfigError(f"{where} = {text!r}: {kind} takes {want or 'one or more'} numbers")
+    if not all(math.isfinite(p) for p in params):
+        raise ConfigError(f"{where} = {text!r}: the parameters must be finite")
+    inp = Input(key, kind, params, integer=field.kind == "int")
+    _check_range(inp, field, where)
+    return inp
+
+
+def _check_range(inp: Input, field, where: str) -> None:
+    """The input's support within the key's allowed range (a uniform's ends, every level;
+    normal and lognormal are checked sample by sample in :func:`_check_samples`)."""
+    a = inp.params
+    if inp.kind == "uniform" and not a[0] < a[1]:
+        raise ConfigError(f"{where}: {inp.key} = uniform({a[0]:g}, {a[1]:g}): needs low < high")
+    if inp.kind in ("normal", "lognormal") and not a[1] > 0:
+        raise ConfigError(f"{where}: {inp.key} = {inp.kind}: the spread {a[1]:g} must be > 0")
+    ends = a if inp.kind in ("uniform", "levels") else ()
+    for v in ends:
+        if not _within(field, v):
+            raise ConfigError(
+                f"{where}: {inp.key} = {inp.kind}({', '.join(f'{p:g}' for p in a)}): "
+                f"{v:g} is outside {inp.key}'s allowed range {field.allowed()}"
+            )
+
+
+def _within(field, v: float) -> bool:
+    lo_ok = field.low is None or (v >= field.low if field.low_inclusive else v > field.low)
+    hi_ok = field.high is None or (v <= field.high if field.high_inclusive else v < field.high)
+    return lo_ok and hi_ok
+
+
+def parse_response(text: str, where: str) -> Response:
+    if text in SHORTHANDS:
+        return Response(text, SHORTHANDS[text], "end")
+    if text == "laps":
+        return Response(text, "", "count")
+    column, colon, reducer = text.partition(":")
+    if not colon or not re.fullmatch(r"[A-Za-z_]\w*", column) or reducer not in REDUCERS:
+        raise ConfigError(
+            f"{where} = {text!r}: expected 'column:end', 'column:max' or 'column:min' of a "
+            f"history column, 'fill', 'flash' or 'laps'"
+        )
+    return Response(text, column, reducer)
+
+
+def build_study(config, overrides=()) -> Study:
+    """The study of a config (path or dict) with ``--set`` overrides: every input parsed,
+    the plan drawn, every sample's config validated.  Raises ConfigError, one line."""
+    doc = load_config(config, list(overrides))
+    st = doc["study"]
+    if not st["inputs"]:
+        raise ConfigError(
+            "study.inputs = []: empty plan: give at least one input, e.g. "
+            "'friction.m = uniform(0.1, 0.5)'"
+        )
+    inputs = tuple(parse_input(t, f"study.inputs[{i}]") for i, t in enumerate(st["inputs"]))
+    keys = [i.key for i in inputs]
+    dup = next((k for k in keys if keys.count(k) > 1), None)
+    if dup:
+        raise ConfigError(f"study.inputs: {dup} is given twice")
+    if not st["responses"]:
+        raise ConfigError("study.responses = []: give at least one response, e.g. 'force_N:max'")
+    responses = tuple(
+        parse_response(t, f"study.responses[{i}]") for i, t in enumerate(st["responses"])
+    )
+    values = draw(inputs, st["plan"], st["samples"], st["levels"], st["seed"])
+    if len(values) == 0:
+        raise ConfigError("study: empty plan (no sample)")
+    study = Study(inputs, responses, values, st["gradients"], st["retries"])
+    _check_samples(study, config, overrides)
+    return study
+
+
+def draw(inputs, plan: str, samples: int, levels: int, seed: int) -> np.ndarray:
+    """The sample matrix (samples x inputs) of a plan."""
+    if plan == "factorial":
+        n = math.prod(len(i.factorial_levels(levels)) for i in inputs)
+        if n > 100_000:
+            raise ConfigError(
+                f"study.plan = 'factorial': {n} samples, at most 100000: fewer inputs or "
+                f"study.levels"
+            )
+        return plans.full_factorial([i.factorial_levels(levels) for i in inputs])
+    if plan == "sobol" and samples & (samples - 1):
+        raise ConfigError(
+            f"study.samples = {samples}: a Sobol plan takes a power of 2 (e.g. "
+            f"{1 << (samples.bit_length() - 1)} or {1 << samples.bit_length()}): its balance "
+            f"holds only there"
+        )
+    unit = plans.unit_plan(plan, samples, len(inputs), seed)
+    return np.stack([inp.from_unit(unit[:, j]) for j, inp in enumerate(inputs)], axis=1)
+
+
+def _check_samples(study: Study, config, overrides) -> None:
+    """Every sample's value in its key's range, and every sample's config valid (cross-key
+    rules, step counts): refused before anything runs."""
+    for j, inp in enumerate(study.inputs):
+        section, name = inp.key.split(".")
+        field = SCHEMA[section][name]
+        bad = [v for v in study.values[:, j] if not _within(field, v)]
+        if bad:
+            raise ConfigError(
+                f"study.inputs[{j}]: {inp.key} = {inp.kind}"
+                f"({', '.join(f'{p:g}' for p in inp.params)}) draws {bad[0]:g}, outside "
+                f"{inp.key}'s allowed range {field.allowed()}: narrow the distribution"
+            )
+    for i in range(study.n):
+        try:
+            load_config(config, [*overrides, *study.overrides(i)])
+        except ConfigError as err:
+            raise ConfigError(
+                f"study sample {i} ({', '.join(study.overrides(i))}): {err}"
+            ) from None
