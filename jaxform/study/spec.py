@@ -181,7 +181,7 @@ def build_study(config, overrides=()) -> Study:
     if len(values) == 0:
         raise ConfigError("study: empty plan (no sample)")
     study = Study(inputs, responses, values, st["gradients"], st["retries"])
-    _check_samples(study, config, overrides)
+    _check_samples(study, doc)  # the validated base: no file read per sample
     return study
 
 
@@ -205,7 +205,7 @@ def draw(inputs, plan: str, samples: int, levels: int, seed: int) -> np.ndarray:
     return np.stack([inp.from_unit(unit[:, j]) for j, inp in enumerate(inputs)], axis=1)
 
 
-def _check_samples(study: Study, config, overrides) -> None:
+def _check_samples(study: Study, doc: dict) -> None:
     """Every sample's value in its key's range, and every sample's config valid (cross-key
     rules, step counts): refused before anything runs."""
     for j, inp in enumerate(study.inputs):
@@ -220,7 +220,7 @@ def _check_samples(study: Study, config, overrides) -> None:
             )
     for i in range(study.n):
         try:
-            load_config(config, [*overrides, *study.overrides(i)])
+            load_config(doc, study.overrides(i))
         except ConfigError as err:
             raise ConfigError(
                 f"study sample {i} ({', '.join(study.overrides(i))}): {err}"
