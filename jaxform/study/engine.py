@@ -277,18 +277,16 @@ def run_study(study: Study, config, overrides, out_dir, where: Where | None = No
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     done = _check_resume(study, out, resume)
-    if where.cluster is not None:
-        check_cluster_address(where.cluster)
     todo = [i for i in range(study.n) if i not in done]
     summary = Summary(total=study.n, skipped=len(done))
+    t0 = time.perf_counter()
+    client, cluster = connect(where, study.retries) if todo else (None, None)
     if not (out / PLAN).exists():
         _write_plan(study, out / PLAN)
     if progress:
         progress(len(done), study.n, 0)
     if not todo:
         return summary
-    t0 = time.perf_counter()
-    client, cluster = connect(where, study.retries)
     table = Table(out / RESULTS, columns(study))
     try:
         token = f"{os.getpid()}-{time.time_ns()}"
