@@ -253,7 +253,7 @@ def connect(where: Where, retries: int):
             ) from None
     n = where.workers or os.cpu_count() or 1
     cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                           dashboard_address=None, silence_logs=logging.ERROR)  # fmt: skip
+                           dashboard_address=":0", silence_logs=logging.ERROR)  # fmt: skip
     return Client(cluster), cluster
 
 

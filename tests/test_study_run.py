@@ -1,0 +1,147 @@
+"""A study's samples run on Dask worker processes: each row equals the single run with the
+same --set overrides, an interrupted table resumes with only what is missing, and (slow) a
+worker killed mid-study loses no sample and duplicates none.
+
+Scene: the README's coarse seed (3 x 3 elements, 10 % reduction, time.dt_s = 2.5 s), whose
+compiled programs the persistent cache of the test run shares (tests/conftest.py sets
+JAXFORM_CACHE_DIR, which the worker processes inherit)."""
+
+import logging
+import os
+import shutil
+import signal
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from jaxform.driver import run
+from jaxform.study.engine import RESULTS, Where, read_table, response_values, run_study
+from jaxform.study.spec import build_study
+
+SEED = str(Path(__file__).resolve().parents[1] / "configs" / "upsetting_seed.toml")
+SMALL = ["mesh.nr=3", "mesh.nz=3", "die.reduction=0.1", "time.dt_s=2.5",
+         "output.fields=false", "output.plots=false"]  # fmt: skip
+STUDY = [
+    'study.inputs=["die.speed_mm_s = uniform(0.06, 0.15)", '
+    '"billet.diameter_mm = levels(4.5, 5.5)"]',
+    "study.samples=3",
+    "study.seed=5",
+    'study.responses=["force_N:max", "force_N:end", "friction_work_Nmm:end", "laps"]',
+]
+
+
+def _cluster(n: int):
+    from distributed import Client, LocalCluster
+
+    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                           dashboard_address=":0", silence_logs=logging.ERROR)  # fmt: skip
+    return Client(cluster), cluster
+
+
+@pytest.fixture(scope="module")
+def client():
+    client, cluster = _cluster(1)
+    yield client
+    client.close()
+    cluster.close()
+
+
+@pytest.fixture(scope="module")
+def finished(client, tmp_path_factory):
+    """The study run once on one worker: (study, its folder)."""
+    study = build_study(SEED, SMALL + STUDY)
+    out = tmp_path_factory.mktemp("study")
+    summary = run_study(study, SEED, SMALL + STUDY, out, Where(client=client))
+    assert (summary.ran, summary.failed, summary.skipped) == (3, 0, 0)
+    return study, out
+
+
+def test_rows_equal_the_single_runs(finished):
+    """Reference: jaxform.driver.run (what jaxform run does) of the base scene with the
+    sample's values as --set overrides, in this process; tolerance 1e-12 relative (the
+    table holds repr floats: the same program gives the same bits)."""
+    study, out = finished
+    rows = sorted(read_table(out / RESULTS), key=lambda r: int(r["sample"]))
+    assert [int(r["sample"]) for r in rows] == [0, 1, 2]
+    for i, row in enumerate(rows):
+        assert row["status"] == "ok" and row["message"] == ""
+        for inp, v in zip(study.inputs, study.values[i]):
+            assert float(row[inp.key]) == v
+        single = response_values(run(SEED, SMALL + study.overrides(i)), study.responses)
+        for name, ref in single.items():
+            np.testing.assert_allclose(float(row[name]), ref, rtol=1e-12, atol=1e-12)
+    # the inputs really changed the runs: three different peak forces
+    assert len({row["force_N_max"] for row in rows}) == 3
+
+
+def test_resume_runs_only_the_missing_samples(finished, client, tmp_path):
+    """An interrupted study: its table holds sample rows 0..k and a half-written line.
+    --resume runs the others only; each sample then appears once, the rerun rows equal
+    the first run's (1e-12)."""
+    study, done = finished
+    shutil.copy(done / "plan.csv", tmp_path / "plan.csv")
+    lines = (done / RESULTS).read_text().splitlines(keepends=True)
+    (tmp_path / RESULTS).write_text(lines[0] + lines[1] + lines[2][:15])  # header, 1 row, torn
+    kept = int(lines[1].split(",")[0])
+    seen = []
+    summary = run_study(study, SEED, SMALL + STUDY, tmp_path, Where(client=client), resume=True,
+                        progress=lambda d, n, f: seen.append((d, n, f)))  # fmt: skip
+    assert (summary.ran, summary.skipped, summary.failed) == (2, 1, 0)
+    assert seen[0] == (1, 3, 0) and seen[-1] == (3, 3, 0)
+    rows = {int(r["sample"]): r for r in read_table(tmp_path / RESULTS)}
+    assert len(read_table(tmp_path / RESULTS)) == 3 and set(rows) == {0, 1, 2}
+    first = {int(r["sample"]): r for r in read_table(done / RESULTS)}
+    for i in set(rows) - {kept}:
+        for r in study.responses:
+            np.testing.assert_allclose(float(rows[i][r.name]), float(first[i][r.name]),
+                                       rtol=1e-12)  # fmt: skip
+    again = run_study(study, SEED, SMALL + STUDY, tmp_path, Where(client=client), resume=True)
+    assert (again.ran, again.skipped) == (0, 3)
+
+
+def test_a_failed_sample_is_a_row_with_its_message(client, tmp_path):
+    """A response column the history lacks: the sample fails, its row says why (the
+    history's columns), the study goes on."""
+    sets = SMALL + [*STUDY[:1], "study.samples=1", 'study.responses=["no_such_column:end"]']
+    study = build_study(SEED, sets)
+    summary = run_study(study, SEED, sets, tmp_path, Where(client=client))
+    (row,) = read_table(tmp_path / RESULTS)
+    assert summary.failed == 1 and row["status"] == "failed"
+    assert "no column 'no_such_column'" in row["message"] and "force_N" in row["message"]
+    assert row["no_such_column_end"] == "nan"
+
+
+@pytest.mark.slow
+def test_a_killed_worker_loses_no_sample(tmp_path):
+    """A local cluster of 2 workers runs 8 samples of a slower scene (100 steps each);
+    after the first row, the worker busy with a sample is killed (SIGKILL).  Reference: the
+    scheduler's record of which worker processes which task; the table must hold every
+    sample exactly once, all ok, the killed worker's sample rerun by another process."""
+    sets = SMALL + ["time.dt_s=0.1", *STUDY[:1], "study.samples=8", "study.seed=1",
+                    'study.responses=["force_N:max"]']  # fmt: skip
+    study = build_study(SEED, sets)
+    client, cluster = _cluster(2)
+    killed = {}
+
+    def kill_one(done, total, failed):
+        if done < 1 or killed:
+            return
+        busy = {w: keys for w, keys in client.processing().items() if keys}
+        worker, keys = next(iter(busy.items()))
+        pid = client.run(os.getpid, workers=[worker])[worker]
+        killed.update(pid=pid, samples={int(str(k).rsplit("-", 1)[1]) for k in keys})
+        os.kill(pid, signal.SIGKILL)
+
+    try:
+        summary = run_study(study, SEED, sets, tmp_path, Where(client=client), progress=kill_one)
+    finally:
+        client.close()
+        cluster.close()
+    rows = read_table(tmp_path / RESULTS)
+    ids = [int(r["sample"]) for r in rows]
+    assert killed and sorted(ids) == list(range(8)), (killed, ids)
+    assert summary.failed == 0 and all(r["status"] == "ok" for r in rows)
+    by_id = {int(r["sample"]): r for r in rows}
+    for i in killed["samples"]:
+        assert not by_id[i]["worker"].endswith(f":{killed['pid']}")
