@@ -66,6 +66,15 @@ class Field:
     choices: tuple[str, ...] | None = None
     doc: str = ""
 
+    @property
+    def numeric(self) -> bool:
+        """A single number (float or int): what a study may vary."""
+        return self.kind in ("float", "int")
+
+    @property
+    def integer(self) -> bool:
+        return self.kind == "int"
+
     def allowed(self) -> str:
         """Human-readable allowed values: an interval, a choice list or the kind."""
         if self.choices is not None:

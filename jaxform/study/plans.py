@@ -52,20 +52,20 @@ def full_factorial(levels: list[np.ndarray]) -> np.ndarray:
     return np.array(list(itertools.product(*[list(map(float, v)) for v in levels])), dtype=float)
 
 
-def inverse_cdf(kind: str, params: tuple[float, ...], u: np.ndarray) -> np.ndarray:
+def inverse_cdf(dist: str, params: tuple[float, ...], u: np.ndarray) -> np.ndarray:
     """The values of a distribution at probabilities u in [0, 1) (u = 0 of a normal is
     moved to the smallest positive double: ndtri(0) is -inf)."""
     u = np.asarray(u, dtype=float)
-    if kind == "uniform":
+    if dist == "uniform":
         low, high = params
         return low + (high - low) * u
-    if kind == "levels":
+    if dist == "levels":
         values = np.asarray(params, dtype=float)
         return values[np.minimum((u * len(values)).astype(int), len(values) - 1)]
     z = ndtri(np.clip(u, np.finfo(float).tiny, 1.0))
     mu, sigma = params
-    if kind == "normal":
+    if dist == "normal":
         return mu + sigma * z
-    if kind == "lognormal":
+    if dist == "lognormal":
         return np.exp(mu + sigma * z)
-    raise ValueError(f"unknown distribution {kind!r}")
+    raise ValueError(f"unknown distribution {dist!r}")

@@ -31,21 +31,21 @@ class Input:
     """One input: a numeric config key and its distribution."""
 
     key: str  # section.key
-    kind: str  # uniform | normal | lognormal | levels
+    dist: str  # uniform | normal | lognormal | levels
     params: tuple[float, ...]
     integer: bool = False  # an int key: values rounded to the nearest integer
 
     def factorial_levels(self, n: int) -> np.ndarray:
         """The levels of a factorial plan: given levels, or n per distribution."""
-        if self.kind == "levels":
+        if self.dist == "levels":
             return np.asarray(self.params, dtype=float)
-        if self.kind == "uniform":
+        if self.dist == "uniform":
             return np.linspace(self.params[0], self.params[1], n)
         return self.from_unit((np.arange(n) + 0.5) / n)
 
     def from_unit(self, u: np.ndarray) -> np.ndarray:
         """Values of this input at points u in [0, 1) of the unit interval (inverse CDF)."""
-        v = plans.inverse_cdf(self.kind, self.params, np.asarray(u, dtype=float))
+        v = plans.inverse_cdf(self.dist, self.params, np.asarray(u, dtype=float))
         return np.rint(v) if self.integer else v
 
 
@@ -94,28 +94,28 @@ def parse_input(text: str, where: str) -> Input:
             f"{where} = {text!r}: expected 'section.key = uniform(low, high)', "
             f"'normal(mean, std)', 'lognormal(mu, sigma)' or 'levels(a, b, ...)'"
         )
-    section, name, kind, body = m.groups()
+    section, name, dist, body = m.groups()
     key = f"{section}.{name}"
     if section not in SCHEMA or name not in SCHEMA[section]:
         raise ConfigError(f"{where}: unknown key {key}; any numeric config key (section.key)")
     field = SCHEMA[section][name]
-    if field.kind not in ("float", "int") or section == "study":
+    if not field.numeric or section == "study":
         raise ConfigError(
             f"{where}: {key} is not a numeric key ({field.kind}); a study varies float or int keys"
         )
-    if kind not in DISTRIBUTIONS:
-        raise ConfigError(f"{where}: {kind!r} is not a distribution; one of "
+    if dist not in DISTRIBUTIONS:
+        raise ConfigError(f"{where}: {dist!r} is not a distribution; one of "
                           f"{', '.join(DISTRIBUTIONS)}")  # fmt: skip
     try:
         params = tuple(float(p) for p in body.split(",")) if body.strip() else ()
     except ValueError:
         raise ConfigError(f"{where} = {text!r}: the parameters must be numbers") from None
-    want = DISTRIBUTIONS[kind]
+    want = DISTRIBUTIONS[dist]
     if (want is not None and len(params) != want) or not params:
-        raise ConfigError(f"{where} = {text!r}: {kind} takes {want or 'one or more'} numbers")
+        raise ConfigError(f"{where} = {text!r}: {dist} takes {want or 'one or more'} numbers")
     if not all(math.isfinite(p) for p in params):
         raise ConfigError(f"{where} = {text!r}: the parameters must be finite")
-    inp = Input(key, kind, params, integer=field.kind == "int")
+    inp = Input(key, dist, params, integer=field.integer)
     _check_range(inp, field, where)
     return inp
 
@@ -124,15 +124,15 @@ def _check_range(inp: Input, field, where: str) -> None:
     """The input's support within the key's allowed range (a uniform's ends, every level;
     normal and lognormal are checked sample by sample in :func:`_check_samples`)."""
     a = inp.params
-    if inp.kind == "uniform" and not a[0] < a[1]:
+    if inp.dist == "uniform" and not a[0] < a[1]:
         raise ConfigError(f"{where}: {inp.key} = uniform({a[0]:g}, {a[1]:g}): needs low < high")
-    if inp.kind in ("normal", "lognormal") and not a[1] > 0:
-        raise ConfigError(f"{where}: {inp.key} = {inp.kind}: the spread {a[1]:g} must be > 0")
-    ends = a if inp.kind in ("uniform", "levels") else ()
+    if inp.dist in ("normal", "lognormal") and not a[1] > 0:
+        raise ConfigError(f"{where}: {inp.key} = {inp.dist}: the spread {a[1]:g} must be > 0")
+    ends = a if inp.dist in ("uniform", "levels") else ()
     for v in ends:
         if not _within(field, v):
             raise ConfigError(
-                f"{where}: {inp.key} = {inp.kind}({', '.join(f'{p:g}' for p in a)}): "
+                f"{where}: {inp.key} = {inp.dist}({', '.join(f'{p:g}' for p in a)}): "
                 f"{v:g} is outside {inp.key}'s allowed range {field.allowed()}"
             )
 
@@ -214,7 +214,7 @@ def _check_samples(study: Study, doc: dict) -> None:
         bad = [v for v in study.values[:, j] if not _within(field, v)]
         if bad:
             raise ConfigError(
-                f"study.inputs[{j}]: {inp.key} = {inp.kind}"
+                f"study.inputs[{j}]: {inp.key} = {inp.dist}"
                 f"({', '.join(f'{p:g}' for p in inp.params)}) draws {bad[0]:g}, outside "
                 f"{inp.key}'s allowed range {field.allowed()}: narrow the distribution"
             )
