@@ -809,7 +809,6 @@ class DesignConfig:
     )
 
 
-
 STUDY_PLANS = ("latin_hypercube", "sobol", "monte_carlo", "factorial")
 
 
@@ -857,6 +856,7 @@ class StudyConfig:
         high=100,
         doc="times a sample whose worker died (killed, out of memory) runs again elsewhere",
     )
+
 
 def _schema_of(cls: type) -> dict[str, Field]:
     return {f.name: Field(_KINDS[f.type], **f.metadata["key"]) for f in dataclasses.fields(cls)}
