@@ -45,6 +45,8 @@ class Task:
     inputs: tuple[str, ...]  # the input keys (gradients)
     responses: tuple[Response, ...]
     gradients: bool = False
+    base: tuple[str, ...] = ()  # the base --set overrides alone (gradients)
+    values: tuple[float, ...] = ()  # the sample's input values (gradients)
 
 
 def response_values(result, responses) -> dict[str, float]:
@@ -81,12 +83,15 @@ def evaluate_sample(task: Task) -> dict:
     try:
         result = run(task.config, task.overrides)
         row.update(response_values(result, task.responses))
-        if task.gradients:
-            from jaxform.study.gradients import response_gradients
-
-            row.update(response_gradients(task))
     except Exception as err:  # noqa: BLE001 - any failure of a sample is its row's message
         row.update(status="failed", message=f"{type(err).__name__}: {err}")
+    if task.gradients and row["status"] == "ok":
+        from jaxform.study.gradients import response_gradients
+
+        try:
+            row.update(response_gradients(task))
+        except Exception as err:  # noqa: BLE001 - the responses stand; the row says why
+            row["message"] = f"no gradient: {type(err).__name__}: {err}"
     row["wall_s"] = time.perf_counter() - t0
     row["worker"] = f"{socket.gethostname()}:{os.getpid()}"
     return row
@@ -317,7 +322,8 @@ def run_study(study: Study, config, overrides, out_dir, where: Where | None = No
 
 def _task(study: Study, config, overrides, i: int) -> Task:
     return Task(i, config, (*overrides, *study.overrides(i)),
-                tuple(x.key for x in study.inputs), study.responses, study.gradients)  # fmt: skip
+                tuple(x.key for x in study.inputs), study.responses, study.gradients,
+                tuple(overrides), tuple(map(float, study.values[i])))  # fmt: skip
 
 
 def _row_of(fut, i: int) -> dict:

@@ -23,6 +23,19 @@ DISTRIBUTIONS = {"uniform": 2, "normal": 2, "lognormal": 2, "levels": None}
 REDUCERS = ("end", "max", "min")
 # the shorthand responses and the history column (at the end) or count they stand for
 SHORTHANDS = {"fill": "die_fill", "flash": "flash_volume_mm3"}
+# the inputs with exact gradients: the design group that holds each
+GRADIENT_KEYS = {
+    "friction.m": "friction",
+    "friction.mu": "friction",
+    "die.speed_mm_s": "speed",
+    "thermal.billet_temperature_K": "thermal",
+    "thermal.die_temperature_K": "thermal",
+    "thermal.htc_die_W_m2K": "thermal",
+    "thermal.taylor_quinney": "thermal",
+}
+# the history columns the differentiable run carries (temperatures: hottest, coldest node)
+GRADIENT_COLUMNS = ("force_N", "stroke_mm", "friction_work_Nmm", "time_s",
+                    "max_temperature_K", "min_temperature_K")  # fmt: skip
 _INPUT = re.compile(r"^\s*([A-Za-z_]\w*)\.([A-Za-z_]\w*)\s*=\s*([a-z]+)\s*\((.*)\)\s*$")
 
 
@@ -177,12 +190,48 @@ def build_study(config, overrides=()) -> Study:
     responses = tuple(
         parse_response(t, f"study.responses[{i}]") for i, t in enumerate(st["responses"])
     )
+    if st["gradients"]:
+        _check_gradients(doc, inputs, responses)
     values = draw(inputs, st["plan"], st["samples"], st["levels"], st["seed"])
     if len(values) == 0:
         raise ConfigError("study: empty plan (no sample)")
     study = Study(inputs, responses, values, st["gradients"], st["retries"])
     _check_samples(study, doc)  # the validated base: no file read per sample
     return study
+
+
+def _check_gradients(doc: dict, inputs, responses) -> None:
+    """study.gradients = true: every input in a design group, every response on the
+    differentiable run, no remeshing or rezoning (before anything runs)."""
+    from jaxform.config import check_gradient_run, remesh_on
+
+    bad = next((i.key for i in inputs if i.key not in GRADIENT_KEYS), None)
+    if bad:
+        raise ConfigError(
+            f"study.gradients = true: {bad} has no exact gradient; inputs with one: "
+            f"{', '.join(GRADIENT_KEYS)}"
+        )
+    bad = next((r.text for r in responses if r.column not in GRADIENT_COLUMNS), None)
+    if bad:
+        raise ConfigError(
+            f"study.gradients = true: response {bad!r} has no exact gradient; columns with "
+            f"one: {', '.join(GRADIENT_COLUMNS)} (end, max or min)"
+        )
+    if remesh_on(doc["remesh"]):
+        raise ConfigError(
+            "study.gradients = true: the scene remeshes ([remesh] triggers on); gradients "
+            "need a scene without remeshing: set study.gradients = false"
+        )
+    model = doc["friction"]["model"] if "friction" in doc else "none"
+    wants = {"friction.m": "shear", "friction.mu": "coulomb"}
+    for i in inputs:
+        if i.key in wants and model != wants[i.key]:
+            raise ConfigError(
+                f"study.gradients = true: {i.key} needs friction.model = "
+                f"{wants[i.key]!r} (it is {model!r})"
+            )
+    check_gradient_run(doc, list(dict.fromkeys(GRADIENT_KEYS[i.key] for i in inputs)),
+                       "study.gradients")  # fmt: skip
 
 
 def draw(inputs, plan: str, samples: int, levels: int, seed: int) -> np.ndarray:
