@@ -856,6 +856,14 @@ class StudyConfig:
         high=100,
         doc="times a sample whose worker died (killed, out of memory) runs again elsewhere",
     )
+    batch: int = key(
+        0,
+        low=0,
+        high=4096,
+        doc="0: each sample is a run of its own (jaxform run: adaptive steps); B > 0: B "
+        "samples per task as one vmapped program (jaxform.batch) over the base scene's fixed "
+        "step schedule (inputs and responses as for study.gradients; same mesh)",
+    )
 
 
 def _schema_of(cls: type) -> dict[str, Field]:

@@ -52,13 +52,15 @@ def no_cluster():
          "study sample 0 (die.speed_mm_s="),
         # exact gradients: inputs and responses the differentiable run has, no remeshing
         (['study.inputs=["billet.diameter_mm = uniform(4, 6)"]', "study.gradients=true"],
-         "billet.diameter_mm has no exact gradient"),
+         "billet.diameter_mm is not an input of a design group"),
         ([f"study.inputs=[{SPEED}]", "study.gradients=true", 'study.responses=["laps"]'],
-         "response 'laps' has no exact gradient"),
+         "response 'laps' is not on the differentiable run"),
         (['study.inputs=["friction.m = uniform(0.1, 0.3)"]', "study.gradients=true"],
          "friction.m needs friction.model = 'shear'"),
         ([f"study.inputs=[{SPEED}]", "study.gradients=true", "remesh.every_steps=5"],
          "the scene remeshes"),
+        ([f"study.inputs=[{SPEED}]", "study.batch=4", "remesh.every_steps=5"],
+         "study.batch = 4: the scene remeshes"),
     ],
 )  # fmt: skip
 def test_bad_study_input_is_one_line_exit_2(tmp_path, sets, needle):

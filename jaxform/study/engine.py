@@ -294,22 +294,17 @@ def run_study(study: Study, config, overrides, out_dir, where: Where | None = No
         return summary
     table = Table(out / RESULTS, columns(study))
     try:
-        token = f"{os.getpid()}-{time.time_ns()}"
-        futures = {
-            client.submit(evaluate_sample, _task(study, config, overrides, i),
-                          key=f"jaxform-sample-{token}-{i}", pure=False): i
-            for i in todo
-        }  # fmt: skip
+        futures = _submit(client, study, config, overrides, todo)
         summary.workers = list(client.scheduler_info().get("workers", {}))
         for fut in as_completed(futures):
-            i = futures[fut]
-            row = _row_of(fut, i)
-            row.update(zip((x.key for x in study.inputs), map(float, study.values[i])))
-            table.add(row)
-            summary.ran += 1
-            summary.failed += row["status"] != "ok"
-            if progress:
-                progress(len(done) + summary.ran, study.n, summary.failed)
+            for row in _rows_of(fut, futures[fut]):
+                i = row["sample"]
+                row.update(zip((x.key for x in study.inputs), map(float, study.values[i])))
+                table.add(row)
+                summary.ran += 1
+                summary.failed += row["status"] != "ok"
+                if progress:
+                    progress(len(done) + summary.ran, study.n, summary.failed)
     finally:
         table.close()
         if client is not where.client:
@@ -326,10 +321,32 @@ def _task(study: Study, config, overrides, i: int) -> Task:
                 tuple(overrides), tuple(map(float, study.values[i])))  # fmt: skip
 
 
-def _row_of(fut, i: int) -> dict:
-    """The finished task's row, or a failed row where its workers died (retries spent)."""
+def _submit(client, study: Study, config, overrides, todo: list[int]) -> dict:
+    """One task per sample, or per chunk of study.batch samples: {future: its samples}."""
+    token = f"{os.getpid()}-{time.time_ns()}"
+    if not study.batch:
+        return {client.submit(evaluate_sample, _task(study, config, overrides, i),
+                              key=f"jaxform-sample-{token}-{i}", pure=False): (i,)
+                for i in todo}  # fmt: skip
+    from jaxform.study.batched import BatchTask, evaluate_batch
+
+    out = {}
+    for k in range(0, len(todo), study.batch):
+        chunk = tuple(todo[k : k + study.batch])
+        task = BatchTask(chunk, study.batch, config, tuple(overrides),
+                         tuple(x.key for x in study.inputs),
+                         tuple(tuple(map(float, study.values[i])) for i in chunk),
+                         study.responses, study.gradients)  # fmt: skip
+        key = f"jaxform-batch-{token}-{chunk[0]}-{chunk[-1]}"
+        out[client.submit(evaluate_batch, task, key=key, pure=False)] = chunk
+    return out
+
+
+def _rows_of(fut, samples: tuple[int, ...]) -> list[dict]:
+    """The finished task's rows, or failed rows where its workers died (retries spent)."""
     try:
-        return fut.result()
+        got = fut.result()
+        return got if isinstance(got, list) else [got]
     except Exception as err:  # noqa: BLE001 - KilledWorker, a lost scheduler: the row says
-        return {"sample": i, "status": "failed", "wall_s": math.nan, "worker": "",
-                "message": f"{type(err).__name__}: {err}"}  # fmt: skip
+        return [{"sample": i, "status": "failed", "wall_s": math.nan, "worker": "",
+                 "message": f"{type(err).__name__}: {err}"} for i in samples]  # fmt: skip

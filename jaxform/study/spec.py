@@ -85,6 +85,7 @@ class Study:
     values: np.ndarray  # (samples, inputs), in the keys' units
     gradients: bool
     retries: int
+    batch: int = 0  # samples per batched task (0: one run per sample)
 
     def overrides(self, i: int) -> list[str]:
         """The ``section.key=value`` overrides of sample i (exact: repr of the float)."""
@@ -191,47 +192,49 @@ def build_study(config, overrides=()) -> Study:
         parse_response(t, f"study.responses[{i}]") for i, t in enumerate(st["responses"])
     )
     if st["gradients"]:
-        _check_gradients(doc, inputs, responses)
+        _check_differentiable(doc, inputs, responses, "study.gradients = true")
+    if st["batch"]:
+        _check_differentiable(doc, inputs, responses, f"study.batch = {st['batch']}")
     values = draw(inputs, st["plan"], st["samples"], st["levels"], st["seed"])
     if len(values) == 0:
         raise ConfigError("study: empty plan (no sample)")
-    study = Study(inputs, responses, values, st["gradients"], st["retries"])
+    study = Study(inputs, responses, values, st["gradients"], st["retries"], st["batch"])
     _check_samples(study, doc)  # the validated base: no file read per sample
     return study
 
 
-def _check_gradients(doc: dict, inputs, responses) -> None:
-    """study.gradients = true: every input in a design group, every response on the
-    differentiable run, no remeshing or rezoning (before anything runs)."""
+def _check_differentiable(doc: dict, inputs, responses, what: str) -> None:
+    """Gradients or batches (``what`` names the key): every input in a design group,
+    every response on the differentiable run, no remeshing or rezoning (before anything
+    runs)."""
     from jaxform.config import check_gradient_run, remesh_on
 
     bad = next((i.key for i in inputs if i.key not in GRADIENT_KEYS), None)
     if bad:
         raise ConfigError(
-            f"study.gradients = true: {bad} has no exact gradient; inputs with one: "
+            f"{what}: {bad} is not an input of a design group; the inputs that are: "
             f"{', '.join(GRADIENT_KEYS)}"
         )
     bad = next((r.text for r in responses if r.column not in GRADIENT_COLUMNS), None)
     if bad:
         raise ConfigError(
-            f"study.gradients = true: response {bad!r} has no exact gradient; columns with "
-            f"one: {', '.join(GRADIENT_COLUMNS)} (end, max or min)"
+            f"{what}: response {bad!r} is not on the differentiable run; the columns "
+            f"that are: {', '.join(GRADIENT_COLUMNS)} (end, max or min)"
         )
     if remesh_on(doc["remesh"]):
         raise ConfigError(
-            "study.gradients = true: the scene remeshes ([remesh] triggers on); gradients "
-            "need a scene without remeshing: set study.gradients = false"
+            f"{what}: the scene remeshes ([remesh] triggers on): remeshing scenes run "
+            f"one sample per task (study.gradients = false, study.batch = 0)"
         )
     model = doc["friction"]["model"] if "friction" in doc else "none"
     wants = {"friction.m": "shear", "friction.mu": "coulomb"}
     for i in inputs:
         if i.key in wants and model != wants[i.key]:
             raise ConfigError(
-                f"study.gradients = true: {i.key} needs friction.model = "
-                f"{wants[i.key]!r} (it is {model!r})"
+                f"{what}: {i.key} needs friction.model = {wants[i.key]!r} (it is {model!r})"
             )
     check_gradient_run(doc, list(dict.fromkeys(GRADIENT_KEYS[i.key] for i in inputs)),
-                       "study.gradients")  # fmt: skip
+                       what.split(" ")[0])  # fmt: skip
 
 
 def draw(inputs, plan: str, samples: int, levels: int, seed: int) -> np.ndarray:
