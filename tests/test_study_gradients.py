@@ -45,3 +45,24 @@ def test_sample_gradients_match_central_differences():
                 J.append(float(problem.value(G.design_point(problem, moved)[0])[0]))
             fd = (J[0] - J[1]) / (2 * h)
             np.testing.assert_allclose(row[f"d_{r.name}/d_{k}"], fd, rtol=1e-6)
+
+
+@pytest.mark.slow
+def test_batched_rows_equal_the_unbatched_model():
+    """study.batch = 4 with 3 samples (one chunk, padded): each row's responses equal
+    problem.value of the same design point (the unbatched program of the same
+    fixed-schedule model); tolerance 1e-10 relative (measured 1e-14)."""
+    from jaxform.study.batched import BatchTask, evaluate_batch
+
+    sets = SMALL + [*STUDY[:3], "study.samples=3", "study.batch=4"]
+    study = build_study(SEED, sets)
+    keys = tuple(i.key for i in study.inputs)
+    values = tuple(tuple(map(float, v)) for v in study.values)
+    rows = evaluate_batch(BatchTask((0, 1, 2), 4, SEED, tuple(sets), keys, values,
+                                    study.responses))  # fmt: skip
+    assert [r["status"] for r in rows] == ["ok"] * 3, rows
+    for r in study.responses:
+        problem = G._problem(SEED, tuple(sets), keys, r)
+        for b, row in enumerate(rows):
+            design, _ = G.design_point(problem, dict(zip(keys, values[b])))
+            np.testing.assert_allclose(row[r.name], float(problem.value(design)[0]), rtol=1e-10)
