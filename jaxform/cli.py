@@ -357,8 +357,12 @@ def _study(args) -> int:
     where = Where(cluster=args.cluster, workers=args.workers)
     try:
         summary = run_study(study, args.config, args.set, args.out, where, args.resume, progress)
-    finally:
+    except KeyboardInterrupt:
         progress.close()
+        print(f"study interrupted: the finished samples are in {args.out}/{RESULTS}; "
+              f"--resume runs the rest", file=sys.stderr)  # fmt: skip
+        return 130
+    progress.close()
     records = sensitivities(study, read_table(Path(args.out) / RESULTS))
     write_sensitivities(records, Path(args.out) / "sensitivity.csv")
     figures = write_figures(study, args.out, records)

@@ -145,3 +145,40 @@ def test_a_killed_worker_loses_no_sample(tmp_path):
     by_id = {int(r["sample"]): r for r in rows}
     for i in killed["samples"]:
         assert not by_id[i]["worker"].endswith(f":{killed['pid']}")
+
+
+def test_sensitivities_and_figures_of_the_table(finished, tmp_path):
+    """The analysis of the finished table: a record per (response, input), ranks 1..2 per
+    response, the billet diameter ranked first for the peak force (reference: the force
+    scales with the cross-section, (5.5/4.5)^2 = 1.49 between the two levels, against a
+    rate effect of a few per cent over the speed range), the three figures written."""
+    from jaxform.study.analysis import sensitivities, write_figures, write_sensitivities
+
+    study, out = finished
+    shutil.copytree(out, tmp_path / "s")
+    records = sensitivities(study, read_table(tmp_path / "s" / RESULTS))
+    assert len(records) == len(study.responses) * len(study.inputs)
+    peak = {r["input"]: r for r in records if r["response"] == "force_N_max"}
+    assert sorted(r["rank"] for r in peak.values()) == [1, 2]
+    assert peak["billet.diameter_mm"]["rank"] == 1 and peak["billet.diameter_mm"]["src"] > 0
+    write_sensitivities(records, tmp_path / "s" / "sensitivity.csv")
+    paths = write_figures(study, tmp_path / "s", records)
+    assert [p.name for p in paths] == ["scatter_matrix.png", "main_effects.png", "ranking.png"]
+    assert all(p.read_bytes()[:4] == b"\x89PNG" for p in paths)
+
+
+def test_progress_lines_count_failures_and_time_left():
+    """Off a terminal: a line per sample with done/total, failures and seconds left (the
+    first call, the samples a resumed study found, prints nothing)."""
+    import io
+
+    from jaxform.cli import StudyProgress
+
+    log = io.StringIO()
+    p = StudyProgress(log)
+    p(1, 4, 0)
+    p(2, 4, 0)
+    p(3, 4, 1)
+    lines = log.getvalue().splitlines()
+    assert [ln.split(",")[0] for ln in lines] == ["sample 2/4 done", "sample 3/4 done"]
+    assert "1 failed" in lines[1] and "s left" in lines[1]
