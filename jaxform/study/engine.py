@@ -183,6 +183,8 @@ def _check_resume(study: Study, out: Path, resume: bool) -> set[int]:
             )
         return set()
     if not plan.exists():
+        if table.exists() and table.stat().st_size > 0:
+            raise ConfigError(f"--resume: {out} has a {RESULTS} but no {PLAN}: use another --out")
         return set()
     expected = out / (PLAN + ".new")
     _write_plan(study, expected)
