@@ -12,7 +12,12 @@ scene has shear friction 0.3 added):
 * ``workers=1``, ``workers=2``: jaxform.study.engine.run_study on a new local Dask
   cluster, from cluster start to the last row;
 * ``batched``: the same with study.batch = the sample count / 2 on 1 worker (the
-  fixed-schedule model: see jaxform/study/batched.py).
+  fixed-schedule model: see jaxform/study/batched.py);
+* ``loop-warm``: the loop again, its programs now in this process and the cache.
+
+The compilation cache starts empty: ``loop`` compiles, the worker modes load its programs
+from the cache (their first sample is a cache load, not a compile), ``batched`` compiles
+its own programs.
 
 The cost model's inputs, measured here: per worker the first sample's time (cold: an empty
 compilation cache, warm: the cache filled by the earlier modes), the median time of the
@@ -99,7 +104,8 @@ def main(argv=None) -> list[dict]:
     ap.add_argument("--quick", action="store_true", help="the 3 x 3 seed scene, 8 samples")
     ap.add_argument("--samples", type=int, default=None)
     ap.add_argument("--out", default="out/bench_study")
-    ap.add_argument("--modes", nargs="+", default=["loop", "workers=1", "workers=2", "batched"])
+    ap.add_argument("--modes", nargs="+",
+                    default=["loop", "workers=1", "workers=2", "batched", "loop-warm"])  # fmt: skip
     args = ap.parse_args(argv)
     from jaxform.precision import enable_x64
     from jaxform.study.spec import build_study
@@ -120,7 +126,7 @@ def main(argv=None) -> list[dict]:
         s = [*sets, f"study.batch={max(1, n // 2)}"] if mode == "batched" else sets
         study = build_study(config, s)
         folder = Path(tempfile.mkdtemp(prefix=f"bench_{mode.replace('=', '')}_", dir=out))
-        if mode == "loop":
+        if mode.startswith("loop"):  # loop: the first compiles; loop-warm: from the cache
             r = _loop(study, config, s)
         else:
             workers = 1 if mode in ("workers=1", "batched") else int(mode.split("=")[1])
