@@ -1435,6 +1435,13 @@ def _read_toml(path: str | PathLike) -> dict:
     return raw
 
 
+def read_document(path: str | PathLike) -> dict:
+    """The raw TOML document of a scene file (not validated: :func:`load_config` takes it
+    as it takes the path), for callers that send a scene to another machine (jaxform
+    study's workers need not see the file).  ConfigError as for the path."""
+    return _read_toml(path)
+
+
 def dump_config(cfg: dict, path: str | PathLike) -> None:
     """Write a (resolved) config as TOML (keys whose value is unset are left out)."""
     clean = {s: {k: v for k, v in t.items() if v is not None} for s, t in cfg.items()}

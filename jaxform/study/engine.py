@@ -286,6 +286,10 @@ def run_study(study: Study, config, overrides, out_dir, where: Where | None = No
     done = _check_resume(study, out, resume)
     todo = [i for i in range(study.n) if i not in done]
     summary = Summary(total=study.n, skipped=len(done))
+    if not isinstance(config, dict):  # the document travels: workers need not see the file
+        from jaxform.config import read_document
+
+        config = read_document(config)
     t0 = time.perf_counter()
     client, cluster = connect(where, study.retries) if todo else (None, None)
     if not (out / PLAN).exists():
