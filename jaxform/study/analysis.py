@@ -96,10 +96,15 @@ def main_effects(x: np.ndarray, y: np.ndarray, bins: int = 5) -> tuple[np.ndarra
             np.array([y[idx == b].mean() for b in keep]))  # fmt: skip
 
 
-def _figure(w: float, h: float):
+def _figure(w: float, h: float, layout: str | None = "constrained"):
+    """A Figure (grids of many small axes take ``layout=None`` and fixed margins: the
+    constrained layout costs seconds there)."""
     from matplotlib.figure import Figure
 
-    return Figure(figsize=(w, h), layout="constrained")
+    fig = Figure(figsize=(w, h), layout=layout)
+    if layout is None:
+        fig.subplots_adjust(left=0.08, right=0.98, bottom=0.08, top=0.93, wspace=0.45, hspace=0.45)
+    return fig
 
 
 def write_figures(study: Study, out_dir, records: list[dict]) -> list[Path]:
@@ -120,7 +125,7 @@ def write_figures(study: Study, out_dir, records: list[dict]) -> list[Path]:
 
 def _scatter_matrix(data: dict, cols: list[str], path: Path) -> None:
     n = len(cols)
-    fig = _figure(2.0 * n + 1, 2.0 * n + 1)
+    fig = _figure(2.0 * n + 1, 2.0 * n + 1, layout=None)
     axes = fig.subplots(n, n, squeeze=False)
     for a, ca in enumerate(cols):
         for b, cb in enumerate(cols):
@@ -139,7 +144,7 @@ def _scatter_matrix(data: dict, cols: list[str], path: Path) -> None:
 
 
 def _main_effects(data: dict, keys: list[str], names: list[str], path: Path) -> None:
-    fig = _figure(2.6 * len(keys) + 1, 2.3 * len(names) + 1)
+    fig = _figure(2.6 * len(keys) + 1, 2.3 * len(names) + 1, layout=None)
     axes = fig.subplots(len(names), len(keys), squeeze=False)
     for a, name in enumerate(names):
         for b, k in enumerate(keys):
