@@ -66,3 +66,32 @@ def test_batched_rows_equal_the_unbatched_model():
         for b, row in enumerate(rows):
             design, _ = G.design_point(problem, dict(zip(keys, values[b])))
             np.testing.assert_allclose(row[r.name], float(problem.value(design)[0]), rtol=1e-10)
+
+
+@pytest.mark.slow
+def test_thermal_gradients_in_kelvin_match_central_differences():
+    """The coupled hot upsetting scene, coarse (3 x 3, 10 % reduction): the billet and die
+    temperature gradients (per K: the thermal group's variable is (T - T0) / 100 K) and the
+    ram speed's (per mm/s), against central differences of the same model, h = 1e-4 of the
+    value; tolerance 1e-5 relative."""
+    hot = str(Path(SEED).parent / "hot_upsetting.toml")
+    sets = ["mesh.nr=3", "mesh.nz=3", "die.reduction=0.1", "time.dt_s=0.05",
+            "output.fields=false", "output.plots=false",
+            'study.inputs=["thermal.billet_temperature_K = uniform(623, 723)", '
+            '"thermal.die_temperature_K = uniform(423, 573)", '
+            '"die.speed_mm_s = uniform(5, 10)"]',
+            "study.samples=1", 'study.responses=["force_N:max"]',
+            "study.gradients=true"]  # fmt: skip
+    study = build_study(hot, sets)
+    task = _task(study, hot, sets, 0)
+    row = evaluate_sample(task)
+    assert row["status"] == "ok" and row["message"] == "", row
+    values = dict(zip(task.inputs, task.values))
+    problem = G._problem(hot, task.base, task.inputs, study.responses[0])
+    for k in task.inputs:
+        h = 1e-4 * values[k]
+        J = []
+        for sign in (1.0, -1.0):
+            moved = dict(values, **{k: values[k] + sign * h})
+            J.append(float(problem.value(G.design_point(problem, moved)[0])[0]))
+        np.testing.assert_allclose(row[f"d_force_N_max/d_{k}"], (J[0] - J[1]) / (2 * h), rtol=1e-5)
