@@ -182,3 +182,25 @@ def test_progress_lines_count_failures_and_time_left():
     lines = log.getvalue().splitlines()
     assert [ln.split(",")[0] for ln in lines] == ["sample 2/4 done", "sample 3/4 done"]
     assert "1 failed" in lines[1] and "s left" in lines[1]
+
+
+def test_cli_on_a_cluster_address_writes_the_same_table(finished, client, tmp_path, capsys):
+    """jaxform study --cluster ADDRESS (the test's local scheduler, reached by its
+    address): exit 0, the outputs listed, and the table equal to the local run's row by
+    row (every column but wall time and worker; reference: the finished fixture)."""
+    from jaxform.cli import main
+
+    study, local = finished
+    argv = ["study", SEED, "--out", str(tmp_path / "c"), "--cluster", client.scheduler.address]
+    for s in SMALL + STUDY:
+        argv += ["--set", s]
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    assert "done: 3 samples run (0 failed)" in out and "sensitivity.csv" in out
+    by_id = lambda rows: {r["sample"]: r for r in rows}  # noqa: E731
+    a, b = by_id(read_table(local / RESULTS)), by_id(read_table(tmp_path / "c" / RESULTS))
+    assert a.keys() == b.keys()
+    for i in a:
+        for col in a[i]:
+            if col not in ("wall_s", "worker"):
+                assert a[i][col] == b[i][col], (i, col)
