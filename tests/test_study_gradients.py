@@ -95,3 +95,24 @@ def test_thermal_gradients_in_kelvin_match_central_differences():
             moved = dict(values, **{k: values[k] + sign * h})
             J.append(float(problem.value(G.design_point(problem, moved)[0])[0]))
         np.testing.assert_allclose(row[f"d_force_N_max/d_{k}"], (J[0] - J[1]) / (2 * h), rtol=1e-5)
+
+
+@pytest.mark.slow
+def test_batched_gradients_equal_the_single_samples():
+    """study.batch = 2 with gradients: each row's gradient columns equal the unbatched
+    evaluate_sample's (the same fixed-schedule model, one design at a time); tolerance
+    1e-9 relative."""
+    from jaxform.study.batched import BatchTask, evaluate_batch
+
+    sets = SMALL + [*STUDY, "study.batch=2"]
+    study = build_study(SEED, sets)
+    keys = tuple(i.key for i in study.inputs)
+    values = tuple(tuple(map(float, v)) for v in study.values)
+    rows = evaluate_batch(BatchTask((0, 1), 2, SEED, tuple(sets), keys, values,
+                                    study.responses, gradients=True))  # fmt: skip
+    for b, row in enumerate(rows):
+        single = evaluate_sample(_task(study, SEED, sets, b))
+        names = [f"d_{r.name}/d_{k}" for r in study.responses for k in keys]
+        assert row["status"] == "ok" and all(np.isfinite(row[n]) for n in names), row
+        for n in names:
+            np.testing.assert_allclose(row[n], single[n], rtol=1e-9)
