@@ -204,3 +204,31 @@ def test_cli_on_a_cluster_address_writes_the_same_table(finished, client, tmp_pa
         for col in a[i]:
             if col not in ("wall_s", "worker"):
                 assert a[i][col] == b[i][col], (i, col)
+
+
+@pytest.mark.slow
+def test_bench_study_quick_mode_writes_its_table(tmp_path):
+    """experiments/bench_study.py --quick on 2 samples, the loop and 1 worker: a row per
+    mode with a positive rate, and the scheduler overhead row (the benchmark runs)."""
+    import csv
+    import importlib.util
+
+    path = Path(__file__).resolve().parents[1] / "experiments" / "bench_study.py"
+    spec = importlib.util.spec_from_file_location("bench_study", path)
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    import jax
+
+    saved = os.environ.get("JAXFORM_CACHE_DIR")
+    saved_dir = jax.config.jax_compilation_cache_dir
+    try:
+        bench.main(["--quick", "--samples", "2", "--out", str(tmp_path),
+                    "--modes", "loop", "workers=1"])  # fmt: skip
+    finally:  # the benchmark points the cache at an empty folder for its cold compiles
+        os.environ["JAXFORM_CACHE_DIR"] = saved or ""
+        if saved is None:
+            del os.environ["JAXFORM_CACHE_DIR"]
+        jax.config.update("jax_compilation_cache_dir", saved_dir)
+    rows = list(csv.DictReader(open(tmp_path / "bench_study.csv")))
+    assert [r["mode"] for r in rows] == ["loop", "workers=1", "scheduler_overhead"]
+    assert all(float(r["per_min"]) > 0 for r in rows[:2]) and float(rows[2]["wall_s"]) > 0
