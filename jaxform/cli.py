@@ -372,7 +372,8 @@ def _study(args) -> int:
         f"{len(summary.workers) or 'no'} workers"
     )
     for resp in study.responses:
-        top = sorted((r for r in records if r["response"] == resp.name), key=lambda r: r["rank"])
+        top = sorted((r for r in records if r["response"] == resp.name and r["rank"] > 0),
+                     key=lambda r: r["rank"])  # fmt: skip
         if top:
             print(f"{resp.name}: inputs by sensitivity: "
                   + ", ".join(f"{r['input']}" for r in top))  # fmt: skip

@@ -161,6 +161,8 @@ def test_sensitivities_and_figures_of_the_table(finished, tmp_path):
     peak = {r["input"]: r for r in records if r["response"] == "force_N_max"}
     assert sorted(r["rank"] for r in peak.values()) == [1, 2]
     assert peak["billet.diameter_mm"]["rank"] == 1 and peak["billet.diameter_mm"]["src"] > 0
+    # no lap in any sample: a constant response ranks nothing
+    assert {r["rank"] for r in records if r["response"] == "laps"} == {0}
     write_sensitivities(records, tmp_path / "s" / "sensitivity.csv")
     paths = write_figures(study, tmp_path / "s", records)
     assert [p.name for p in paths] == ["scatter_matrix.png", "main_effects.png", "ranking.png"]

@@ -10,7 +10,8 @@ Sensitivity of response y to input x_j, from the successful samples:
 * ``gradient``: where the table has exact gradients, mean over samples of
   |dy/dx_j| std x_j / std y (the local sensitivity in the same standardized units).
 
-The ranking orders the inputs by |gradient| where there are gradients, else by |src|.
+The ranking orders the inputs by |gradient| where there are gradients, else by |src|
+(rank 0 for each input of a response that does not vary).
 Figures are matplotlib Figure objects saved to files (no global backend, no display).
 Imports no JAX.
 """
@@ -65,8 +66,9 @@ def sensitivities(study: Study, rows: list[dict]) -> list[dict]:
             grad = np.nanmean(np.abs(g), axis=0) * x.std(axis=0) / y.std()
         score = np.abs(grad) if study.gradients else np.abs(src)
         order = np.argsort(-np.nan_to_num(score, nan=-1.0), kind="stable")
-        rank = np.empty(len(keys), int)
-        rank[order] = np.arange(1, len(keys) + 1)
+        rank = np.zeros(len(keys), int)  # 0: no ranking (a constant response)
+        if y.std() > 0:
+            rank[order] = np.arange(1, len(keys) + 1)
         for j, k in enumerate(keys):
             out.append(dict(response=resp.name, input=k, src=float(src[j]), r2=r2,
                             correlation=float(corr[j]), gradient=float(grad[j]),
