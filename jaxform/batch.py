@@ -114,10 +114,16 @@ class BatchProblem:
     def value(self, designs):
         """(J (B,), trajectories with a leading batch axis). Raises GradientRunError
         naming the first design whose run failed."""
-        placed, n = self._place(designs)
-        val, traj = _trim(self._value(placed, self.problem.scene.idx), n)
+        val, traj = self.value_per_design(designs)
         check_batch(traj)
         return val, traj
+
+    def value_per_design(self, designs):
+        """:meth:`value` without raising: a design whose run failed has a step status
+        other than OK in its lane of ``traj.codes`` (the others stand), for callers that
+        keep every other design's result (jaxform study)."""
+        placed, n = self._place(designs)
+        return _trim(self._value(placed, self.problem.scene.idx), n)
 
     def value_and_grad(self, designs):
         """(J (B,), dJ/d design with a leading batch axis, trajectories)."""

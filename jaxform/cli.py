@@ -4,6 +4,7 @@ jaxform run CONFIG [--set section.key=value ...] --out DIR
 jaxform material-point [--material NAME] [--rates R ...] [--strain E] --out DIR
 jaxform taylor-test CONFIG [--set section.key=value ...] [--groups G ...]
 jaxform design CONFIG [--set section.key=value ...] --out DIR
+jaxform study CONFIG [--set section.key=value ...] --out DIR [--cluster ADDRESS] [--resume]
 """
 # The command line: the only module that prints.
 
@@ -363,6 +364,76 @@ def _design(args) -> int:
     return 0
 
 
+class StudyProgress:
+    """A study's progress: samples done of all, failures, time left (tqdm on a terminal, a
+    line per sample otherwise)."""
+
+    def __init__(self, stream):
+        self.stream, self.bar, self.t0, self.start = stream, None, time.perf_counter(), None
+        self.tty = bool(getattr(stream, "isatty", lambda: False)())
+
+    def __call__(self, done: int, total: int, failed: int) -> None:
+        if self.tty:
+            from tqdm import tqdm
+
+            if self.bar is None:
+                self.bar = tqdm(total=total, initial=done, file=self.stream, unit="sample")
+            self.bar.set_postfix_str(f"{failed} failed", refresh=False)
+            self.bar.update(done - self.bar.n)
+            return
+        if self.start is None:  # the samples a resumed study found done
+            self.start = done
+            return
+        ran, elapsed = done - self.start, time.perf_counter() - self.t0
+        left = elapsed / ran * (total - done) if ran else float("nan")
+        print(f"sample {done}/{total} done, {failed} failed, {elapsed:.0f} s, "
+              f"about {left:.0f} s left", file=self.stream, flush=True)  # fmt: skip
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+def _study(args) -> int:
+    from jaxform.study.analysis import sensitivities, write_figures, write_sensitivities
+    from jaxform.study.engine import RESULTS, Where, check_cluster_address, read_table, run_study
+    from jaxform.study.spec import build_study
+
+    check_out_dir(args.out)
+    if not 0 <= args.workers <= 4096:
+        raise UsageError(f"--workers = {args.workers}: must lie in [0, 4096] (0: one per core)")
+    if args.cluster is not None:
+        check_cluster_address(args.cluster)
+    study = build_study(args.config, args.set)
+    progress = StudyProgress(sys.stdout)
+    where = Where(cluster=args.cluster, workers=args.workers)
+    try:
+        summary = run_study(study, args.config, args.set, args.out, where, args.resume, progress)
+    except KeyboardInterrupt:
+        progress.close()
+        print(f"study interrupted: the finished samples are in {args.out}/{RESULTS}; "
+              f"--resume runs the rest", file=sys.stderr)  # fmt: skip
+        return 130
+    progress.close()
+    records = sensitivities(study, read_table(Path(args.out) / RESULTS))
+    write_sensitivities(records, Path(args.out) / "sensitivity.csv")
+    figures = write_figures(study, args.out, records)
+    print(
+        f"done: {summary.ran} samples run ({summary.failed} failed), {summary.skipped} found "
+        f"done, {summary.total} in the plan, {summary.wall_s:.1f} s on "
+        f"{len(summary.workers) or 'no'} workers"
+    )
+    for resp in study.responses:
+        top = sorted((r for r in records if r["response"] == resp.name and r["rank"] > 0),
+                     key=lambda r: r["rank"])  # fmt: skip
+        if top:
+            print(f"{resp.name}: inputs by sensitivity: "
+                  + ", ".join(f"{r['input']}" for r in top))  # fmt: skip
+    names = [RESULTS, "plan.csv", "sensitivity.csv", *(p.name for p in figures)]
+    print(f"outputs in {args.out}: {', '.join(names)}")
+    return 0 if summary.failed == 0 else 1
+
+
 def _cache_setting(args) -> str:
     """``[solver] compilation_cache_dir`` of the command's config ('auto' without one, or
     when the config is invalid: the command itself then reports why)."""
@@ -455,6 +526,19 @@ def main(argv: list[str] | None = None) -> int:
     _scene_arguments(dp, "scene config (TOML) with a [design] section")
     dp.add_argument("--out", default="out/design", help="output folder")
     dp.set_defaults(func=_design)
+
+    st = sub.add_parser("study", help="design of experiments / robustness study from [study]")
+    _scene_arguments(st, "scene config (TOML) with a [study] section")
+    st.add_argument("--out", default="out/study", help="output folder (results.csv, plots)")
+    st.add_argument(
+        "--cluster", default=None, metavar="ADDRESS",
+        help="a Dask scheduler (tcp://HOST:PORT); default: worker processes on this machine",
+    )  # fmt: skip
+    st.add_argument("--workers", type=int, default=0,
+                    help="local worker processes (0: one per core)")  # fmt: skip
+    st.add_argument("--resume", action="store_true",
+                    help="run only the samples the table in --out lacks")  # fmt: skip
+    st.set_defaults(func=_study)
 
     args = parser.parse_args(argv)
     from jaxform.cache import enable_compilation_cache

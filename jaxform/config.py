@@ -69,6 +69,15 @@ class Field:
     choices: tuple[str, ...] | None = None
     doc: str = ""
 
+    @property
+    def numeric(self) -> bool:
+        """A single number (float or int): what a study may vary."""
+        return self.kind in ("float", "int")
+
+    @property
+    def integer(self) -> bool:
+        return self.kind == "int"
+
     def allowed(self) -> str:
         """Human-readable allowed values: an interval, a choice list or the kind."""
         if self.choices is not None:
@@ -969,6 +978,63 @@ class DesignConfig:
     )
 
 
+STUDY_PLANS = ("latin_hypercube", "sobol", "monte_carlo", "factorial")
+
+
+@section("study")
+@dataclass(frozen=True, kw_only=True)
+class StudyConfig:
+    """[study]: a design of experiments or a Monte-Carlo study (jaxform study): inputs,
+    plan, responses (docs/doe.md)."""
+
+    inputs: tuple[str, ...] = key(
+        [],
+        doc="the inputs: 'section.key = uniform(low, high)', 'normal(mean, std)', "
+        "'lognormal(mu, sigma)' (of the key's log), or 'levels(a, b, ...)', any numeric key "
+        "(values in its unit; each sample is the scene with these --set overrides)",
+    )
+    plan: str = key(
+        "latin_hypercube",
+        choices=STUDY_PLANS,
+        doc="the samples: Latin hypercube, scrambled Sobol sequence, plain Monte Carlo "
+        "(study.samples of each, from study.seed) or the full factorial of the levels",
+    )
+    samples: int = key(16, low=1, high=100_000, doc="samples of a random or Sobol plan")
+    levels: int = key(
+        3,
+        low=2,
+        high=100,
+        doc="factorial plan: levels of an input given by a distribution (uniform: equally "
+        "spaced from low to high; normal, lognormal: the quantiles (i + 1/2)/levels)",
+    )
+    seed: int = key(0, low=0, high=2**31 - 1, doc="seed of the random and Sobol plans")
+    responses: tuple[str, ...] = key(
+        ["force_N:max"],
+        doc="what each sample reports: 'column:end', 'column:max' or 'column:min' of any "
+        "history column (e.g. force_N:max, mean_temperature_K:end), 'fill' (die_fill at "
+        "the end), 'flash' (flash_volume_mm3 at the end), 'laps' (number of laps found)",
+    )
+    gradients: bool = key(
+        False,
+        doc="also the exact gradient of each response in each input at each sample "
+        "(inputs of the friction, speed and thermal design groups; no remeshing)",
+    )
+    retries: int = key(
+        3,
+        low=0,
+        high=100,
+        doc="times a sample whose worker died (killed, out of memory) runs again elsewhere",
+    )
+    batch: int = key(
+        0,
+        low=0,
+        high=4096,
+        doc="0: each sample is a run of its own (jaxform run: adaptive steps); B > 0: B "
+        "samples per task as one vmapped program (jaxform.batch) over the base scene's fixed "
+        "step schedule (inputs and responses as for study.gradients; same mesh)",
+    )
+
+
 def _schema_of(cls: type) -> dict[str, Field]:
     return {f.name: Field(_KINDS[f.type], **f.metadata["key"]) for f in dataclasses.fields(cls)}
 
@@ -1016,6 +1082,7 @@ class Config:
     solver: SolverConfig
     output: OutputConfig
     design: DesignConfig
+    study: StudyConfig
 
     @property
     def workpiece(self) -> str:
@@ -1627,6 +1694,13 @@ def _read_toml(path: str | PathLike) -> dict:
             f"({', '.join(f'[{w}]' for w in WORKPIECES)}) and its keys"
         )
     return raw
+
+
+def read_document(path: str | PathLike) -> dict:
+    """The raw TOML document of a scene file (not validated: :func:`load_config` takes it
+    as it takes the path), for callers that send a scene to another machine (jaxform
+    study's workers need not see the file).  ConfigError as for the path."""
+    return _read_toml(path)
 
 
 def dump_config(cfg: dict, path: str | PathLike) -> None:

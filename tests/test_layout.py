@@ -123,6 +123,7 @@ def _imports(path: Path) -> set[str]:
         ),  # fmt: skip
         (["solver.py"], ("jaxform.element", "jaxform.formulations")),
         (["workpieces.py", "scenes.py"], ("jaxform.io", "jaxform.plot", "jaxform.driver")),
+        (["study/*.py"], ("jaxform.cli",)),
     ],
 )
 def test_layers_import_one_way(modules, forbidden):
