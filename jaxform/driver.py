@@ -179,6 +179,8 @@ def _forming_outputs(out: Path, result: Result) -> None:
         if cfg.output.plots:
             final = result.final_scene
             axi = final.model.formulation.axisymmetric
+            labels = ("r [mm]", "z [mm]") if axi else ("x [mm]", "y [mm]")
+            t_last = float(result.history["time_s"][-1])
             plot.flow_lines(
                 positions(final, result.fields["x"][-1]),
                 np.asarray(final.mesh.elements),
@@ -186,7 +188,7 @@ def _forming_outputs(out: Path, result: Result) -> None:
                 out / "flow_lines.png",
                 f"flow lines ({spacing:g} mm apart at the start), stroke "
                 f"{result.history['stroke_mm'][-1]:.3g} mm",
-                ("r [mm]", "z [mm]") if axi else ("x [mm]", "y [mm]"),
+                plot.SectionFrame(labels, die_outlines(final, t_last)),
             )
 
 

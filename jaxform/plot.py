@@ -385,19 +385,15 @@ def animation(frames, path: Path, title: str, label: str, axes=("r [mm]", "z [mm
 
 def flow_lines(coords, elements, polylines, path: Path, title: str, axes=("r [mm]", "z [mm]")):
     """Material lines (``polylines``: a list of (m, 2) arrays, mm) over the deformed section
-    (its mesh in light grey): the grain-flow picture."""
+    (its mesh in light grey): the grain-flow picture; ``axes``: the axis labels, or a
+    :class:`SectionFrame` (labels and die outlines)."""
     fig, ax = _figure(figsize=(6, 5))
     pc = _quads(coords, elements)
     pc.set(edgecolor="0.85", facecolor="none", lw=0.5)
     ax.add_collection(pc)
     for p in polylines:
         ax.plot(p[:, 0], p[:, 1], "-", color="tab:blue", lw=1.0)
-    ax.set_xlim(coords[:, 0].min() - 0.05, coords[:, 0].max() * 1.03 + 0.05)
-    ax.set_ylim(coords[:, 1].min() - 0.05, coords[:, 1].max() * 1.03 + 0.05)
-    ax.set_aspect("equal")
-    ax.set_xlabel(axes[0])
-    ax.set_ylabel(axes[1])
-    ax.set_title(title)
+    _section_axes(ax, _frame(axes), np.asarray(coords), title)
     return _save(fig, path)
 
 

@@ -30,8 +30,8 @@ def test_section_plots_draw_each_die_where_it_stands(tmp_path):
     (dies.sample_rounded of die.profile_mm) shifted down by half the ram speed times t
     (half-height model), computed here from the config; the drawn line must hold it to
     1e-12 mm, its two extra end points on the end segments' lines (the die's infinite
-    ends).  The cell, nodal and mesh plots label both axes with units and the colour bar
-    with the field's name and unit."""
+    ends).  The cell, nodal, mesh and flow-line plots label both axes with units and the
+    colour bar with the field's name and unit."""
     cfg = load_config(ROOT / "configs" / "closed_die.toml", SMALL)
     sc = build_scene(cfg)
     t = 0.6 * sc.t_end
@@ -47,8 +47,9 @@ def test_section_plots_draw_each_die_where_it_stands(tmp_path):
         plot.nodal_contours(coords, el, coords[:, 1] + 673.0, tmp_path / "n.png", "T",
                             "temperature [K]", frame),
         plot.deformed_mesh(coords, coords, el, tmp_path / "m.png", "mesh", frame),
+        plot.flow_lines(coords, el, [coords[:3]], tmp_path / "f.png", "flow lines", frame),
     ]  # fmt: skip
-    for fig, bar in zip(figs, ["equivalent plastic strain [-]", "temperature [K]", None]):
+    for fig, bar in zip(figs, ["equivalent plastic strain [-]", "temperature [K]", None, None]):
         lines = plot.die_lines(fig)
         assert list(lines) == ["top"]
         drawn = lines["top"]
