@@ -258,9 +258,11 @@ def _run(args) -> int:
     )
     for lap in result.laps:
         print(
-            f"lap: at stroke {lap['stroke_mm']:.4g} mm the free surface folds at "
-            f"({lap['r_mm']:.4g}, {lap['z_mm']:.4g}) mm, fold angle {lap['angle_deg']:.3g} deg "
-            f"(history fold_angle_deg; output.lap_angle_deg)"
+            f"lap: from stroke {lap['stroke_mm']:.4g} mm the free surface folds at "
+            f"({lap['r_mm']:.4g}, {lap['z_mm']:.4g}) mm and stays folded to the end, fold "
+            f"angle {lap['angle_deg']:.3g} -> {lap['end_angle_deg']:.3g} deg, depth "
+            f"{lap['depth_mm']:.3g} mm (history fold_angle_deg, fold_depth_mm; "
+            f"output.lap_angle_deg)"
         )
     overlap = float(np.max(h["die_overlap_mm"])) if "die_overlap_mm" in h else 0.0
     if overlap > 1e-3:

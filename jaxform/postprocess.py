@@ -245,16 +245,19 @@ def filled_volume(scene, pos: np.ndarray, t: float) -> float:
     return abs(2.0 * np.pi * total) if axi else abs(total)
 
 
-def fold_angle(scene, pos: np.ndarray, t: float) -> tuple[float, float, float]:
-    """(angle in degrees, r, z of where): the narrowest air wedge the free surface makes
-    at nodal positions ``pos`` and time t, where a lap (fold) forms as it closes:
+def fold_angle(scene, pos: np.ndarray, t: float) -> tuple[float, float, float, float]:
+    """(angle in degrees, r, z of where, depth in mm): the narrowest air wedge the free
+    surface makes at nodal positions ``pos`` and time t, where a lap (fold) forms as it
+    closes, and how far it reaches along the surface (the depth):
 
     * at a free-surface vertex off the die whose two edges are free: the air-side angle
       between them, the surface turning back on itself (270 deg at a square corner of the
       section, 180 on a straight side, 0 when the surface has folded flat onto itself);
+      its depth is the shorter of the two edges (the faces that close on each other);
     * over a pocket, a run of free vertices off the die between two vertices that touch a
       die (gap <= TOUCH_GAP_MM), the material closing on the die from both sides:
-      atan(largest gap / half the pocket's length along the surface) (0 when it closes).
+      atan(largest gap / half the pocket's length along the surface) (0 when it closes);
+      its depth is the pocket's length along the surface.
 
     A free surface that meets the die at a contact front, as a side rolling onto the die
     or material filling a die corner, is neither.  Free means on a set a die may touch
@@ -279,6 +282,7 @@ def fold_angle(scene, pos: np.ndarray, t: float) -> tuple[float, float, float]:
     )
     angle = np.where(free_in & free_out & ~touching, np.degrees(np.pi + turn), np.inf)
     length = np.linalg.norm(e_out, axis=1)
+    depth = np.minimum(length, np.roll(length, 1))
     for i in np.nonzero(touching & free_out & ~np.roll(touching, -1))[0]:
         run, j = [], (i + 1) % n  # the free vertices after the touching vertex i
         while not touching[j] and free_in[j] and len(run) < n:
@@ -288,32 +292,58 @@ def fold_angle(scene, pos: np.ndarray, t: float) -> tuple[float, float, float]:
             continue  # the run ends off the free surface (axis, mid-plane): no pocket
         half = 0.5 * sum(length[k] for k in [i, *run])
         k = max(run, key=lambda m: gap[m])
-        angle[k] = min(angle[k], np.degrees(np.arctan2(gap[k], half)))
+        pocket = np.degrees(np.arctan2(gap[k], half))
+        if pocket < angle[k]:
+            angle[k], depth[k] = pocket, 2.0 * half
     k = int(np.argmin(angle))
     if not np.isfinite(angle[k]):
-        return 180.0, float("nan"), float("nan")
-    return float(angle[k]), float(pts[k, 0]), float(pts[k, 1])
+        return 180.0, float("nan"), float("nan"), 0.0
+    return float(angle[k]), float(pts[k, 0]), float(pts[k, 1]), float(depth[k])
 
 
-def laps(history: dict, angle_deg: float) -> list[dict]:
-    """The laps of a run: each row where the history's ``fold_angle_deg`` falls below
-    ``angle_deg`` after being at or above it (row, stroke_mm, r_mm, z_mm, angle_deg)."""
+# a fold that moves farther than this plus twice the stroke between two rows is another
+# fold (mm): the material at a fold moves with the dies
+FOLD_JUMP_MM = 0.1
+
+
+def folds(history: dict, angle_deg: float) -> list[dict]:
+    """Every fold of a run: a run of consecutive rows whose narrowest air wedge (history
+    ``fold_angle_deg``) is below ``angle_deg`` at one place (its point moving less than
+    FOLD_JUMP_MM plus twice the stroke from row to row: a wedge elsewhere becoming the
+    narrowest starts another fold).  Each: its first row, stroke, place and angle there;
+    its last row, angle and depth (``fold_depth_mm``) there; whether it persists to the
+    run's last row."""
     a = np.asarray(history.get("fold_angle_deg", []))
     if angle_deg <= 0.0 or not len(a):
         return []
-    below = a < angle_deg
-    starts = np.nonzero(below & ~np.r_[False, below[:-1]])[0]
-    keys = ("stroke_mm", "fold_r_mm", "fold_z_mm", "fold_angle_deg")
-    return [
-        dict(
-            row=int(k),
-            **{
-                n: float(history[key][k])
-                for n, key in zip(("stroke_mm", "r_mm", "z_mm", "angle_deg"), keys)
-            },
-        )  # fmt: skip
-        for k in starts
-    ]
+    where = np.column_stack([history["fold_r_mm"], history["fold_z_mm"]])
+    depth = np.asarray(history.get("fold_depth_mm", np.zeros(len(a))))
+    stroke = np.asarray(history["stroke_mm"])
+    out, start = [], None
+    for k in range(len(a) + 1):
+        on = k < len(a) and a[k] < angle_deg
+        near = FOLD_JUMP_MM + 2.0 * abs(stroke[min(k, len(a) - 1)] - stroke[k - 1])
+        same = on and start is not None and np.linalg.norm(where[k] - where[k - 1]) < near
+        if start is not None and not same:  # the fold from start ends at row k - 1
+            end = k - 1
+            out.append(dict(row=start, stroke_mm=float(history["stroke_mm"][start]),
+                            r_mm=float(where[start, 0]), z_mm=float(where[start, 1]),
+                            angle_deg=float(a[start]), last_row=end,
+                            end_angle_deg=float(a[end]), depth_mm=float(depth[end]),
+                            persists=end == len(a) - 1))  # fmt: skip
+            start = None
+        if on and start is None:
+            start = k
+    return out
+
+
+def laps(history: dict, angle_deg: float) -> list[dict]:
+    """The laps of a run: the folds (:func:`folds`) that persist to its end.  A wedge of
+    the free surface that closes below ``angle_deg`` and opens again, or that material
+    fills against the die (a pocket whose contact fronts meet), is no lap: the flash
+    scene's run reported four such transient pockets as laps; it has one that persists
+    (an air sliver along the hub's wall)."""
+    return [f for f in folds(history, angle_deg) if f["persists"]]
 
 
 def extra_history(scene, xs: np.ndarray, times: np.ndarray) -> dict[str, np.ndarray]:
@@ -343,8 +373,9 @@ def extra_history(scene, xs: np.ndarray, times: np.ndarray) -> dict[str, np.ndar
             [halves * material_beyond(scene, p, die.part_radius_mm) for p in pos]
         )
     if die is not None:
-        folds = np.array([fold_angle(scene, p, t) for p, t in zip(pos, times)]).reshape(-1, 3)
-        out.update(fold_angle_deg=folds[:, 0], fold_r_mm=folds[:, 1], fold_z_mm=folds[:, 2])
+        fold = np.array([fold_angle(scene, p, t) for p, t in zip(pos, times)]).reshape(-1, 4)
+        out.update(fold_angle_deg=fold[:, 0], fold_r_mm=fold[:, 1], fold_z_mm=fold[:, 2],
+                   fold_depth_mm=fold[:, 3])  # fmt: skip
     out.update(temperature_history(scene, xs))
     return out
 

@@ -299,8 +299,12 @@ def test_fold_angle_of_known_wedges():
     is a pocket of angle atan(0.1 / half its length along the surface, hypot(1.25, 0.1))
     (1e-9); an inward
     crease of the side (mid node pulled in by a = 4 h) gives the air wedge 2 atan(1/4) =
-    28.07 deg (1e-9) at that node; the lap list reports each crossing of
-    output.lap_angle_deg once, with its stroke and place."""
+    28.07 deg (1e-9) at that node; their depths are the pocket's length along the
+    surface and the crease's shorter edge (1e-12).  The fold list reports each run of
+    rows below output.lap_angle_deg at one place once, with its stroke and place; the
+    lap list only the folds that persist to the run's end (a pocket that closes again is
+    no lap), and a fold that moves farther than 0.1 mm plus twice the stroke between two
+    rows is another one."""
     from jaxform.config import typed
     from jaxform.postprocess import fold_angle, laps
     from jaxform.scenes import build_scene
@@ -313,15 +317,18 @@ def test_fold_angle_of_known_wedges():
     mid_top = top[np.argsort(pos[top, 0])][1]
     pocket = pos.copy()
     pocket[mid_top, 1] -= 0.1
-    angle, r_at, z_at = fold_angle(scene, pocket, 0.0)
+    angle, r_at, z_at, depth = fold_angle(scene, pocket, 0.0)
     assert angle == pytest.approx(np.degrees(np.arctan(0.1 / np.hypot(r / 2, 0.1))), abs=1e-9)
+    assert depth == pytest.approx(2.0 * np.hypot(r / 2, 0.1), abs=1e-12)
     assert (r_at, z_at) == pytest.approx(tuple(pocket[mid_top]))
     side = scene.mesh.node_sets["side"]
     mid = side[np.argsort(pos[side, 1])][1]  # the side node at half of the half height
     crease = pos.copy()
     crease[mid, 0] = r - 4.0 * (h / 2)
-    angle, r_at, z_at = fold_angle(scene, crease, 0.0)
+    angle, r_at, z_at, depth = fold_angle(scene, crease, 0.0)
     assert angle == pytest.approx(np.degrees(2 * np.arctan(0.25)), abs=1e-9)
+    edges = np.linalg.norm(crease[side] - crease[mid], axis=1)
+    assert depth == pytest.approx(np.sort(edges)[1], abs=1e-12)  # [0] is the node itself
     assert (r_at, z_at) == pytest.approx(tuple(crease[mid]))
     hist = {
         "fold_angle_deg": np.array([90.0, 40.0, 8.0, 6.0, 12.0, 7.0]),
@@ -329,9 +336,20 @@ def test_fold_angle_of_known_wedges():
         "fold_r_mm": np.ones(6),
         "fold_z_mm": np.zeros(6),
     }
+    from jaxform.postprocess import folds
+
+    every = folds(hist, 10.0)
+    assert [(f["row"], f["last_row"], f["persists"]) for f in every] == [(2, 3, False),
+                                                                       (5, 5, True)]  # fmt: skip
+    assert every[0]["angle_deg"] == 8.0 and every[0]["end_angle_deg"] == 6.0
     found = laps(hist, 10.0)
-    assert [f["row"] for f in found] == [2, 5] and found[0]["angle_deg"] == 8.0
+    assert [f["row"] for f in found] == [5]
     assert laps(hist, 0.0) == []
+    moved = dict(
+        hist, fold_r_mm=np.array([1.0, 1.0, 1.0, 1.0, 1.0, 1.0]) + [0, 0, 0, 3.0, 3.0, 3.0]
+    )
+    moved["fold_angle_deg"] = np.array([90.0, 8.0, 8.0, 8.0, 8.0, 8.0])
+    assert [(f["row"], f["persists"]) for f in folds(moved, 10.0)] == [(1, False), (3, True)]
 
 
 def test_avitzur_upper_bound_reference():
