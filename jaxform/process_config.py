@@ -288,6 +288,8 @@ def process_document(doc: dict) -> dict:
                         if v is not None and base.get(sec, {}).get(k) != v}  # fmt: skip
                 if sec == "die" and op["stroke_by"] != "reduction":
                     diff.pop("reduction", None)
+                elif sec == "die":  # the operation's own stroke, even where the base has it
+                    diff["reduction"] = own["reduction"]
                 if diff or sec == "die":
                     table[sec] = diff
         tables.append(table)
