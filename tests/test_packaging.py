@@ -26,8 +26,16 @@ import sys
 import jaxform
 jaxform.enable_x64()
 from jaxform.materials.presets import available_presets
+from jaxform.process import prepare
+from jaxform.process_config import load_document, operations
 for path in sys.argv[1:]:
-    jaxform.build_scene(jaxform.load_config(path))
+    doc = load_document(path)
+    if "process" in doc:  # a multi-stage process: its first operation's scene
+        ops = operations(doc)
+        prepare(ops)
+        jaxform.build_scene(ops[0].config)
+    else:
+        jaxform.build_scene(jaxform.load_config(path))
 print(",".join(available_presets()))
 print(jaxform.__file__)
 """
