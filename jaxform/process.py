@@ -222,7 +222,7 @@ def _air_config(op: Operation) -> Config:
     by :func:`air_scene`), no remeshing."""
     cfg, k = op.config, op.keys
     th = cfg.thermal
-    if op.kind == "dwell":
+    if not hasattr(k, "furnace_temperature_K"):  # a dwell
         air = dict(air_temperature_K=k.air_temperature_K, htc_air_W_m2K=k.htc_air_W_m2K,
                    emissivity=k.emissivity)  # fmt: skip
     else:
@@ -342,31 +342,40 @@ def _clock(state, t: float):
     return replace(state, t=jnp.asarray(t, dtype=jnp.asarray(state.t).dtype))
 
 
+def _forming(op: Operation, part: PartState | None, initial: Mesh, progress, simulate_fn):
+    if part is None:  # the first blow, on the workpiece's own mesh
+        scene = forming_scene(op, initial, initial)
+        return simulate_fn(scene, progress), None, 0.0
+    scene, state, carry = _carried(part, lambda m: forming_scene(op, m, initial))
+    return simulate_fn(scene, progress, state), carry, 0.0
+
+
+def _in_air(op: Operation, part: PartState, initial: Mesh, progress, simulate_fn):
+    """A dwell, or a reheat in a furnace (or to a set temperature)."""
+    if getattr(op.keys, "set_temperature_K", None) is not None:
+        return state_result(part.scene, _set_temperature(part, op)), None, 0.0
+    if op.config.thermal.model != "coupled":  # the dies are off, the clock moves on
+        scene, state, carry = _carried(part, lambda m: air_scene(op, m))
+        return state_result(scene, _clock(state, op.keys.time_s)), carry, 0.0
+    scene, state, carry = _carried(part, lambda m: air_scene(op, m))
+    return simulate_fn(scene, progress, state), carry, 0.0
+
+
+def _trim(op: Operation, part: PartState, initial: Mesh, progress, simulate_fn):
+    scene, state, transfer, removed = trim_part(part, op)
+    return state_result(scene, state), transfer, removed
+
+
+# how each kind of operation runs: (operation, part, initial mesh, progress, host loop) ->
+# (its Result, the map that brought the part in, the trimmed volume)
+RUNNERS = {"forming": _forming, "dwell": _in_air, "reheat": _in_air, "trim": _trim}
+
+
 def run_operation(op: Operation, part: PartState | None, initial: Mesh, progress, simulate_fn):
     """One operation from the part ``part`` (None: the first forming operation, on the
     workpiece's own mesh): (its Result, the map that brought the part in, trimmed
     volume).  Raises ConfigError, SimulationError (with the operation's result)."""
-    thermal = op.config.thermal.model == "coupled"
-    if op.kind == "forming":
-        if part is None:
-            scene = forming_scene(op, initial, initial)
-            return simulate_fn(scene, progress), None, 0.0
-        scene, state, carry = _carried(part, lambda m: forming_scene(op, m, initial))
-        return simulate_fn(scene, progress, state), carry, 0.0
-    if part is None:
-        raise ConfigError(f"{op.label}: the first operation on the part must be a forming one")
-    if op.kind == "trim":
-        scene, state, transfer, removed = trim_part(part, op)
-        return state_result(scene, state), transfer, removed
-    if op.kind == "reheat" and op.keys.set_temperature_K is not None:
-        return state_result(part.scene, _set_temperature(part, op)), None, 0.0
-    if not thermal:  # a dwell without heat: the dies are off, the clock moves on
-        scene, state, carry = _carried(part, lambda m: air_scene(op, m))
-        return state_result(scene, _clock(state, op.keys.time_s)), carry, 0.0
-    if not _half(op.config):
-        raise ConfigError(f"{op.label}: a full-height part has no support in air (not yet)")
-    scene, state, carry = _carried(part, lambda m: air_scene(op, m))
-    return simulate_fn(scene, progress, state), carry, 0.0
+    return RUNNERS[op.kind](op, part, initial, progress, simulate_fn)
 
 
 def prepare(ops) -> Mesh:
@@ -429,7 +438,7 @@ def run_process(ops, initial: Mesh, progress=None, simulate_fn=simulate) -> Proc
     runs: list[OperationRun] = []
     part, clock = None, 0.0
     for op in ops:
-        if part is None and op.kind != "forming":
+        if part is None and not op.forming:
             continue  # before the first blow the billet waits, cools or is trimmed: refused
         try:
             result, transfer, removed = run_operation(op, part, initial, progress, simulate_fn)
@@ -466,7 +475,7 @@ def check_process(ops, initial: Mesh) -> None:
     radius, where the material is: the die would overlap the incoming part); a trim
     radius inside a ring's bore or beyond the initial part with no forming before it.
     Raises ConfigError naming the operation and key."""
-    if ops[0].kind != "forming":
+    if not ops[0].forming:
         raise ConfigError(
             f"{ops[0].label}: kind = {ops[0].kind!r}: a process starts with a forming operation"
         )
@@ -474,12 +483,19 @@ def check_process(ops, initial: Mesh) -> None:
     r_min = float(initial.coords[:, 0].min())
     before = None
     for op in ops:
-        if op.kind == "trim" and op.keys.radius_mm <= r_min:
+        radius = getattr(op.keys, "radius_mm", None)
+        if radius is not None and radius <= r_min:
             raise ConfigError(
-                f"{op.label}: radius_mm = {op.keys.radius_mm:g}: the part starts at r = "
+                f"{op.label}: radius_mm = {radius:g}: the part starts at r = "
                 f"{r_min:.6g} mm (its bore): the trim would remove the whole part"
             )
-        if op.kind != "forming":
+        heated = op.config.thermal.model == "coupled" and getattr(op.keys, "time_s", None)
+        if heated and not _half(op.config):
+            raise ConfigError(
+                f"{op.label}: time_s in air or a furnace with coupled heat needs a half-height "
+                "part (a full-height one has no support off the dies yet)"
+            )
+        if not op.forming:
             continue
         if before is not None and op.config.die.profile_mm:
             full = op.config.bottom_die is not None and not _half(op.config)

@@ -155,6 +155,11 @@ class Operation:
     config: Config
 
     @property
+    def forming(self) -> bool:
+        """Whether the operation is a blow between dies."""
+        return self.kind == "forming"
+
+    @property
     def label(self) -> str:
         return f"process.operation[{self.index}] ({self.name})"
 

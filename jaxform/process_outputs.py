@@ -66,7 +66,7 @@ def write_process_outputs(out_dir: str | Path, result: ProcessResult, doc: dict)
                          " -> ".join(names.values()))  # fmt: skip
     for run in result.runs:
         op, h = run.operation, run.result.history
-        if op.kind != "forming" or len(h["time_s"]) < 2:
+        if not op.forming or len(h["time_s"]) < 2:
             continue
         plot.force_stroke(h["stroke_mm"], h["force_N"],
                           out / f"force_stroke_{op.index}_{_slug(op.name)}.png",
@@ -96,10 +96,10 @@ def summary(result: ProcessResult) -> list[str]:
         op, h = run.operation, run.result.history
         line = f"  {op.index} {op.name} ({op.kind}): {run.start_s:g} -> "
         line += f"{run.start_s + float(h['time_s'][-1]):g} s"
-        if op.kind == "forming":
+        if op.forming:
             line += f", peak force {float(np.max(h['force_N'])):.6g} N"
             line += f", stroke {float(h['stroke_mm'][-1]):.4g} mm"
-        if op.kind == "trim":
+        if run.trimmed_volume:
             line += f", trimmed {run.trimmed_volume:.6g} mm^3"
         for k, unit in (("die_fill", ""), ("flash_volume_mm3", " mm^3"),
                         ("mean_temperature_K", " K")):  # fmt: skip
