@@ -287,7 +287,7 @@ def test_shipped_process_config_is_valid():
 
     ops = operations(load_document("configs/two_stage_disk.toml"))
     prepare(ops)
-    assert [op.kind for op in ops] == ["forming", "dwell", "forming"]
+    assert [op.kind for op in ops] == ["forming", "dwell", "forming", "trim"]
     assert ops[2].config.die.part_radius_mm == 6.4
     assert ops[0].config.thermal.model == "coupled"
 
