@@ -66,7 +66,7 @@ def run(
 def _run_process(doc: dict, out_dir, progress):
     """A config with [[process.operation]] tables: its operations checked (nothing
     compiled), run in order, the process's files written (also when one stops)."""
-    from jaxform.process import prepare, run_process
+    from jaxform.process import OperationRefused, prepare, run_process
     from jaxform.process_config import operations
     from jaxform.process_outputs import write_process_outputs
 
@@ -75,7 +75,7 @@ def _run_process(doc: dict, out_dir, progress):
     enable_compilation_cache(ops[0].config.solver.compilation_cache_dir)
     try:
         result = run_process(ops, initial, progress, simulate_fn=simulate)
-    except SimulationError as err:
+    except (SimulationError, OperationRefused) as err:  # what was reached is written
         if out_dir is not None and err.result is not None:
             write_process_outputs(out_dir, err.result, doc)
         raise

@@ -83,6 +83,15 @@ class Carry:
         ), pos
 
 
+class OperationRefused(ConfigError):
+    """An operation refused when the part reached it (its dies overlap the part, its
+    stroke or trim does not fit it): ``result`` holds the operations done before it."""
+
+    def __init__(self, message: str, result):
+        super().__init__(message)
+        self.result = result
+
+
 @dataclass
 class PartState:
     """The part between operations: the scene it was last on and its state there."""
@@ -281,11 +290,11 @@ def trimmed_polygon(points: np.ndarray, labels: list[str], radius: float):
             out_labels.append("side" if inside[i] else labels[i])
     if not out:
         raise ValueError("nothing is left")
+    if int(np.count_nonzero(inside != inside[nxt])) > 2:
+        raise ValueError("the cut leaves more than one piece")
     pts = np.asarray(out)
     keep = np.linalg.norm(pts - np.roll(pts, 1, axis=0), axis=1) > 1e-12 * max(radius, 1.0)
     pts, out_labels = pts[keep], [lab for lab, k in zip(out_labels, keep) if k]
-    if int(np.sum(np.asarray(out_labels) == "side")) > 1:
-        raise ValueError("the cut leaves more than one piece")
     return pts, out_labels
 
 
@@ -433,8 +442,10 @@ def run_process(ops, initial: Mesh, progress=None, simulate_fn=simulate) -> Proc
     Raises:
         SimulationError: an operation's step failed; ``result`` is the
             :class:`ProcessResult` up to its last converged step (the message names the
-            operation).  ConfigError: an operation's dies overlap the incoming part or
-            its stroke does not fit it (found when the part reaches it)."""
+            operation).  ConfigError: the first operation's set-up; OperationRefused (a
+            ConfigError with the ``result`` of the operations before it): a later
+            operation's dies overlap the incoming part, or its stroke or trim does not
+            fit it (found when the part reaches it)."""
     runs: list[OperationRun] = []
     part, clock = None, 0.0
     for op in ops:
@@ -442,6 +453,10 @@ def run_process(ops, initial: Mesh, progress=None, simulate_fn=simulate) -> Proc
             continue  # before the first blow the billet waits, cools or is trimmed: refused
         try:
             result, transfer, removed = run_operation(op, part, initial, progress, simulate_fn)
+        except ConfigError as err:
+            if not runs:
+                raise
+            raise OperationRefused(str(err), _result(runs, str(err))) from None
         except SimulationError as err:
             if err.result is not None:
                 runs.append(OperationRun(op, err.result, clock))

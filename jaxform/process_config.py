@@ -6,8 +6,8 @@ A process is an ordered list of operations, each a TOML table of the array
 * ``forming``: a blow between its own dies.  Its tables ``die``, ``bottom_die``,
   ``friction``, ``time``, ``remesh``, ``press`` and ``thermal`` are the config's sections of
   those names, key by key over the base config's (so an operation writes only what differs);
-  its stroke is ``die.reduction`` (of the workpiece's initial height), ``travel_mm`` (the top
-  die's travel) or ``final_gap_mm`` (the smallest gap between the dies, or between the top
+  its stroke is ``die.reduction`` (of the workpiece's initial height), ``travel_mm`` (how
+  far the dies close) or ``final_gap_mm`` (the smallest gap between the dies, or between the top
   die and the mid-plane of a half-height model, doubled, at the end);
 * ``dwell``: ``time_s`` in air (convection and radiation with thermal.model = "coupled";
   without heat it only advances the clock);
@@ -58,7 +58,8 @@ class FormingOperation:
     travel_mm: float | None = key(
         low=0.0,
         low_open=True,
-        doc="the top die's travel (mm) in this operation (instead of die.reduction)",
+        doc="how far the dies close in this operation (mm; half height: the top die's "
+        "travel) (instead of die.reduction)",
     )
     final_gap_mm: float | None = key(
         low=0.0,
@@ -358,7 +359,6 @@ def operations(doc: dict) -> tuple[Operation, ...]:
     a dwell, trim or reheat takes the config of the forming operation before it (the
     first forming operation's for those in front of it)."""
     ops = doc["process"]
-    base = {k: v for k, v in doc.items() if k != "process"}
     first = next(op["document"] for op in ops if op["kind"] == "forming")
     current, out = first, []
     for i, op in enumerate(ops, start=1):
@@ -367,7 +367,6 @@ def operations(doc: dict) -> tuple[Operation, ...]:
         cls = OPERATION_CLASSES[op["kind"]]
         keys = cls(**op["keys"])
         out.append(Operation(i, op["kind"], op["name"], keys, typed(current)))
-    del base
     return tuple(out)
 
 

@@ -11,8 +11,10 @@ import pytest
 from cli_harness import assert_refused
 
 import jaxform
+import jaxform.io
 from jaxform.config import load_config, typed
 from jaxform.driver import run
+from jaxform.errors import ConfigError
 from jaxform.mesh import boundary_edges
 from jaxform.postprocess import nodal_temperature, positions
 from jaxform.process import trimmed_polygon
@@ -184,6 +186,39 @@ def _pappus_edges(pos, edges):
     return -np.sum((a[:, 0] * b[:, 1] - b[:, 0] * a[:, 1]) * (a[:, 0] + b[:, 0])) * np.pi / 3.0
 
 
+@cache
+def hot():
+    """A small blow, 1 s in air, 0.5 s in a furnace at 800 K, set to 700 K (coupled heat,
+    convection h = 2000 W/m^2 K, no radiation)."""
+    doc = seed_document([
+        {"kind": "forming", "name": "blow", "die": {"reduction": 0.01}},
+        {"kind": "dwell", "name": "air", "time_s": 1.0, "dt_s": 0.05, "htc_air_W_m2K": 2000.0,
+         "emissivity": 0.0},
+        {"kind": "reheat", "name": "furnace", "furnace_temperature_K": 800.0, "time_s": 0.5,
+         "dt_s": 0.05, "htc_W_m2K": 2000.0, "emissivity": 0.0},
+        {"kind": "reheat", "name": "set", "set_temperature_K": 700.0},
+    ])  # fmt: skip
+    doc["thermal"] = {"model": "coupled", "die_temperature_K": 673.0}
+    return run(doc)
+
+
+def _lumped_check(result, t_ambient, tolerance):
+    """(start, end mean temperature, BE lumped end, exponential end, tau) of a run in air
+    or a furnace at t_ambient (h = 2000 W/m^2 K)."""
+    th = result.scene.inputs.thermal
+    t1 = float(result.history["mean_temperature_K"][0])
+    rho_c = float(th.density_kg_m3 * th.specific_heat_J_kgK) * 1e-6  # mJ/(mm^3 K)
+    pos = np.asarray(result.scene.inputs.coords)
+    factor, tau = _lumped_reference(pos, result.scene.mesh, (rho_c, 2000.0e-3),
+                                    result.history["dt_s"][1:])  # fmt: skip
+    t_end = float(result.history["mean_temperature_K"][-1])
+    duration = float(result.history["time_s"][-1])
+    assert abs(t_end - (t_ambient + (t1 - t_ambient) * factor)) <= tolerance * abs(t1 - t_ambient)
+    exact = t_ambient + (t1 - t_ambient) * np.exp(-duration / tau)
+    assert abs(t_end - exact) <= 0.03 * abs(t1 - t_ambient)
+    return t1, t_end
+
+
 def test_dwell_cools_as_the_lumped_solution():
     """A dwell in air (convection h = 2000 W/m^2 K, no radiation) after a small blow:
     Biot h (V/A) / k ~ 0.01, so the mean temperature follows the lumped capacitance
@@ -191,31 +226,57 @@ def test_dwell_cools_as_the_lumped_solution():
     tau = rho c V / (h A), within 1 % of T_1 - T_air (the internal gradient, ~Bi/2), and
     the exponential exp(-t/tau) within 3 %; the temperatures spread less than
     Bi (T_end - T_air) with Bi = h (R + H/2) / k."""
-    doc = seed_document([
-        {"kind": "forming", "name": "blow", "die": {"reduction": 0.01}},
-        {"kind": "dwell", "name": "air", "time_s": 1.0, "dt_s": 0.05, "htc_air_W_m2K": 2000.0,
-         "emissivity": 0.0},
-    ])  # fmt: skip
-    doc["thermal"] = {"model": "coupled", "die_temperature_K": 673.0}
-    res = run(doc)
+    res = hot()
     blow, dwell = res.runs[0].result, res.runs[1].result
     th = dwell.scene.inputs.thermal
     t_air = float(th.air_temperature_K)
-    t1 = float(dwell.history["mean_temperature_K"][0])
-    rho_c = float(th.density_kg_m3 * th.specific_heat_J_kgK) * 1e-6  # mJ/(mm^3 K)
-    pos = np.asarray(dwell.scene.inputs.coords)
-    factor, tau = _lumped_reference(pos, dwell.scene.mesh, (rho_c, 2000.0e-3),
-                                    dwell.history["dt_s"][1:])  # fmt: skip
-    t_end = float(dwell.history["mean_temperature_K"][-1])
+    t1, t_end = _lumped_check(dwell, t_air, 0.01)
     assert abs(t1 - float(blow.history["mean_temperature_K"][-1])) < 1e-9  # carried
-    assert abs(t_end - (t_air + (t1 - t_air) * factor)) <= 0.01 * (t1 - t_air)
-    assert abs(t_end - (t_air + (t1 - t_air) * np.exp(-1.0 / tau))) <= 0.03 * (t1 - t_air)
     assert t_end < t1 - 0.2 * (t1 - t_air)  # it did cool
+    pos = np.asarray(dwell.scene.inputs.coords)
     temp = nodal_temperature(dwell.final_scene, np.asarray(dwell.final_state.x))
     # nearly uniform: the spread is of the order Bi (T - T_air), Bi = h (R + H/2) / k
     biot = 2000.0e-3 * (pos[:, 0].max() + pos[:, 1].max()) / float(th.conductivity_W_mK)
     assert np.ptp(temp) < biot * (t_end - t_air)
-    assert np.all(res.history["operation"][-20:] == 2)
+    assert np.count_nonzero(res.history["operation"] == 2) == len(dwell.history["time_s"]) - 1
+
+
+def test_reheat_in_a_furnace_and_to_a_set_temperature():
+    """The furnace (800 K, h = 2000 W/m^2 K, 0.5 s) heats the part as the lumped solution
+    of its steps (1 % of the difference to the furnace) and the exponential (3 %); a set
+    temperature puts every node at 700 K (1e-9 K) in one row at the same time."""
+    res = hot()
+    furnace = res.runs[2].result
+    t2, t3 = _lumped_check(furnace, 800.0, 0.01)
+    assert abs(t2 - float(res.runs[1].result.history["mean_temperature_K"][-1])) < 1e-9
+    assert t3 > t2 + 0.2 * (800.0 - t2)
+    h = res.history
+    assert h["operation"][-1] == 4 and h["time_s"][-1] == h["time_s"][-2]
+    for k in ("mean", "min", "max"):
+        assert abs(h[f"{k}_temperature_K"][-1] - 700.0) < 1e-9
+
+
+def test_process_outputs_and_a_die_into_the_incoming_part(tmp_path):
+    """The ParaView series has one entry per history row, time over the process; the
+    process and per-blow plots are written; a die that overlaps the part the first blow
+    left (flat at z = 3.0 mm, the part's top at 3.375 mm) is refused when the operation
+    starts, with one line naming the operation and key."""
+    from jaxform.plot import process_history
+    from jaxform.process_outputs import operation_table, summary
+
+    res = process()
+    pvd = jaxform.io.write_vtu_series(tmp_path, res)
+    text = pvd.read_text()
+    assert text.count("<DataSet") == len(res.history["time_s"])
+    process_history(res.history, {1: "first", 2: "second", 3: "cut"}, tmp_path / "p.png", "t")
+    assert (tmp_path / "p.png").stat().st_size > 0
+    table = operation_table(res)
+    np.testing.assert_allclose(table["end_s"], [10.0, 14.0, 14.0], rtol=1e-12)
+    assert len(summary(res)) == 3
+    low = {"kind": "forming", "name": "low", "travel_mm": 0.1,
+           "die": {"profile_mm": [[0.0, 3.0], [6.0, 3.0]]}}  # fmt: skip
+    with pytest.raises(ConfigError, match=r"process.operation\[2\] \(low\): die.profile_mm"):
+        run(seed_document([FIRST, low]))
 
 
 def _write(tmp_path, operations, **sections) -> str:
