@@ -299,8 +299,9 @@ def trimmed_polygon(points: np.ndarray, labels: list[str], radius: float):
 
 
 def trim_part(part: PartState, op: Operation):
-    """(new scene, state, StateMap, trimmed volume): the part cut at ``radius_mm``, the
-    kept section meshed anew, the state carried (contact starts afresh)."""
+    """(new scene, state, StateMap, trimmed volume of the part, mm^3; plane strain mm^2
+    per mm, both halves of a half-height model): the part cut at ``radius_mm``, the kept
+    section meshed anew, the state carried (contact starts afresh)."""
     scene = part.scene
     pos = positions_of(part)
     axi = scene.model.formulation.axisymmetric
@@ -335,7 +336,8 @@ def trim_part(part: PartState, op: Operation):
     before = float(np.sum(polygon_measure(pos[np.asarray(scene.mesh.elements)], axi)))
     after = float(polygon_measure(kept, axi))
     state = jax.tree_util.tree_map(jnp.asarray, state)
-    return new_scene, state, transfer, before - after
+    halves = 2.0 if scene.symmetric_z else 1.0  # the part's, both halves of a half model
+    return new_scene, state, transfer, halves * (before - after)
 
 
 def _set_temperature(part: PartState, op: Operation):
@@ -371,8 +373,13 @@ def _in_air(op: Operation, part: PartState, initial: Mesh, progress, simulate_fn
 
 
 def _trim(op: Operation, part: PartState, initial: Mesh, progress, simulate_fn):
+    """The trim's one row: the dies where the blow before it left them (its die fill and
+    flash columns refer to them), at the operation's time 0."""
     scene, state, transfer, removed = trim_part(part, op)
-    return state_result(scene, state), transfer, removed
+    result = state_result(scene, replace(state, t=part.state.t))
+    result.history["time_s"] = np.zeros(1)
+    result.final_state = state
+    return result, transfer, removed
 
 
 # how each kind of operation runs: (operation, part, initial mesh, progress, host loop) ->
