@@ -199,6 +199,8 @@ def forming_scene(op: Operation, mesh: Mesh, initial: Mesh) -> Scene:
     top, bottom = _heights(mesh, full)
     closure = closure_mm(op, mesh, initial)
     reduction = closure / (top - bottom)
+    if mesh is initial and op.keys.travel_mm is None and op.keys.final_gap_mm is None:
+        reduction = cfg.die.reduction  # the config's own number, not a rounded quotient
     if not 0.0 < reduction < 1.0:
         raise ConfigError(
             f"{op.label}: the stroke closes the dies by {closure:.6g} mm, the incoming part "
@@ -206,8 +208,8 @@ def forming_scene(op: Operation, mesh: Mesh, initial: Mesh) -> Scene:
             "than its height"
         )
     cfg = replace(cfg, die=replace(cfg.die, reduction=reduction))
-    try:
-        return build_scene(cfg, mesh)
+    try:  # the first blow on the workpiece's own mesh (a structured one may rezone)
+        return build_scene(cfg, None if mesh is initial else mesh)
     except ConfigError as err:
         raise ConfigError(f"{op.label}: {err} (the incoming part)") from None
 
