@@ -37,7 +37,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxform.config import Config
+from jaxform.config import TRIGGERS, Config
 from jaxform.dies import make_die
 from jaxform.errors import ConfigError
 from jaxform.geometry import polygon_measure
@@ -240,9 +240,7 @@ def _air_config(op: Operation) -> Config:
         air = dict(air_temperature_K=k.furnace_temperature_K, htc_air_W_m2K=k.htc_W_m2K,
                    emissivity=k.emissivity)  # fmt: skip
     air = {name: v for name, v in air.items() if v is not None}
-    off = {t: 0 if t == "every_steps" else 0.0 for t in
-           ("quality_below", "every_steps", "every_stroke_mm", "corner_depth_ratio",
-            "fold_angle_deg")}  # fmt: skip
+    off = {t: 0 if t == "every_steps" else 0.0 for t in TRIGGERS}
     return replace(
         cfg,
         thermal=replace(th, **air),
