@@ -356,3 +356,23 @@ def test_shipped_process_config_is_valid():
 
 
 jaxform.enable_x64()
+
+
+def test_carry_is_one_fixed_map_for_numpy_and_jax():
+    """The map that carried the part into the cone die's blow (jaxform.process.Carry)
+    gives the same state applied to NumPy values and to JAX values (exactly), as a
+    gradient run will apply it; the new reference is the old deformed positions."""
+    import jax
+    import jax.numpy as jnp
+
+    res, first = process(), single()
+    carry = res.runs[1].transfer
+    state = jax.tree_util.tree_map(np.asarray, first.final_state)
+    coords = np.asarray(first.final_scene.inputs.coords)
+    host, pos = carry.apply(state, coords)
+    traced, pos_j = jax.jit(lambda s, c: carry.apply(s, c, jnp))(state, coords)
+    for a, b in zip(jax.tree_util.tree_leaves(host), jax.tree_util.tree_leaves(traced)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    np.testing.assert_allclose(pos, positions(first.final_scene, state.x), rtol=0, atol=1e-15)
+    np.testing.assert_array_equal(np.asarray(pos_j), pos)
+    np.testing.assert_array_equal(np.asarray(res.runs[1].result.scene.inputs.coords), pos)
