@@ -155,8 +155,10 @@ def _load_checked(args, gradient: bool = False):
         given_sections,
         load_config,
     )
+    from jaxform.process_config import load_document
 
-    cfg = load_config(args.config, args.set)
+    # a process ([[process.operation]]) runs with `jaxform run` only: load_config refuses it
+    cfg = load_config(args.config, args.set) if gradient else load_document(args.config, args.set)
     if gradient and args.command == "design":
         check_design_run(cfg)
     elif gradient:
@@ -271,6 +273,10 @@ def _run(args) -> int:
             f"between contact nodes (history die_overlap_mm); die.corner_contact = true "
             f"holds the facets off it"
         )
+    if hasattr(result, "runs"):  # a process: one line per operation
+        from jaxform.process_outputs import summary
+
+        print("operations:\n" + "\n".join(summary(result)))
     written = sorted(p.name for p in Path(args.out).iterdir() if p.is_file())
     print(f"outputs in {args.out}: {', '.join(written)}")
     return 0
@@ -439,14 +445,17 @@ def _study(args) -> int:
 def _cache_setting(args) -> str:
     """``[solver] compilation_cache_dir`` of the command's config ('auto' without one, or
     when the config is invalid: the command itself then reports why)."""
-    from jaxform.config import ConfigError, load_config, typed
+    from jaxform.config import ConfigError, typed
 
     if getattr(args, "config", None) is None:
         return "auto"
+    from jaxform.process_config import load_document
+
     try:
-        cfg = load_config(args.config, list(getattr(args, "set", [])))
+        cfg = load_document(args.config, list(getattr(args, "set", [])))
     except (ConfigError, OSError):
         return "auto"
+    cfg.pop("process", None)
     return typed(cfg).solver.compilation_cache_dir
 
 

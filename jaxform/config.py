@@ -1577,6 +1577,9 @@ def load_config(path_or_dict: str | PathLike | dict, overrides: Iterable[str] = 
         raw = copy.deepcopy(path_or_dict)
     else:
         raw = _read_toml(path_or_dict)
+    # a multi-stage process is read by jaxform.process_config.load_document; here its
+    # base sections are checked first, then it is refused (a command of one scene)
+    process = raw.pop("process", None)
     for text in overrides:
         section, key, value = _parse_override(text)
         sec = raw.setdefault(section, {})
@@ -1622,6 +1625,11 @@ def load_config(path_or_dict: str | PathLike | dict, overrides: Iterable[str] = 
     _closed_die_remeshing(raw, out)
     _cross_checks(raw, out)
     _size_checks(out)
+    if process is not None:
+        raise ConfigError(
+            "[[process.operation]]: a multi-stage process runs with `jaxform run` only "
+            "(design and taylor-test take a config of one forming operation)"
+        )
     return out
 
 

@@ -23,6 +23,7 @@ from jaxform.forming_outputs import damage_flags, wear_profiles
 from jaxform.io import write_csv, write_flow_lines, write_vtu_series, write_wear
 from jaxform.postprocess import die_outlines, nodal_temperature, positions
 from jaxform.precision import require_x64
+from jaxform.process_config import load_document
 from jaxform.scenes import build_scene
 from jaxform.simulation import (
     HISTORY_KEYS,
@@ -55,7 +56,10 @@ def run(
         ConfigError: a bad config.  SimulationError (with ``.result``): a step failed
         after all cutbacks; the outputs of the last converged state are written.
     """
-    cfg = typed(load_config(config, list(overrides)))
+    doc = load_document(config, list(overrides))
+    if "process" in doc:  # several operations (jaxform.process)
+        return _run_process(doc, out_dir, progress)
+    cfg = typed(doc)
     enable_compilation_cache(cfg.solver.compilation_cache_dir)
     scene = build_scene(cfg)
     try:
@@ -66,6 +70,27 @@ def run(
         raise
     if out_dir is not None:
         write_outputs(out_dir, result)
+    return result
+
+
+def _run_process(doc: dict, out_dir, progress):
+    """A config with [[process.operation]] tables: its operations checked (nothing
+    compiled), run in order, the process's files written (also when one stops)."""
+    from jaxform.process import OperationRefused, prepare, run_process
+    from jaxform.process_config import operations
+    from jaxform.process_outputs import write_process_outputs
+
+    ops = operations(doc)
+    initial = prepare(ops)
+    enable_compilation_cache(ops[0].config.solver.compilation_cache_dir)
+    try:
+        result = run_process(ops, initial, progress, simulate_fn=simulate)
+    except (SimulationError, OperationRefused) as err:  # what was reached is written
+        if out_dir is not None and err.result is not None:
+            write_process_outputs(out_dir, err.result, doc)
+        raise
+    if out_dir is not None:
+        write_process_outputs(out_dir, result, doc)
     return result
 
 

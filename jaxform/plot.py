@@ -409,3 +409,38 @@ def wear_profiles(profiles: dict, path: Path):
     ax.legend(fontsize=8)
     ax.set_title("die wear (Archard)")
     return _save(fig, path)
+
+
+def process_history(history: dict, names: dict, path: Path, title: str) -> Figure:
+    """A multi-stage process over its time: the ram force and, where the history has
+    them, the mean, min and max temperature; each operation shaded and named.
+
+    Arguments:
+        history: the process history (columns ``time_s``, ``operation``, ``force_N``[,
+            ``mean_temperature_K``, ``min_temperature_K``, ``max_temperature_K``]).
+        names: {operation index: name}.
+        path: the PNG to write; title: the figure's title."""
+    t = np.asarray(history["time_s"])
+    op = np.asarray(history["operation"])
+    heat = "mean_temperature_K" in history
+    fig, axes = _figure(2 if heat else 1, 1, figsize=(7, 6 if heat else 3.8), sharex=True)
+    axes = np.atleast_1d(axes)
+    axes[0].plot(t, history["force_N"], "o-", ms=2.5)
+    axes[0].set_ylabel("ram force [N]")
+    if heat:
+        for k, style in (("mean", "-"), ("min", "--"), ("max", "--")):
+            axes[1].plot(t, history[f"{k}_temperature_K"], style, label=k)
+        axes[1].set_ylabel("temperature [K]")
+        axes[1].legend(fontsize=8)
+    for i, index in enumerate(sorted(names)):
+        rows = np.flatnonzero(op == index)
+        if not len(rows):
+            continue
+        t0 = t[max(rows[0] - 1, 0)]
+        for ax in axes:
+            ax.axvspan(t0, t[rows[-1]], color=f"C{i % 10}", alpha=0.12, lw=0)
+        axes[0].annotate(names[index], (0.5 * (t0 + t[rows[-1]]), 1.0), xycoords=("data",
+                         "axes fraction"), ha="center", va="bottom", fontsize=8)  # fmt: skip
+    axes[-1].set_xlabel("process time [s]")
+    fig.suptitle(title, fontsize=10)
+    return _save(fig, path)

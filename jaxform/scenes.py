@@ -497,12 +497,17 @@ def scene_on_mesh(scene: Scene, mesh: meshing.Mesh) -> Scene:
     )
 
 
-def build_scene(cfg: dict | Config) -> Scene:
+def build_scene(cfg: dict | Config, mesh: meshing.Mesh | None = None) -> Scene:
     """Set-up of a scene from a validated config: mesh, material, die or load, solver.
 
     Arguments:
         cfg: a config from :func:`jaxform.config.load_config` (every key present), or
             its typed :class:`jaxform.config.Config`.
+        mesh: the workpiece's mesh (its coordinates the reference) where the scene does
+            not start from the workpiece section's own (an operation of a process, on
+            the part the operation before it left: :mod:`jaxform.process`); the die
+            reduction then refers to this mesh's height, and the scene has no grid to
+            rezone.
 
     Returns:
         the :class:`Scene` (nothing compiled yet).
@@ -516,7 +521,8 @@ def build_scene(cfg: dict | Config) -> Scene:
     m, tm, so = cfg.mesh, cfg.time, cfg.solver
     axi = m.geometry == "axisymmetric"
     piece = workpiece_of(cfg)
-    mesh = piece.build_mesh()
+    grid = piece.grid if mesh is None else None
+    mesh = piece.build_mesh() if mesh is None else mesh
     law, params = load_material(cfg.material.preset)
     form = formulation(m.element, axisymmetric=axi, theta=m.stabilization, alpha=tm.alpha)
     die, load, t_end, press = _die_or_load(cfg, piece, mesh)
@@ -539,7 +545,7 @@ def build_scene(cfg: dict | Config) -> Scene:
             np.sqrt(np.mean(np.abs(meshing.element_areas(mesh.coords, mesh.elements))))
         )
         remesh = replace(cfg.remesh, element_size_mm=size)
-    if m.rezone_quality > 0.0 and piece.grid is None:
+    if m.rezone_quality > 0.0 and grid is None:
         raise ConfigError(
             f"mesh.rezone_quality > 0 needs a billet or ring scene on its "
             f"structured mesh (this scene: {piece.name})"
@@ -581,7 +587,7 @@ def build_scene(cfg: dict | Config) -> Scene:
         chunk=so.chunk_steps,
         symmetric_z=piece.half_height,
         rezone_quality=m.rezone_quality,
-        grid=piece.grid,
+        grid=grid,
         adjoint_memory_mb=so.adjoint_memory_mb,
         remesh=remesh,
         press=press,

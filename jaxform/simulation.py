@@ -349,7 +349,9 @@ def _history(segments: list[Segment], rows: list[dict], fields: dict) -> dict:
     return history
 
 
-def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Result:
+def simulate(
+    scene: Scene, progress: Callable[[dict], None] | None = None, start: SimState | None = None
+) -> Result:
     """Run the scene to its end; raises SimulationError (with .result) on failure.
 
     Steps adapt (:class:`Stepper`): ``scene.dt`` is the largest step, a failed attempt
@@ -368,6 +370,8 @@ def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Re
             chunk_end, time_s, stroke_mm, force_N, iterations, cutbacks, dt_s, and
             remeshed: the nodes of the new mesh after a remesh, else 0, with
             remesh_trigger naming what fired it), or None.
+        start: the state to start from (None: the scene's initial state; an operation
+            of a process starts from the part the one before it left, :mod:`jaxform.process`).
 
     A press capacity (``scene.press.capacity_N`` > 0) stops the run after the first step
     whose ram force reaches it: SimulationError ("press capacity ... reached at stroke
@@ -381,8 +385,12 @@ def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Re
     if scene.press is not None and scene.press.energy_limited:  # a screw press, a hammer
         from jaxform.blows import simulate_blows
 
+        if start is not None:
+            raise ValueError("simulate: a screw press or hammer run starts from t = 0")
         return simulate_blows(scene, progress)
     state, control = init(scene)
+    if start is not None:
+        state = start
     settings = scene.remesh
     capacity = scene.press.capacity_N if scene.press is not None else 0.0
     remeshing = settings is not None and settings.on
@@ -515,6 +523,17 @@ def simulate(scene: Scene, progress: Callable[[dict], None] | None = None) -> Re
     if failure:
         raise SimulationError(failure, result)
     return result
+
+
+def state_result(scene: Scene, state: SimState) -> Result:
+    """A one-row :class:`Result`: ``state`` of ``scene`` as a history row and its fields,
+    with no step taken (a process's trim, a dwell without heat, :mod:`jaxform.process`)."""
+    rows = [_initial_row(scene, state)]
+    fields = _fields(rows, True)
+    segments = [Segment(0, scene)]
+    return Result(history=_history(segments, rows, fields), fields=fields, scene=scene,
+                  final_state=state, newton_histories=np.zeros((0, 0)), inputs=scene.inputs,
+                  segments=segments)  # fmt: skip
 
 
 def stepper_of(scene: Scene) -> Stepper:
