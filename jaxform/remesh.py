@@ -160,6 +160,24 @@ def _sizes(points: np.ndarray, touching: np.ndarray, settings: RemeshConfig) -> 
     return sizes
 
 
+# element sizes tried, as factors of the wanted ones, when gmsh leaves triangles
+SIZE_RETRIES = (1.0, 0.8, 0.65)
+
+
+def _quads_of(points, labels, sizes):
+    """:func:`jaxform.mesh.polygon_quads`, again with finer sizes (SIZE_RETRIES) where its
+    recombination leaves triangles: a thin flash whose edges split into few, uneven
+    segments can defeat every algorithm at one size and not at another.  Raises the
+    MeshError of the last try, naming the sizes tried."""
+    errors = []
+    for factor in SIZE_RETRIES:
+        try:
+            return polygon_quads(points, labels, factor * np.asarray(sizes))
+        except MeshError as err:
+            errors.append(f"x {factor:g}: {err}")
+    raise MeshError(f"at the wanted sizes {'; '.join(errors)}")
+
+
 def new_section_mesh(scene, pos: np.ndarray, t: float, settings: RemeshConfig):
     """The new mesh of the section whose nodes are at ``pos`` (time t).  Raises
     RemeshError."""
@@ -173,7 +191,7 @@ def new_section_mesh(scene, pos: np.ndarray, t: float, settings: RemeshConfig):
         if scene.inputs.die is not None:
             touching = gap_function(scene.inputs.die, t)(pts)[0] <= TOUCH_GAP_MM
         sizes = _sizes(pts, touching, settings)
-        mesh = polygon_quads(pts, kept_labels, sizes)
+        mesh = _quads_of(pts, kept_labels, sizes)
     except MeshError as err:
         raise RemeshError(str(err)) from None
     if scene.inputs.die is None or not settings.onto_dies:
