@@ -154,6 +154,18 @@ def test_part_fill_and_flash_volume_split_at_the_part_radius():
     np.testing.assert_allclose(cols["flash_volume_mm3"][0], 16.0 * np.pi, rtol=1e-12)
     assert cols["flash_volume_mm3"][1] == 0.0
     assert np.all(cols["die_overlap_mm"] == 0.0)  # the die face lies on the material
+    # the fill never reads more than the material on the part's side of its radius: a
+    # boundary integral that counts a stretch twice (as one did at the end of a generated
+    # die's stroke: 1.089) is capped there (here: the narrow section, (1/1.5)^2)
+    import jaxform.postprocess as post
+
+    real = post._clipped_boundary_integral
+    post._clipped_boundary_integral = lambda *a: 2.0 * real(*a)
+    try:
+        narrow = extra_history(sc, np.array(rows[1:]), np.zeros(1))["die_fill"][0]
+    finally:
+        post._clipped_boundary_integral = real
+    assert narrow == pytest.approx((1.0 / 1.5) ** 2, rel=1e-12)
     with pytest.raises(ConfigError, match="die.part_radius_mm = 1.5: needs die.closed"):
         die = {"speed_mm_s": 0.1, "reduction": 0.1, "part_radius_mm": 1.5}
         load_config({"billet": {"diameter_mm": 4.0, "height_mm": 2.0}, "time": {"dt_s": 1.0},
