@@ -56,9 +56,9 @@ from jaxform.stepping import (
     contact_step,
     converged_state,
     die_force,
-    die_forces,
     initial_state,
     solve_step,
+    step_outputs,
 )
 from jaxform.xla_options import jit
 
@@ -91,7 +91,6 @@ def _blow_scan(stepper: Stepper, inputs: Inputs, press: EnergyPress, idx, factor
     n_b = press.steps_per_blow
     target = press.work_per_blow_Nmm
     state0 = initial_state(model, inputs)
-    several = len(inputs.die.members) > 1
 
     def step(carry, xs):
         st, d, force, k, work, x_per_mm = carry
@@ -146,26 +145,13 @@ def _blow_scan(stepper: Stepper, inputs: Inputs, press: EnergyPress, idx, factor
         work_new = work + 0.5 * (force + f_b) * ds_b
         k_new = jnp.maximum((f_b - force) / ds_b, 0.0)
         per_mm = jax.lax.stop_gradient((c["x"] - st.x) / ds_b)
-        out = dict(
-            time_s=t1,
-            stroke_mm=factor * (d + ds_b / factor),
-            force_N=f_b,
-            blow_work_Nmm=work_new,
-            ram_speed_mm_s=v_end,
-            code=c["code"],
-            iterations=c["its"],
-            friction_work_Nmm=new.friction_work,
-            x=new.x,
-            stress=new.gauss.mat.stress,
-            s=new.gauss.mat.s,
-            eqps=new.gauss.mat.eqps,
-            slip_mm=new.slip_mm,
-            contact_status=new.contact_status,
-            heat_mJ=new.heat_mJ,
-            damage=new.damage,
-        )
-        if several:
-            out["die_forces_N"] = die_forces(model, new.x, inp, t1, idx)
+        # the row as every step records it (fields, damage, wear, each die's force), the
+        # stroke and force as this step landed them (what the unused ones cost is removed
+        # by the compiler)
+        out = dict(step_outputs(model, new, inp, idx, stepper.symmetric_z),
+                   stroke_mm=factor * (d + ds_b / factor), force_N=f_b,
+                   blow_work_Nmm=work_new, ram_speed_mm_s=v_end, code=c["code"],
+                   iterations=c["its"])  # fmt: skip
         return (new, d + ds_b / factor, f_b, k_new, work_new, per_mm), out
 
     j = jnp.tile(jnp.arange(n_b), press.blows)
