@@ -108,12 +108,7 @@ def write_vtu_series(out_dir: Path, result, every: int = 1) -> Path:
             fields_dir / name, meshio.Mesh(pts, cells, point_data=point_data, cell_data=cell_data)
         )
         entries.append((float(result.history["time_s"][k]), f"fields/{name}"))
-    pvd = out_dir / "fields.pvd"
-    lines = ['<?xml version="1.0"?>', '<VTKFile type="Collection" version="0.1">', "  <Collection>"]
-    lines += [f'    <DataSet timestep="{t:.10g}" part="0" file="{f}"/>' for t, f in entries]
-    lines += ["  </Collection>", "</VTKFile>"]
-    pvd.write_text("\n".join(lines) + "\n")
-    return pvd
+    return _write_pvd(out_dir / "fields.pvd", entries)
 
 
 def write_flow_lines(out_dir: Path, lines, times, every: int = 1) -> Path:

@@ -124,17 +124,21 @@ def local_thickness(points: np.ndarray) -> np.ndarray:
     return across.min(axis=1)
 
 
-def densified(points: np.ndarray, labels: list[str], spacing: float):
-    """The closed polygon with its edges split into equal pieces no longer than
-    ``spacing`` (each piece keeps its edge's label)."""
+def densified(points: np.ndarray, labels: list[str], touching: np.ndarray, spacing: float):
+    """(points, labels, touching) of the closed polygon with its edges split into equal
+    pieces no longer than ``spacing``: each piece keeps its edge's label, and a point
+    added on an edge between two vertices that touch a die touches it too (it lies on the
+    chord, off a curved die by the sagitta; :func:`onto_dies` moves such nodes on)."""
     nxt = np.roll(points, -1, axis=0)
     pieces = np.maximum(1, np.ceil(np.linalg.norm(nxt - points, axis=1) / spacing)).astype(int)
-    out, out_labels = [], []
-    for p, q, n, lab in zip(points, nxt, pieces, labels):
+    both = touching & np.roll(touching, -1)
+    out, out_labels, out_touching = [], [], []
+    for p, q, n, lab, t0, t_edge in zip(points, nxt, pieces, labels, touching, both):
         f = np.arange(n)[:, None] / n
         out.append(p + f * (q - p))
         out_labels += [lab] * n
-    return np.vstack(out), out_labels
+        out_touching += [t0] + [t_edge] * (n - 1)
+    return np.vstack(out), out_labels, np.asarray(out_touching, dtype=bool)
 
 
 def _sizes(points: np.ndarray, touching: np.ndarray, settings: RemeshConfig) -> np.ndarray:
@@ -185,11 +189,12 @@ def new_section_mesh(scene, pos: np.ndarray, t: float, settings: RemeshConfig):
         points, labels, _ = boundary_polygon(scene.mesh, pos)
         kept, kept_labels = simplify(points, labels, 1e-6 * settings.element_size_mm)
         pts = points[kept]
-        if settings.elements_across > 0:  # the thickness is measured along every edge
-            pts, kept_labels = densified(pts, kept_labels, settings.element_size_mm)
         touching = np.zeros(len(pts), dtype=bool)
         if scene.inputs.die is not None:
             touching = gap_function(scene.inputs.die, t)(pts)[0] <= TOUCH_GAP_MM
+        if settings.elements_across > 0:  # the thickness is measured along every edge
+            pts, kept_labels, touching = densified(pts, kept_labels, touching,
+                                                   settings.element_size_mm)  # fmt: skip
         sizes = _sizes(pts, touching, settings)
         mesh = _quads_of(pts, kept_labels, sizes)
     except MeshError as err:
@@ -257,6 +262,8 @@ def onto_dies(mesh, polygon: tuple[np.ndarray, np.ndarray], gap_fn, axisymmetric
                 break
             unit, share = _outward(coords[loop], axisymmetric)
             coords[loop[free]] -= change / float(np.sum(share[free])) * unit[free]
+    if min_quality(coords, mesh.elements) <= 0.0:  # a moved node folded a thin element
+        return mesh
     return replace(mesh, coords=coords)
 
 

@@ -415,7 +415,7 @@ def simulate(
 
     owned = [new_factorization()]
     before = None  # (state, inputs) of the last converged step, before the last remesh
-    reporting = False
+    reporting, host_error = False, None  # host_error: what a host-loop failure chains
     try:
         while float(state.t) < t_stop and failure is None:
             every = settings.every_steps if remeshing else 0
@@ -495,7 +495,7 @@ def simulate(
     except Exception as err:  # a failure of the host loop itself: the last state is kept
         if reporting:
             raise
-        failure = _host_failure(rows[-1], err)
+        failure, host_error = _host_failure(rows[-1], err), err
     finally:
         # the last factorization modified Newton kept is freed here; one a raising chunk
         # held is lost, never freed twice
@@ -521,7 +521,7 @@ def simulate(
                     step_programs=len(programs),
                     laps=laps(history, scene.settings.output.lap_angle_deg))  # fmt: skip
     if failure:
-        raise SimulationError(failure, result)
+        raise SimulationError(failure, result) from host_error
     return result
 
 

@@ -468,7 +468,7 @@ def test_local_thickness_finds_the_flash_and_sizes_elements_across_it():
 
     poly = np.array([[0, 0], [5, 0], [5, 0.4], [2, 0.4], [2, 3], [0, 3]], float)
     labels = ["symmetry", "side", "top", "top", "top", "axis"]
-    pts, labs = densified(poly, labels, 0.25)
+    pts, labs, _ = densified(poly, labels, np.zeros(len(poly), bool), 0.25)
     t = local_thickness(pts)
     mid_flash = (pts[:, 0] > 2.6) & (pts[:, 0] < 4.4)
     assert np.allclose(t[mid_flash], 0.4, atol=1e-12)
