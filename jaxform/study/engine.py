@@ -199,7 +199,9 @@ def _check_resume(study: Study, out: Path, resume: bool) -> set[int]:
         return set()
     _drop_partial_line(table)
     rows = read_table(table)
-    if rows and list(rows[0]) != columns(study):
+    with open(table, newline="") as fh:  # the header, also of a table with no row yet
+        header = next(csv.reader(fh), None)
+    if header is not None and header != list(columns(study)):
         raise ConfigError(f"--resume: {table} has other columns than this study's table")
     return {int(r["sample"]) for r in rows}
 

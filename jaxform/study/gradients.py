@@ -55,19 +55,30 @@ class ResponseObjective:
 
 
 def _problem(config, base: tuple[str, ...], keys: tuple[str, ...], response):
-    """The base scene's design problem for one response (built once per worker)."""
-    from jaxform.config import load_config
+    """The base scene's design problem for one response (built once per worker): the
+    scene, its forward run and step schedule once for all responses, each response's
+    problem that one with its own objective."""
+    from dataclasses import replace
+
+    from jaxform.cache import enable_compilation_cache
+    from jaxform.config import load_config, typed
     from jaxform.design import build_problem
     from jaxform.scenes import build_scene
 
-    cache_key = (repr(config), base, keys, response.text)
+    base_key = (repr(config), base, keys)
+    cache_key = (*base_key, response.text)
     if cache_key not in _PROBLEMS:
-        thermal = [k.split(".")[1] for k in keys if GRADIENT_KEYS[k] == "thermal"]
-        extra = [f"design.thermal_params={thermal!r}".replace("'", '"')] if thermal else []
-        scene = build_scene(load_config(config, [*base, *extra]))
-        groups = tuple(dict.fromkeys(GRADIENT_KEYS[k] for k in keys))
         objective = ResponseObjective(response.column, response.reducer)
-        _PROBLEMS[cache_key] = build_problem(scene, groups=groups, objective=objective)
+        first = next((p for k, p in _PROBLEMS.items() if k[:3] == base_key), None)
+        if first is None:
+            thermal = [k.split(".")[1] for k in keys if GRADIENT_KEYS[k] == "thermal"]
+            extra = [f"design.thermal_params={thermal!r}".replace("'", '"')] if thermal else []
+            cfg = typed(load_config(config, [*base, *extra]))
+            # a worker is a fresh process: its programs come from the persistent cache
+            enable_compilation_cache(cfg.solver.compilation_cache_dir)
+            groups = tuple(dict.fromkeys(GRADIENT_KEYS[k] for k in keys))
+            first = build_problem(build_scene(cfg), groups=groups, objective=objective)
+        _PROBLEMS[cache_key] = replace(first, objective=objective)
     return _PROBLEMS[cache_key]
 
 

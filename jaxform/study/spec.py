@@ -51,10 +51,13 @@ class Input:
     def factorial_levels(self, n: int) -> np.ndarray:
         """The levels of a factorial plan: given levels, or n per distribution."""
         if self.dist == "levels":
-            return np.asarray(self.params, dtype=float)
-        if self.dist == "uniform":
-            return np.linspace(self.params[0], self.params[1], n)
-        return self.from_unit((np.arange(n) + 0.5) / n)
+            v = np.asarray(self.params, dtype=float)
+        elif self.dist == "uniform":
+            v = np.linspace(self.params[0], self.params[1], n)
+        else:
+            return self.from_unit((np.arange(n) + 0.5) / n)
+        # an int key runs at the rounded value: the plan records what runs
+        return np.rint(v) if self.integer else v
 
     def from_unit(self, u: np.ndarray) -> np.ndarray:
         """Values of this input at points u in [0, 1) of the unit interval (inverse CDF)."""
