@@ -144,8 +144,11 @@ def _check_taylor_steps(h) -> None:
 
 
 def _load_checked(args, gradient: bool = False):
-    """The validated config of a scene command, or ConfigError: everything that can be
-    checked before a scene is built (for gradient commands also the design set-up).  The
+    """What a scene command runs, validated once (the driver takes it as it is), or
+    ConfigError: everything that can be checked before a scene is built (for gradient
+    commands also the design set-up).  A command of one scene gets its
+    :class:`jaxform.config.Config`; ``jaxform run`` of a config with
+    ``[[process.operation]]`` tables its :class:`jaxform.process_config.Process`.  The
     sections that the scene takes from the defaults and a user would expect to write
     ([material]; for ``design`` [design]) are named on stdout."""
     from jaxform.config import (
@@ -154,18 +157,23 @@ def _load_checked(args, gradient: bool = False):
         defaulted_sections,
         given_sections,
         load_config,
+        read_document,
+        typed,
     )
-    from jaxform.process_config import load_document
+    from jaxform.process_config import Process, load_typed
 
+    raw = read_document(args.config)  # read once: loaded below, its sections named after
     # a process ([[process.operation]]) runs with `jaxform run` only: load_config refuses it
-    cfg = load_config(args.config, args.set) if gradient else load_document(args.config, args.set)
+    loaded = typed(load_config(raw, args.set)) if gradient else load_typed(raw, args.set)
     if gradient and args.command == "design":
-        check_design_run(cfg)
+        check_design_run(loaded)
     elif gradient:
-        check_gradient_run(cfg, args.groups, "--groups")
-    for line in defaulted_sections(cfg, given_sections(args.config, args.set), args.command):
+        check_gradient_run(loaded, args.groups, "--groups")
+    # a process: the base sections as its first operation's scene has them
+    cfg = loaded.operations[0].config if isinstance(loaded, Process) else loaded
+    for line in defaulted_sections(cfg, given_sections(raw, args.set), args.command):
         print(line, flush=True)
-    return cfg
+    return loaded
 
 
 def _material_point(args) -> int:
@@ -443,20 +451,17 @@ def _study(args) -> int:
 
 
 def _cache_setting(args) -> str:
-    """``[solver] compilation_cache_dir`` of the command's config ('auto' without one, or
-    when the config is invalid: the command itself then reports why)."""
-    from jaxform.config import ConfigError, typed
+    """``[solver] compilation_cache_dir`` of a study's config ('auto' without one, or when
+    the config is invalid: the command itself then reports why)."""
+    from jaxform.config import ConfigError, load_config, typed
 
     if getattr(args, "config", None) is None:
         return "auto"
-    from jaxform.process_config import load_document
-
     try:
-        cfg = load_document(args.config, list(getattr(args, "set", [])))
+        doc = load_config(args.config, list(getattr(args, "set", [])))
     except (ConfigError, OSError):
         return "auto"
-    cfg.pop("process", None)
-    return typed(cfg).solver.compilation_cache_dir
+    return typed(doc).solver.compilation_cache_dir
 
 
 def _scene_arguments(parser, config_help: str) -> None:
@@ -552,9 +557,11 @@ def main(argv: list[str] | None = None) -> int:
     st.set_defaults(func=_study)
 
     args = parser.parse_args(argv)
-    from jaxform.cache import enable_compilation_cache
+    if args.func in (_material_point, _study):  # warm start: see jaxform/cache.py; run,
+        # design and taylor-test enable it where they run (jaxform.driver)
+        from jaxform.cache import enable_compilation_cache
 
-    enable_compilation_cache(_cache_setting(args))  # warm start: see jaxform/cache.py
+        enable_compilation_cache(_cache_setting(args))
     return _refusing(args)
 
 

@@ -2,7 +2,7 @@
 
 :func:`run`, one call from a config to a history, fields and output files:
 
-config (TOML path or dict) --load_config--> validated document --typed--> Config
+config (TOML path or dict) --load_typed--> Config (or a Process of several operations)
   --build_scene--> Scene --simulate--> Result
   --write_outputs--> history.csv, config.toml, fields.pvd + VTUs, PNGs (with [wear]:
   wear_<die>.csv, wear.png; with output.flow_line_spacing_mm: flow_lines.png/.pvd)
@@ -16,14 +16,14 @@ from pathlib import Path
 import numpy as np
 
 from jaxform.cache import enable_compilation_cache
-from jaxform.config import dump_config, load_config, typed
+from jaxform.config import Config, dump_config, load_config, typed
 from jaxform.damage import CRITERIA
 from jaxform.flowlines import flow_lines
 from jaxform.forming_outputs import damage_flags, wear_profiles
 from jaxform.io import write_csv, write_flow_lines, write_vtu_series, write_wear
 from jaxform.postprocess import die_outlines, nodal_temperature, positions
 from jaxform.precision import require_x64
-from jaxform.process_config import load_document
+from jaxform.process_config import Process, load_typed
 from jaxform.scenes import build_scene
 from jaxform.simulation import (
     HISTORY_KEYS,
@@ -43,7 +43,10 @@ def run(
     """Validate, build and run a scene; write outputs to out_dir if given.
 
     Arguments:
-        config: the path of a TOML scene or a nested dict (:func:`jaxform.config.load_config`).
+        config: the path of a TOML scene or a nested dict (:func:`jaxform.config.load_config`),
+            or what :func:`jaxform.process_config.load_typed` made of one (a
+            :class:`jaxform.config.Config` or a :class:`jaxform.process_config.Process`:
+            not validated again; no overrides then).
         overrides: ``section.key=value`` strings applied to it.
         out_dir: folder for history.csv, config.toml, fields and plots (None: none written).
         progress: called after each compiled chunk with a dict (step, n_steps, time_s,
@@ -56,12 +59,11 @@ def run(
         ConfigError: a bad config.  SimulationError (with ``.result``): a step failed
         after all cutbacks; the outputs of the last converged state are written.
     """
-    doc = load_document(config, list(overrides))
-    if "process" in doc:  # several operations (jaxform.process)
-        return _run_process(doc, out_dir, progress)
-    cfg = typed(doc)
-    enable_compilation_cache(cfg.solver.compilation_cache_dir)
-    scene = build_scene(cfg)
+    loaded = _loaded(config, overrides, load_typed)
+    if isinstance(loaded, Process):  # several operations (jaxform.process)
+        return _run_process(loaded, out_dir, progress)
+    enable_compilation_cache(loaded.solver.compilation_cache_dir)
+    scene = build_scene(loaded)
     try:
         result = simulate(scene, progress)
     except SimulationError as err:
@@ -73,14 +75,29 @@ def run(
     return result
 
 
-def _run_process(doc: dict, out_dir, progress):
+def _loaded(config, overrides, load: Callable):
+    """``config`` itself where it is loaded already (a Config or a Process, no overrides),
+    else ``load(config, overrides)``."""
+    if isinstance(config, Config | Process):
+        if tuple(overrides):
+            raise ValueError("overrides apply to a config path or dict, not to a loaded config")
+        return config
+    return load(config, list(overrides))
+
+
+def _scene_config(config, overrides) -> Config:
+    """The typed config of a command of one scene (design, taylor-test): a process is
+    refused by :func:`jaxform.config.load_config`."""
+    return _loaded(config, overrides, lambda c, o: typed(load_config(c, o)))
+
+
+def _run_process(process: Process, out_dir, progress):
     """A config with [[process.operation]] tables: its operations checked (nothing
     compiled), run in order, the process's files written (also when one stops)."""
     from jaxform.process import OperationRefused, prepare, run_process
-    from jaxform.process_config import operations
     from jaxform.process_outputs import write_process_outputs
 
-    ops = operations(doc)
+    ops, doc = process.operations, process.document
     initial = prepare(ops)
     enable_compilation_cache(ops[0].config.solver.compilation_cache_dir)
     try:
@@ -326,7 +343,8 @@ def run_design(
     """Optimize the config's [design] problem; write the history and plots to out_dir.
 
     Arguments:
-        config: the path of a TOML scene or a nested dict; overrides: ``section.key=value``.
+        config: the path of a TOML scene or a nested dict, or its typed Config;
+            overrides: ``section.key=value``.
         out_dir: folder for design_history.csv, objective.png, shapes.png, config.toml.
         progress: called after each optimizer iteration (iteration, objective,
             projected gradient norm, design).
@@ -339,7 +357,8 @@ def run_design(
     from jaxform.plot import design_objective, design_shapes
 
     require_x64()
-    cfg = typed(load_config(config, overrides))
+    cfg = _scene_config(config, overrides)
+    enable_compilation_cache(cfg.solver.compilation_cache_dir)
     scene = build_scene(cfg)
     problem = build_problem(scene, progress=forward_progress)
     d = cfg.design
@@ -374,13 +393,16 @@ def run_taylor(
     config, overrides=(), groups=None, h=(1.0, 0.5, 0.25, 0.125), progress=None,
     forward_progress=None,
 ):  # fmt: skip
-    """Taylor test of every design group of the scene (or the ones named); ``progress``
-    is called with (group, h, J) after each evaluation, ``forward_progress`` by the
-    forward run that fixes the step schedule (:func:`jaxform.simulation.simulate`)."""
+    """Taylor test of every design group of the scene (or the ones named); ``config`` as
+    :func:`run_design` takes it; ``progress`` is called with (group, h, J) after each
+    evaluation, ``forward_progress`` by the forward run that fixes the step schedule
+    (:func:`jaxform.simulation.simulate`)."""
     from jaxform.design import available_groups, build_problem, taylor_test
 
     require_x64()
-    scene = build_scene(load_config(config, overrides))
+    cfg = _scene_config(config, overrides)
+    enable_compilation_cache(cfg.solver.compilation_cache_dir)
+    scene = build_scene(cfg)
     names = available_groups(scene) if not groups else tuple(groups)
     problem = build_problem(scene, groups=names, progress=forward_progress)
     return taylor_test(problem, h=h, progress=progress)

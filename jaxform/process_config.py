@@ -25,22 +25,13 @@ of the validated operations (each forming operation with its merged sections val
 from __future__ import annotations
 
 import copy
-import dataclasses
 from dataclasses import dataclass
 from os import PathLike
 from typing import Any
 
-from jaxform.config import (
-    _KINDS,
-    Config,
-    Field,
-    _check,
-    _parse_override,
-    _read_toml,
-    key,
-    load_config,
-    typed,
-)
+from jaxform.config.document import Config, typed
+from jaxform.config.loading import load_config, parse_override, read_toml
+from jaxform.config.schema import check_value, key, schema_of
 from jaxform.errors import ConfigError
 
 KINDS = ("forming", "dwell", "trim", "reheat")
@@ -136,11 +127,7 @@ OPERATION_CLASSES = {
 }
 
 
-def _schema(cls: type) -> dict[str, Field]:
-    return {f.name: Field(_KINDS[f.type], **f.metadata["key"]) for f in dataclasses.fields(cls)}
-
-
-OPERATION_SCHEMA = {kind: _schema(cls) for kind, cls in OPERATION_CLASSES.items()}
+OPERATION_SCHEMA = {kind: schema_of(cls) for kind, cls in OPERATION_CLASSES.items()}
 
 
 @dataclass(frozen=True)
@@ -201,7 +188,7 @@ def _operation_keys(kind: str, table: dict, where: str) -> dict:
             )
     for k, f in schema.items():
         if k in table:
-            out[k] = _check(f"{where}: {k}", f, table[k])
+            out[k] = check_value(f"{where}: {k}", f, table[k])
         elif f.default is None:
             out[k] = None
         else:
@@ -307,16 +294,14 @@ def load_document(path_or_dict: str | PathLike | dict, overrides=()) -> dict:
     (:func:`jaxform.config.load_config`; with a process, a ``process`` entry: one dict per
     operation with ``kind``, ``name``, ``keys`` and, for forming, ``document``).
     ``--set`` overrides apply to the base sections.  Raises ConfigError (one line)."""
-    raw = (
-        copy.deepcopy(path_or_dict) if isinstance(path_or_dict, dict) else _read_toml(path_or_dict)
-    )
+    raw = copy.deepcopy(path_or_dict) if isinstance(path_or_dict, dict) else read_toml(path_or_dict)
     if "process" not in raw:
         return load_config(raw, overrides)
     if isinstance(raw["process"], list):  # a document this function gave: validated anew
         raw = process_document(raw)
     tables = _table_list(raw.pop("process"))
     for text in overrides:
-        section, k, value = _parse_override(text)
+        section, k, value = parse_override(text)
         if section == "process":
             raise ConfigError(f"--set {text}: a process's operations are set in the config file")
         sec = raw.setdefault(section, {})
@@ -368,6 +353,25 @@ def operations(doc: dict) -> tuple[Operation, ...]:
         keys = cls(**op["keys"])
         out.append(Operation(i, op["kind"], op["name"], keys, typed(current)))
     return tuple(out)
+
+
+@dataclass(frozen=True, eq=False)
+class Process:
+    """A validated multi-stage config: its document (:func:`load_document`, with the
+    ``process`` entry; written back as the run's config.toml) and its typed operations."""
+
+    document: dict
+    operations: tuple[Operation, ...]
+
+
+def load_typed(path_or_dict: str | PathLike | dict, overrides=()) -> Config | Process:
+    """What a command runs, validated once: the typed :class:`Config` of a scene, or the
+    :class:`Process` of a config with ``[[process.operation]]`` tables (``--set``
+    overrides apply to the base sections).  Raises ConfigError (one line)."""
+    doc = load_document(path_or_dict, list(overrides))
+    if "process" in doc:
+        return Process(doc, operations(doc))
+    return typed(doc)
 
 
 def describe_process_schema() -> str:

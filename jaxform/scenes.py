@@ -24,6 +24,7 @@ import numpy as np
 from jaxform import mesh as meshing
 from jaxform.assembly import Indices, Model, build_indices
 from jaxform.config import Config, DieConfig, RemeshConfig, typed
+from jaxform.config.stroke import closing_time
 from jaxform.contact import ContactLaw
 from jaxform.dies import (
     DieError,
@@ -34,7 +35,6 @@ from jaxform.dies import (
     check_profile,
     has_convex_corner,
     make_die,
-    time_at_travel,
 )
 from jaxform.errors import ConfigError
 from jaxform.formulations import formulation
@@ -180,16 +180,12 @@ def _check_clearance(profile: np.ndarray, mesh: meshing.Mesh, sets, key: str) ->
 def die_path(d: DieConfig, target_mm: float, speed_factor: float):
     """(times, travel of the top die, end time) for a die travel of ``target_mm``; the die
     moves along the path table, or at ``speed_factor`` x the ram speed (half-height
-    models: the top die travels half the ram stroke at half the ram speed)."""
+    models: the top die travels half the ram stroke at half the ram speed).  The end
+    time is :func:`jaxform.config.stroke.closing_time`, as the config's step count."""
+    t_end = closing_time(d, None, target_mm, speed_factor)
     if d.path_time_s:
-        times, travel = np.asarray(d.path_time_s), np.asarray(d.path_travel_mm)
-        try:
-            t_end = time_at_travel(times, travel, target_mm, "die.path_travel_mm")
-        except DieError as err:
-            raise ConfigError(str(err)) from err
-        return times, travel, t_end
+        return np.asarray(d.path_time_s), np.asarray(d.path_travel_mm), t_end
     v = speed_factor * d.speed_mm_s
-    t_end = target_mm / v
     return np.array([0.0, t_end]), np.array([0.0, v * t_end]), t_end
 
 
@@ -446,11 +442,12 @@ def _closing_paths(cfg: Config, target_mm: float):
     """([(times, travel) of the top die, of the bottom die], end time) of a full-height
     scene whose dies close by ``target_mm``: at die.speed_mm_s shared by
     bottom_die.speed_share, or along the two path tables (the bottom die's travel is
-    counted downward like every die's, so it is minus its rise)."""
+    counted downward like every die's, so it is minus its rise).  The end time is
+    :func:`jaxform.config.stroke.closing_time`, as the config's step count."""
     d, b = cfg.die, cfg.bottom_die
+    t_end = closing_time(d, b, target_mm, 1.0)
     if not d.path_time_s:
         v = d.speed_mm_s
-        t_end = target_mm / v
         times = np.array([0.0, t_end])
         share = b.speed_share
         return [(times, np.array([0.0, (1.0 - share) * v * t_end])),
@@ -458,13 +455,6 @@ def _closing_paths(cfg: Config, target_mm: float):
     top = (np.asarray(d.path_time_s), np.asarray(d.path_travel_mm))
     rise = (np.asarray(b.path_time_s), np.asarray(b.path_travel_mm)) if b.path_time_s else (
         np.array([0.0, 1.0]), np.zeros(2))  # fmt: skip
-    times = np.union1d(top[0], rise[0])
-    closure = np.interp(times, *top) + np.interp(times, *rise)
-    try:
-        t_end = time_at_travel(times, closure, target_mm, "die.path_travel_mm + "
-                               "bottom_die.path_travel_mm")  # fmt: skip
-    except DieError as err:
-        raise ConfigError(str(err)) from err
     return [top, (rise[0], -rise[1])], t_end
 
 

@@ -4,15 +4,29 @@
     history = optimize(problem, OptimizerSettings("lbfgs", iterations=20))
     rows = taylor_test(problem)
 
-Layers: :mod:`parametrize` (design variables -> run inputs), :mod:`objectives` (run ->
-scalar), :mod:`problem` (scene + groups + objective + schedule, compiled value and
-gradient), :mod:`optimize` (optax loops with bounds), :mod:`taylor` (gradient check).
+Layers: :mod:`requirements` (what each group and objective needs of a scene; no JAX, the
+config layer reads it), :mod:`parametrize` (design variables -> run inputs),
+:mod:`objectives` (run -> scalar), :mod:`problem` (scene + groups + objective + schedule,
+compiled value and gradient), :mod:`optimize` (optax loops with bounds), :mod:`taylor`
+(gradient check).
+
+Importing the package imports none of them: each name below is loaded from its module on
+first use (PEP 562), so the config layer reads :mod:`requirements` without JAX.
 """
 
-from jaxform.design.optimize import DesignHistory, OptimizerSettings, optimize
-from jaxform.design.problem import DesignProblem, available_groups, build_problem
-from jaxform.design.taylor import format_table, taylor_test
+import importlib as _importlib
 
+# exported name -> the module that defines it
+_EXPORTS = {
+    "DesignHistory": "jaxform.design.optimize",
+    "OptimizerSettings": "jaxform.design.optimize",
+    "optimize": "jaxform.design.optimize",
+    "DesignProblem": "jaxform.design.problem",
+    "available_groups": "jaxform.design.problem",
+    "build_problem": "jaxform.design.problem",
+    "format_table": "jaxform.design.taylor",
+    "taylor_test": "jaxform.design.taylor",
+}
 __all__ = [
     "DesignHistory",
     "DesignProblem",
@@ -23,3 +37,16 @@ __all__ = [
     "optimize",
     "taylor_test",
 ]
+
+
+def __getattr__(name: str):
+    """Load an exported name from its module on first use."""
+    if name not in _EXPORTS:
+        raise AttributeError(f"module 'jaxform.design' has no attribute {name!r}")
+    value = getattr(_importlib.import_module(_EXPORTS[name]), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))

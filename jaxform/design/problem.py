@@ -25,6 +25,7 @@ from jaxform import program_store
 from jaxform.damage import CRITERIA
 from jaxform.design import objectives as obj
 from jaxform.design import parametrize as par
+from jaxform.design.requirements import check_groups, check_objective, unmet_group
 from jaxform.errors import ConfigError
 from jaxform.gradients import check, release, remeshed_schedule, trajectory
 from jaxform.postprocess import nodal_volumes
@@ -126,7 +127,8 @@ def check_design_scene(scene: Scene) -> None:
 
 
 def available_groups(scene: Scene) -> tuple[str, ...]:
-    """The design variable groups that make sense for ``scene``.
+    """The design variable groups that make sense for ``scene``: those of its workpiece
+    whose requirements (:data:`jaxform.design.requirements.GROUPS`) the config meets.
 
     Arguments:
         scene: a scene from :func:`jaxform.scenes.build_scene` (with a die).
@@ -135,15 +137,17 @@ def available_groups(scene: Scene) -> tuple[str, ...]:
         the group names, a subset of :data:`GROUPS` in that order.
     """
     check_design_scene(scene)
-    ok = {
-        "friction": scene.settings.friction.model in ("coulomb", "shear"),
-        "thermal": scene.inputs.thermal is not None,
-    }
-    return tuple(g for g in scene.workpiece.design_groups() if ok.get(g, True))
+    return tuple(
+        g for g in scene.workpiece.design_groups() if unmet_group(scene.settings, g) is None
+    )
 
 
 def build_group(scene: Scene, name: str):
+    """The parametrization of design group ``name`` for ``scene``; ConfigError where the
+    config does not meet the group's requirements (:mod:`jaxform.design.requirements`)
+    or names parameters, points the scene lacks."""
     cfg, d = scene.settings, scene.settings.design
+    check_groups(cfg, (name,), "design group")
     if name == "material":
         params = scene.inputs.params
         names = d.material_params or scene.model.law.design_params
@@ -159,24 +163,13 @@ def build_group(scene: Scene, name: str):
             bound_log=float(np.log(d.bound_factor)),
         )
     if name == "friction":
-        model = cfg.friction.model
-        if model not in ("coulomb", "shear"):
-            raise ConfigError(
-                f"design.variables has 'friction' but friction.model = {model!r}: "
-                f"needs 'coulomb' or 'shear'"
-            )
-        key = "mu" if model == "coulomb" else "m"
+        key = "mu" if cfg.friction.model == "coulomb" else "m"
         return par.Friction(key, float(getattr(cfg.friction, key)), 10.0 if key == "mu" else 1.0)
     if name == "speed":
         speed = cfg.die.speed_mm_s or float("nan")
         return par.RamSpeed(speed, bound_log=float(np.log(d.bound_factor)))
     if name == "preform":
         b = scene.workpiece
-        if "preform" not in b.design_groups():
-            raise ConfigError(
-                "design.variables has 'preform': needs a [billet] section and "
-                "the structured mesh (mesh.file = '')"
-            )
         return par.PreformCosine(
             d.preform_modes,
             0.5 * b.height_mm,
@@ -205,11 +198,6 @@ def build_group(scene: Scene, name: str):
         return par.DieProfile(tuple(int(p) for p in pts), offset_max_mm=d.die_offset_max_mm)
     if name == "thermal":
         th = cfg.thermal
-        if th.model != "coupled" or th.htc_die_W_m2K <= 0.0:
-            raise ConfigError(
-                f"design.variables has 'thermal': needs thermal.model = 'coupled' (is "
-                f"{th.model!r}) and thermal.htc_die_W_m2K > 0 (is {th.htc_die_W_m2K!r})"
-            )
         names = d.thermal_params or par.THERMAL_VARIABLES
         bad = sorted(set(names) - set(par.THERMAL_VARIABLES))
         if bad:
@@ -241,12 +229,13 @@ def side_nodes(scene: Scene) -> np.ndarray:
 
 
 def build_objective(scene: Scene):
-    """The design objective of the config (with its temperature limit, if one is set)."""
+    """The design objective of the config (with its temperature limit, if one is set);
+    ConfigError where the config does not meet the objective's requirements
+    (:data:`jaxform.design.requirements.OBJECTIVES`)."""
+    check_objective(scene.settings)
     objective = _base_objective(scene)
     d = scene.settings.design
     if d.max_temperature_K > 0.0:
-        if scene.inputs.thermal is None:
-            raise ConfigError("design.max_temperature_K > 0 needs thermal.model = 'coupled'")
         return obj.TemperatureLimit(objective, d.max_temperature_K, d.temperature_penalty)
     return objective
 
@@ -264,31 +253,21 @@ def _base_objective(scene: Scene):
     if name == "max_damage":
         return obj.MaxDamage(CRITERIA.index(scene.settings.output.damage_criterion), d.smooth_max_p)
     if name == "wear_depth":
-        if scene.inputs.wear is None:
-            raise ConfigError("design.objective = 'wear_depth' needs wear.on = true")
         return obj.WearDepth(d.smooth_max_p)
     if name == "eqps_spread":
         return obj.EqpsSpread(np.arange(scene.model.layout.n_elements))
     if name == "die_fill":
-        if not scene.settings.die.closed:
-            raise ConfigError("design.objective = 'die_fill' needs die.closed = true")
         if len(scene.inputs.die.members) > 1:
             raise ConfigError(
                 "design.objective = 'die_fill' reads the top die's cavity over the mid-plane: "
                 "it needs a half-height scene with one die (no [bottom_die] or [side_die])"
             )
         return obj.UnfilledCavity(np.asarray(scene.mesh.elements), axi)
-    if not d.target_csv:
-        raise ConfigError(f"design.objective = {name!r} needs design.target_csv")
     if name == "force_misfit":
         c = _read_columns(d.target_csv, ("stroke_mm", "force_N"))
         keep = c["stroke_mm"] > 0
         return obj.ForceMisfit(c["stroke_mm"][keep], c["force_N"][keep])
     if name == "temperature_misfit":
-        if scene.inputs.thermal is None:
-            raise ConfigError(
-                "design.objective = 'temperature_misfit' needs thermal.model = 'coupled'"
-            )
         c = _read_columns(d.target_csv, ("time_s", "mean_temperature_K"))
         return obj.TemperatureMisfit(c["time_s"], c["mean_temperature_K"], nodal_volumes(scene))
     c = _read_columns(d.target_csv, ("node", "r_mm", "z_mm"))
@@ -331,6 +310,7 @@ def build_problem(
     """
     check_design_scene(scene)
     names = tuple(scene.settings.design.variables) if groups is None else tuple(groups)
+    check_groups(scene.settings, names, "design.variables" if groups is None else "groups")
     built = tuple(build_group(scene, n) for n in names)
     start = par.initial_design(built)
     if "material" in start:

@@ -1,0 +1,308 @@
+"""The config sections of how a run goes and what it writes: [time], [solver], [output],
+and the commands beyond one run, [design] and [study].  This module imports no JAX."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from jaxform.config.schema import key, section
+from jaxform.design.requirements import GROUPS, OBJECTIVES
+
+
+@section("time")
+@dataclass(frozen=True, kw_only=True)
+class TimeConfig:
+    """[time]: the load steps."""
+
+    dt_s: float = key(low=0.0, low_open=True, doc="largest time step (s): steps adapt below it")
+    dt_growth: float = key(
+        1.5,
+        low=1.0,
+        high=4.0,
+        doc="after an easy step (no cutback, few Newton iterations) the next step grows by this "
+        "factor, up to time.dt_s (1: never grows back)",
+    )
+    alpha: float = key(
+        0.5, low=0.0, high=1.0, doc="generalized mid-point parameter of the strain increment"
+    )
+
+
+@section("solver")
+@dataclass(frozen=True, kw_only=True)
+class SolverConfig:
+    """[solver]: Newton, linear solver, chunks, memory, compilation cache."""
+
+    max_newton_iterations: int = key(
+        25,
+        low=1,
+        high=1000,
+        doc="Newton iterations per step before a cutback (modified Newton: those with a new "
+        "Jacobian; up to 3x as many more with a kept factorization)",
+    )
+    rtol: float = key(
+        1e-10,
+        low=0.0,
+        high=1.0,
+        low_open=True,
+        high_open=True,
+        doc="relative residual tolerance of Newton",
+    )
+    max_cutbacks: int = key(6, low=0, high=30, doc="times a failed step may be halved")
+    line_search: bool = key(True, doc="backtracking line search in Newton")
+    linear: str = key(
+        "auto",
+        choices=("auto", "dense", "sparse", "jax-sparse"),
+        doc="linear solver backend (auto: on CPU dense LU below 100 unknowns, klujax sparse LU "
+        "above; on a GPU dense LU below 20 000, jax-sparse (cuSolver) above; see "
+        "jaxform/linear.py)",
+    )
+    newton: str = key(
+        "auto",
+        choices=("auto", "newton", "modified"),
+        doc="newton: a new Jacobian and factorization every iteration; modified: one "
+        "factorization kept across iterations and steps, refreshed when a step contracts the "
+        "residual by less than 2x (needs linear = dense or sparse); auto: modified on the "
+        "sparse backend from MODIFIED_MIN_UNKNOWNS unknowns, newton below (see "
+        "jaxform/solver.py)",
+    )
+    anderson_depth: int = key(
+        3,
+        low=0,
+        high=10,
+        doc="modified Newton: each step with a kept factorization is mixed with up to this many "
+        "earlier ones (Anderson acceleration; fewer iterations for the same root; 0: plain "
+        "steps; see jaxform/solver.py)",
+    )
+    adjoint_memory_mb: float = key(
+        4096.0,
+        low=0.0,
+        doc="memory (MB) a gradient run may hold in forward factorizations kept for its reverse "
+        "pass, which then refines each step's adjoint solve with the kept factors instead of "
+        "factoring again; the last steps that fit are kept, the others factor in the reverse "
+        "pass (0: none kept; ~69 MB a step at 100 x 100 with klujax; see "
+        "jaxform/gradients.py)",
+    )
+    chunk_steps: int = key(
+        8,
+        low=1,
+        high=10000,
+        doc="load steps per compiled chunk (progress is reported between chunks)",
+    )
+    compilation_cache_dir: str = key(
+        "auto",
+        doc="where compiled programs are kept for the next run: a directory, 'off', or 'auto' "
+        "(the environment variable JAXFORM_CACHE_DIR, else ~/.cache/jaxform; see "
+        "jaxform/cache.py)",
+    )
+
+
+@section("output")
+@dataclass(frozen=True, kw_only=True)
+class OutputConfig:
+    """[output]: what a run writes."""
+
+    fields: bool = key(True, doc="write ParaView fields (VTU series)")
+    plots: bool = key(True, doc="write PNG plots")
+    profile_strokes_mm: tuple[float, ...] = key(
+        [],
+        doc="ram strokes (mm) at which the contact pressure/slip profile is plotted ([] = "
+        "25/50/75/100 %)",
+    )
+    animation: bool = key(
+        False,
+        doc="write animation.gif: the section through the run (deformed mesh, equivalent "
+        "plastic strain, the dies) from the stored fields; needs output.plots",
+    )
+    animation_frames: int = key(
+        40,
+        low=2,
+        high=1000,
+        doc="the animation's frames at most (history rows evenly spread, first and last kept)",
+    )
+    lap_angle_deg: float = key(
+        10.0,
+        low=0.0,
+        high=90.0,
+        doc="report a lap (fold) where the narrowest air wedge of the free surface (history "
+        "fold_angle_deg: against itself or against a die) closes below this (deg; 0 = never)",
+    )
+    damage_critical: float = key(
+        0.0,
+        low=0.0,
+        high=100.0,
+        doc="critical value of output.damage_criterion: elements at or above it are flagged "
+        "(cell field damage_flag, damage.png; history damage_flagged) (0 = no flag)",
+    )
+    damage_criterion: str = key(
+        "cl",
+        choices=("cl", "brozzo", "ayada"),
+        doc="the damage integral output.damage_critical applies to: normalized "
+        "Cockcroft-Latham, Brozzo or Ayada (docs: outputs)",
+    )
+    flow_line_spacing_mm: float = key(
+        0.0,
+        low=0.0,
+        high=1e4,
+        doc="follow material lines of the initial section at this spacing (mm) through the "
+        "run and its remeshes: flow_lines.png, fields/flow_lines_*.vtu (0 = none)",
+    )
+
+
+@section("design")
+@dataclass(frozen=True, kw_only=True)
+class DesignConfig:
+    """[design]: design problems (jaxform design and taylor-test)."""
+
+    objective: str = key(
+        "forging_work",
+        choices=tuple(OBJECTIVES),
+        doc="design objective (jaxform design / taylor-test), a function of the run: force "
+        "integral over stroke (N mm), peak ram force (N), mean squared deviation of the final"
+        " side from straight (mm^2), of chosen nodes from target positions (mm^2), "
+        "force-stroke misfit against a target curve, variance of eqps, 1 - die fill, mean "
+        "squared misfit of the mean temperature history against a target (K^2), a smooth "
+        "maximum of output.damage_criterion's damage at the end (-) or of the die wear "
+        "depth (mm; needs wear.on) (design.smooth_max_p)",
+    )
+    smooth_max_p: float = key(
+        8.0,
+        low=1.0,
+        high=64.0,
+        doc="exponent p of the power mean (mean of x^p)^(1/p) that objectives max_damage "
+        "and wear_depth take as a smooth maximum: between N^(-1/p) max and max",
+    )
+    max_temperature_K: float = key(
+        0.0,
+        low=0.0,
+        high=5000.0,
+        doc="a limit on the hottest node (K; coupled runs): the objective gains "
+        "design.temperature_penalty x sum over steps of max(0, T_max - limit)^2 (0: none)",
+    )
+    temperature_penalty: float = key(
+        1.0,
+        low=0.0,
+        low_open=True,
+        doc="weight of the temperature-limit penalty (objective units per K^2)",
+    )
+    variables: tuple[str, ...] = key(
+        ["material"],
+        choices=tuple(GROUPS),
+        doc="design variable groups jaxform design optimizes",
+    )
+    material_params: tuple[str, ...] = key(
+        [],
+        doc="material parameters of the 'material' group (names of the law's parameters); "
+        "empty: the law's own choice (anand: s0_MPa, h0_MPa, s_hat_MPa; j2: sigma_y0_MPa, "
+        "H_MPa; elastic: G_MPa, K_MPa)",
+    )
+    material_start_factor: float = key(
+        1.0,
+        low=0.0,
+        low_open=True,
+        doc="the design starts from the material parameters times this (e.g. 0.7 to identify from"
+        " 30 % off)",
+    )
+    thermal_params: tuple[str, ...] = key(
+        [],
+        doc="inputs of the 'thermal' group: any of billet_temperature_K, die_temperature_K, "
+        "htc_die_W_m2K, taylor_quinney (thermal.* keys); empty: all four",
+    )
+    preform_modes: int = key(3, low=1, high=20, doc="cosine modes of the preform profile")
+    preform_amplitude_max: float = key(
+        0.2,
+        low=0.0,
+        high=0.9,
+        low_open=True,
+        doc="bound on each preform mode amplitude (fraction of the radius)",
+    )
+    node_offset_max_mm: float = key(
+        0.1,
+        low=0.0,
+        low_open=True,
+        doc="bound on each initial node coordinate's offset of the 'nodes' group (mm)",
+    )
+    die_points: tuple[float, ...] = key(
+        [], doc="indices of die.profile_mm points whose z is a design variable ([] = all)"
+    )
+    die_offset_max_mm: float = key(
+        1.0, low=0.0, low_open=True, doc="bound on each die point's vertical offset (mm)"
+    )
+    bound_factor: float = key(
+        2.0,
+        low=1.0,
+        high=1000.0,
+        low_open=True,
+        doc="material parameters and ram speed stay within [p0 / factor, p0 * factor]",
+    )
+    target_csv: str = key(
+        "",
+        doc="target for temperature_misfit (CSV with time_s, mean_temperature_K), "
+        "force_misfit (CSV with stroke_mm, force_N) or shape_target (CSV with "
+        "node, r_mm, z_mm)",
+    )
+    optimizer: str = key(
+        "lbfgs",
+        choices=("lbfgs", "adam"),
+        doc="optax optimizer (L-BFGS with zoom line search, or Adam)",
+    )
+    iterations: int = key(20, low=1, high=10000, doc="optimizer iterations")
+    learning_rate: float = key(
+        0.05, low=0.0, low_open=True, doc="Adam step size in the scaled design variables"
+    )
+
+
+STUDY_PLANS = ("latin_hypercube", "sobol", "monte_carlo", "factorial")
+
+
+@section("study")
+@dataclass(frozen=True, kw_only=True)
+class StudyConfig:
+    """[study]: a design of experiments or a Monte-Carlo study (jaxform study): inputs,
+    plan, responses (docs/doe.md)."""
+
+    inputs: tuple[str, ...] = key(
+        [],
+        doc="the inputs: 'section.key = uniform(low, high)', 'normal(mean, std)', "
+        "'lognormal(mu, sigma)' (of the key's log), or 'levels(a, b, ...)', any numeric key "
+        "(values in its unit; each sample is the scene with these --set overrides)",
+    )
+    plan: str = key(
+        "latin_hypercube",
+        choices=STUDY_PLANS,
+        doc="the samples: Latin hypercube, scrambled Sobol sequence, plain Monte Carlo "
+        "(study.samples of each, from study.seed) or the full factorial of the levels",
+    )
+    samples: int = key(16, low=1, high=100_000, doc="samples of a random or Sobol plan")
+    levels: int = key(
+        3,
+        low=2,
+        high=100,
+        doc="factorial plan: levels of an input given by a distribution (uniform: equally "
+        "spaced from low to high; normal, lognormal: the quantiles (i + 1/2)/levels)",
+    )
+    seed: int = key(0, low=0, high=2**31 - 1, doc="seed of the random and Sobol plans")
+    responses: tuple[str, ...] = key(
+        ["force_N:max"],
+        doc="what each sample reports: 'column:end', 'column:max' or 'column:min' of any "
+        "history column (e.g. force_N:max, mean_temperature_K:end), 'fill' (die_fill at "
+        "the end), 'flash' (flash_volume_mm3 at the end), 'laps' (number of laps found)",
+    )
+    gradients: bool = key(
+        False,
+        doc="also the exact gradient of each response in each input at each sample "
+        "(inputs of the friction, speed and thermal design groups; no remeshing)",
+    )
+    retries: int = key(
+        3,
+        low=0,
+        high=100,
+        doc="times a sample whose worker died (killed, out of memory) runs again elsewhere",
+    )
+    batch: int = key(
+        0,
+        low=0,
+        high=4096,
+        doc="0: each sample is a run of its own (jaxform run: adaptive steps); B > 0: B "
+        "samples per task as one vmapped program (jaxform.batch) over the base scene's fixed "
+        "step schedule (inputs and responses as for study.gradients; same mesh)",
+    )
