@@ -309,25 +309,7 @@ def load_document(path_or_dict: str | PathLike | dict, overrides=()) -> dict:
             sec[k] = value
     base = load_config(raw)
     thermal = base["thermal"]["model"] == "coupled"
-    ops = []
-    for i, table in enumerate(tables, start=1):
-        kind = table.get("kind")
-        if kind not in KINDS:
-            where = _where(i, str(table.get("name", "?")))
-            raise ConfigError(
-                f"{where}: kind = {kind!r}: must be one of {', '.join(map(repr, KINDS))}"
-            )
-        name = str(table.get("name") or kind)
-        where = _where(i, name)
-        keys = _operation_keys(kind, table, where)
-        keys["name"] = name
-        _check_operation(kind, keys, table, where, thermal)
-        op = {"kind": kind, "name": name, "keys": keys}
-        if kind == "forming":
-            op["document"] = _forming_document(raw, table, keys, where)
-            op["stroke_by"] = "reduction" if "reduction" in table["die"] else (
-                "travel_mm" if keys["travel_mm"] is not None else "final_gap_mm")  # fmt: skip
-        ops.append(op)
+    ops = [_operation(i, table, raw, thermal) for i, table in enumerate(tables, start=1)]
     if not any(op["kind"] == "forming" for op in ops):
         raise ConfigError("process.operation: a process needs at least one forming operation")
     if base["mesh"]["rezone_quality"] > 0.0 and len(ops) > 1:
@@ -337,6 +319,27 @@ def load_document(path_or_dict: str | PathLike | dict, overrides=()) -> dict:
         )
     base["process"] = ops
     return base
+
+
+def _operation(i: int, table: dict, raw: dict, thermal: bool) -> dict:
+    """The validated ``i``-th operation table (1-based) of a process over the base
+    document ``raw`` (``thermal``: the base is coupled): kind, name, keys and, for a
+    forming operation, its merged document and what sets its stroke."""
+    kind = table.get("kind")
+    if kind not in KINDS:
+        where = _where(i, str(table.get("name", "?")))
+        raise ConfigError(f"{where}: kind = {kind!r}: must be one of {', '.join(map(repr, KINDS))}")
+    name = str(table.get("name") or kind)
+    where = _where(i, name)
+    keys = _operation_keys(kind, table, where)
+    keys["name"] = name
+    _check_operation(kind, keys, table, where, thermal)
+    op = {"kind": kind, "name": name, "keys": keys}
+    if kind == "forming":
+        op["document"] = _forming_document(raw, table, keys, where)
+        op["stroke_by"] = "reduction" if "reduction" in table["die"] else (
+            "travel_mm" if keys["travel_mm"] is not None else "final_gap_mm")  # fmt: skip
+    return op
 
 
 def operations(doc: dict) -> tuple[Operation, ...]:
