@@ -127,6 +127,20 @@ def _imports(path: Path) -> set[str]:
         (["solver.py"], ("jaxform.element", "jaxform.formulations")),
         (["workpieces.py", "scenes.py"], ("jaxform.io", "jaxform.plot", "jaxform.driver")),
         (["study/*.py"], ("jaxform.cli",)),
+        (
+            ["config/*.py", "design/requirements.py"],
+            (
+                "jaxform.scenes",
+                "jaxform.workpieces",
+                "jaxform.simulation",
+                "jaxform.process",
+                "jaxform.driver",
+                "jaxform.cli",
+                "jaxform.design.problem",
+                "jaxform.design.parametrize",
+                "jaxform.design.objectives",
+            ),
+        ),  # fmt: skip
     ],
 )
 def test_layers_import_one_way(modules, forbidden):
