@@ -29,42 +29,22 @@ import numpy as np
 from jaxform import mesh as meshing
 
 
-def stepped_section(disk_radius, disk_half, boss_radius, boss_height, size) -> meshing.Mesh:
-    """The structured quad mesh (element size about ``size`` mm) of the section
-    [0, R] x [0, h] plus [0, a] x [h, h + b] with sets symmetry (z = 0), axis (r = 0),
-    top (the boss's top) and side (the boss's side, the shoulder z = h, the rim r = R)."""
-    R, h, a, b = disk_radius, disk_half, boss_radius, boss_height
-    na = max(int(round(a / size)), 1)
-    nR = na + max(int(round((R - a) / size)), 1)
-    nh = max(int(round(h / size)), 1)
-    nb = max(int(round(b / size)), 1)
-    r = np.concatenate([np.linspace(0.0, a, na + 1), np.linspace(a, R, nR - na + 1)[1:]])
-    z = np.concatenate([np.linspace(0.0, h, nh + 1), np.linspace(h, h + b, nb + 1)[1:]])
-    full = meshing.tensor_grid(r, z)
-    c = full.coords
-    centre = c[full.elements].mean(axis=1)
-    keep = (centre[:, 1] < h) | (centre[:, 0] < a)
-    elements = full.elements[keep]
-    used = np.unique(elements)
-    renum = -np.ones(len(c), dtype=np.int64)
-    renum[used] = np.arange(len(used))
-    coords, elements = c[used], renum[elements]
-    tol = 1e-9 * max(R, h + b)
-    # the boundary facets: element edges used by one element
-    edges = np.concatenate([elements[:, [k, (k + 1) % 4]] for k in range(4)])
-    key = np.sort(edges, axis=1)
-    _, inv, count = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-    facets = edges[count[inv.ravel()] == 1]
-    mid = coords[facets].mean(axis=1)
-    groups = {
-        "symmetry": np.abs(mid[:, 1]) < tol,
-        "axis": np.abs(mid[:, 0]) < tol,
-        "top": np.abs(mid[:, 1] - (h + b)) < tol,
-    }
-    groups["side"] = ~(groups["symmetry"] | groups["axis"] | groups["top"])
-    facet_sets = {k: facets[v] for k, v in groups.items()}
-    node_sets = {k: np.unique(v) for k, v in facet_sets.items()}
-    return meshing.Mesh(coords, elements, node_sets, facet_sets)
+def stepped_section(args) -> meshing.Mesh:
+    """The quad mesh (gmsh, element size ``args.size`` mm) of the section [0, R] x [0, h]
+    plus [0, a] x [h, h + b] with a fillet of radius ``args.fillet`` at the boss's root,
+    with sets symmetry (z = 0), axis (r = 0), top (the boss's top) and side (the rim
+    r = R, the shoulder z = h, the fillet, the boss's side)."""
+    R, h, a, b, rho = (args.disk_radius, args.disk_half, args.boss_radius, args.boss_height,
+                       args.fillet)  # fmt: skip
+    n = max(int(np.ceil(0.5 * np.pi * rho / (0.5 * args.size))), 2) if rho > 0.0 else 0
+    theta = np.linspace(1.5 * np.pi, np.pi, n + 1)  # clockwise round the fillet's centre
+    arc = np.column_stack([a + rho + rho * np.cos(theta), h + rho + rho * np.sin(theta)])
+    root = arc if n else np.array([[a, h]])  # the fillet (half the element size apart)
+    points = np.vstack([[[0.0, 0.0], [R, 0.0], [R, h]], root, [[a, h + b], [0.0, h + b]]])
+    labels = ["symmetry"] + ["side"] * (len(points) - 3) + ["top", "axis"]
+    sizes = np.full(len(points), args.size)
+    sizes[3 : 3 + len(root)] = 0.5 * args.size if n else args.size
+    return meshing.polygon_quads(points, labels, sizes)
 
 
 CONFIG = """\
@@ -106,8 +86,7 @@ flow_line_spacing_mm = {spacing}
 def write_scene(out: Path, args) -> Path:
     """The mesh (``section.msh``) and config (``config.toml``) of the scene in ``out``."""
     out.mkdir(parents=True, exist_ok=True)
-    mesh = stepped_section(args.disk_radius, args.disk_half, args.boss_radius, args.boss_height,
-                           args.size)  # fmt: skip
+    mesh = stepped_section(args)
     meshing.write_mesh(out / "section.msh", mesh)
     height = 2.0 * (args.disk_half + args.boss_height)
     text = CONFIG.format(diameter=2.0 * args.disk_radius, height=height,
@@ -190,27 +169,51 @@ def run_level(args, size: float, dt: float) -> dict:
     row["grid_line_turn_deg"] = max(
         (line_fold(p, args.spacing)[0] for k, p in enumerate(lines.polylines(-1))
          if lines.family[k] < 2), default=0.0)  # fmt: skip
-    np.savez(out / "flow_lines.npz", points=lines.points[-1], line=lines.line,
-             family=lines.family, stroke_mm=h["stroke_mm"], turn_deg=turns)  # fmt: skip
+    np.savez(out / "flow_lines.npz", points=lines.points, line=lines.line,
+             family=lines.family, level=lines.level, turn_deg=turns,
+             **{k: np.asarray(v) for k, v in h.items()})  # fmt: skip
     print(row, flush=True)
     return row
+
+
+def at_stroke(path: Path, spacing: float, stroke: float | None) -> dict:
+    """A run's lap and flow-line fold at its first row at or past ``stroke`` (mm; None:
+    its last row), from its ``flow_lines.npz``: the run to that stroke is the run's rows
+    up to there (laps() of that history, self_folds() of the lines at that row)."""
+    from jaxform.flowlines import FlowLines, line_fold, self_folds
+    from jaxform.postprocess import laps
+
+    z = np.load(path, allow_pickle=True)
+    s = z["stroke_mm"]
+    k = len(s) - 1 if stroke is None else int(np.argmax(s >= stroke - 1e-9))
+    names = ("time_s", "stroke_mm", "fold_angle_deg", "fold_r_mm", "fold_z_mm", "fold_depth_mm")
+    hist = {n: z[n][: k + 1] for n in names}
+    lines = FlowLines(z["points"][: k + 1], z["line"], z["family"], z["level"])
+    out = dict(row=k, stroke_mm=float(s[k]), fold_angle_deg=float(z["fold_angle_deg"][k]),
+               laps=laps(hist, 10.0), folds=self_folds(lines, spacing))  # fmt: skip
+    out["grid_turn_deg"] = max(line_fold(p, spacing)[0] for j, p in enumerate(lines.polylines())
+                               if lines.family[j] < 2)  # fmt: skip
+    return out
 
 
 def main_args(argv=None) -> argparse.Namespace:
     """The command line's arguments (the scene's dimensions, mesh, step, output)."""
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("what", choices=("write", "run", "refine"))
+    p.add_argument("what", choices=("write", "run", "refine", "table"))
     p.add_argument("--disk-radius", type=float, default=5.0)
     p.add_argument("--disk-half", type=float, default=1.5)
     p.add_argument("--boss-radius", type=float, default=2.5)
     p.add_argument("--boss-height", type=float, default=2.5)
-    p.add_argument("--travel", type=float, default=0.82, help="the die's travel (mm)")
+    p.add_argument("--fillet", type=float, default=0.4, help="the boss's root radius (mm)")
+    p.add_argument("--travel", type=float, default=1.4, help="the die's travel (mm)")
     p.add_argument("--size", type=float, default=0.25, help="element size (mm)")
     p.add_argument("--dt", type=float, default=0.5, help="step (s)")
     p.add_argument("--spacing", type=float, default=0.5, help="flow lines' spacing (mm)")
     p.add_argument("--levels", default="0,1,2", help="refine: which of LEVELS to run")
     p.add_argument("--out", type=Path, default=Path("out/lap"))
-    return p.parse_args(argv)
+    p.add_argument("--at", type=float, default=None, help="table: the stroke (mm) to read")
+    p.add_argument("runs", nargs="*", type=Path, help="table: the runs' flow_lines.npz")
+    return p.parse_intermixed_args(argv)
 
 
 def main(argv=None):
@@ -221,6 +224,10 @@ def main(argv=None):
     import jaxform
     from jaxform.io import write_csv
 
+    if args.what == "table":
+        for path in args.runs:
+            print(path, at_stroke(path, args.spacing, args.at))
+        return
     jaxform.enable_x64()
     if args.what == "run":
         run_level(args, args.size, args.dt)
