@@ -6,17 +6,27 @@ radius ``--boss-radius`` and height ``--boss-height`` on its face.  A flat top d
 sticking friction comes down on the boss.  The boss barrels: its top sticks to the die,
 its side bulges out over the disk's free shoulder and folds down onto it, closing the
 concave corner between the boss's side and the shoulder: a fold-over lap at the boss's
-root, the lap a forging engineer knows from a too-voluminous or too-tall boss (the fix
-is a fillet at the root or less boss volume).  The section is written as a gmsh mesh
-(``mesh.file``) with the free surface in the set ``side`` (boss side, shoulder, rim).
+root, the lap a forging engineer knows from a boss too tall or too voluminous for its
+root (the remedy: a larger root fillet, ``--fillet``, or less volume in the boss).  The
+section is written as a gmsh mesh (``mesh.file``) with the free surface in the set
+``side`` (the boss's side, the root, the shoulder, the rim); the config beside it.
 
-    python experiments/lap_scene.py run --size 0.25 --dt 0.5 --out out/lap
-    python experiments/lap_scene.py refine --out out/lap_refine
+    python experiments/lap_scene.py run --out out/lap            # 0.25 mm, 0.5 s steps
+    python experiments/lap_scene.py refine --levels 0,1,2 --out out/lap_refine
+    python experiments/lap_scene.py table --at 1.6 out/lap_refine/size_*/flow_lines.npz
 
-``run`` runs one scene (``jaxform run`` with the written config) and prints the lap
-(``postprocess.laps``) and the flow lines' fold (``flowlines.self_folds``); ``refine``
-runs the refinement check (the element size and the step halved twice) and writes
-``refine.csv``.
+``run`` runs the scene once (element size ``--size``, step ``--dt``) and prints its row:
+the lap (``postprocess.laps``), the flow lines' fold (``flowlines.self_folds``), the
+largest turn of a grid line; it draws ``flow_lines.png`` (with the die) and
+``flow_lines_root.png`` (the root: the fold's red cross, the lap's green circle) and saves
+every row's lines and history in ``flow_lines.npz``.  ``refine`` runs the LEVELS (element
+size and step each divided by sqrt 2 twice) and writes ``refine.csv``; ``table`` reads
+saved runs at one stroke (a run's rows up to a stroke are the run to that stroke).
+
+With the square root (the default) the lap forms, but the stroke at which its crease
+closes depends on the mesh (a re-entrant corner is singular), and jaxform has no
+self-contact: past the closing the two faces pass through each other.  With a fillet
+(``--fillet 0.4``) the root folds over more slowly (docs/outputs.md).
 """
 
 from __future__ import annotations
@@ -29,13 +39,54 @@ import numpy as np
 from jaxform import mesh as meshing
 
 
+def square_root_section(disk_radius, disk_half, boss_radius, boss_height, size) -> meshing.Mesh:
+    """The structured quad mesh (element size about ``size`` mm) of the section
+    [0, R] x [0, h] plus [0, a] x [h, h + b] with sets symmetry (z = 0), axis (r = 0),
+    top (the boss's top) and side (the boss's side, the shoulder z = h, the rim r = R)."""
+    R, h, a, b = disk_radius, disk_half, boss_radius, boss_height
+    na = max(int(round(a / size)), 1)
+    nR = na + max(int(round((R - a) / size)), 1)
+    nh = max(int(round(h / size)), 1)
+    nb = max(int(round(b / size)), 1)
+    r = np.concatenate([np.linspace(0.0, a, na + 1), np.linspace(a, R, nR - na + 1)[1:]])
+    z = np.concatenate([np.linspace(0.0, h, nh + 1), np.linspace(h, h + b, nb + 1)[1:]])
+    full = meshing.tensor_grid(r, z)
+    c = full.coords
+    centre = c[full.elements].mean(axis=1)
+    keep = (centre[:, 1] < h) | (centre[:, 0] < a)
+    elements = full.elements[keep]
+    used = np.unique(elements)
+    renum = -np.ones(len(c), dtype=np.int64)
+    renum[used] = np.arange(len(used))
+    coords, elements = c[used], renum[elements]
+    tol = 1e-9 * max(R, h + b)
+    # the boundary facets: element edges used by one element
+    edges = np.concatenate([elements[:, [k, (k + 1) % 4]] for k in range(4)])
+    key = np.sort(edges, axis=1)
+    _, inv, count = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    facets = edges[count[inv.ravel()] == 1]
+    mid = coords[facets].mean(axis=1)
+    groups = {
+        "symmetry": np.abs(mid[:, 1]) < tol,
+        "axis": np.abs(mid[:, 0]) < tol,
+        "top": np.abs(mid[:, 1] - (h + b)) < tol,
+    }
+    groups["side"] = ~(groups["symmetry"] | groups["axis"] | groups["top"])
+    facet_sets = {k: facets[v] for k, v in groups.items()}
+    node_sets = {k: np.unique(v) for k, v in facet_sets.items()}
+    return meshing.Mesh(coords, elements, node_sets, facet_sets)
+
+
 def stepped_section(args) -> meshing.Mesh:
     """The quad mesh (gmsh, element size ``args.size`` mm) of the section [0, R] x [0, h]
-    plus [0, a] x [h, h + b] with a fillet of radius ``args.fillet`` at the boss's root,
+    plus [0, a] x [h, h + b] with a fillet of radius ``args.fillet`` at the boss's root
+    (0: the structured mesh of :func:`square_root_section`, the root a square corner),
     with sets symmetry (z = 0), axis (r = 0), top (the boss's top) and side (the rim
     r = R, the shoulder z = h, the fillet, the boss's side)."""
     R, h, a, b, rho = (args.disk_radius, args.disk_half, args.boss_radius, args.boss_height,
                        args.fillet)  # fmt: skip
+    if rho == 0.0:
+        return square_root_section(R, h, a, b, args.size)
     n = max(int(np.ceil(0.5 * np.pi * rho / (0.5 * args.size))), 2) if rho > 0.0 else 0
     theta = np.linspace(1.5 * np.pi, np.pi, n + 1)  # clockwise round the fillet's centre
     arc = np.column_stack([a + rho + rho * np.cos(theta), h + rho + rho * np.sin(theta)])
@@ -134,8 +185,7 @@ def run_level(args, size: float, dt: float) -> dict:
     sc = res.final_scene
     pos, el = positions(sc, res.fields["x"][-1]), np.asarray(sc.mesh.elements)
     frame = plot.SectionFrame(("r [mm]", "z [mm]"), die_outlines(sc, float(h["time_s"][-1])))
-    title = (f"flow lines ({args.spacing:g} mm apart at the start), stroke "
-             f"{h['stroke_mm'][-1]:.3g} mm, element {size:g} mm")  # fmt: skip
+    title = f"flow lines, stroke {h['stroke_mm'][-1]:.3g} mm, elements {size:g} mm"
     plot.flow_lines(pos, el, lines.polylines(-1), out / "flow_lines.png", title, frame)
     fig = plot.flow_lines(pos, el, lines.polylines(-1), out / "flow_lines_root.png",
                           "the lap's root: surface line folded onto itself", frame)  # fmt: skip
@@ -204,8 +254,8 @@ def main_args(argv=None) -> argparse.Namespace:
     p.add_argument("--disk-half", type=float, default=1.5)
     p.add_argument("--boss-radius", type=float, default=2.5)
     p.add_argument("--boss-height", type=float, default=2.5)
-    p.add_argument("--fillet", type=float, default=0.4, help="the boss's root radius (mm)")
-    p.add_argument("--travel", type=float, default=1.4, help="the die's travel (mm)")
+    p.add_argument("--fillet", type=float, default=0.0, help="the boss's root radius (mm)")
+    p.add_argument("--travel", type=float, default=0.82, help="the die's travel (mm)")
     p.add_argument("--size", type=float, default=0.25, help="element size (mm)")
     p.add_argument("--dt", type=float, default=0.5, help="step (s)")
     p.add_argument("--spacing", type=float, default=0.5, help="flow lines' spacing (mm)")
