@@ -1429,7 +1429,7 @@ def _friction_checks(raw: dict, out: dict) -> None:
                           f"{f.allowed()})")  # fmt: skip
     dies = friction_dies(out)
     for die in FRICTION_DIES:
-        own = raw.get(f"{die}.friction", {})
+        own = {k: v for k, v in raw.get(f"{die}.friction", {}).items() if v is not None}
         if own and die not in dies:
             raise ConfigError(
                 f"{die}.friction.{sorted(own)[0]}: the scene has no {die} (a bottom die needs "

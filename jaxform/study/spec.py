@@ -20,6 +20,7 @@ from jaxform.config import (
     FRICTION_DIES,
     SCHEMA,
     die_friction,
+    friction_dies,
     friction_keys,
     load_config,
 )
@@ -243,12 +244,11 @@ def _check_differentiable(doc: dict, inputs, responses, what: str) -> None:
             section, _, coefficient = i.key.rpartition(".")
             want = next(m for m, c in FRICTION_COEFFICIENT.items() if c == coefficient)
             die = section.removesuffix(".friction")
+            if die != "friction" and die not in friction_dies(doc):
+                raise ConfigError(f"{what}: {i.key}: the scene has no {die}")
             model = (doc["friction"]["model"] if die == "friction" or "die" not in doc
                      else die_friction(doc, die)["model"])  # fmt: skip
-            raise ConfigError(
-                f"{what}: {i.key} needs {section}.model = {want!r} (it is {model!r}), "
-                f"on a die the scene has"
-            )
+            raise ConfigError(f"{what}: {i.key} needs {section}.model = {want!r} (it is {model!r})")
     check_gradient_run(doc, list(dict.fromkeys(GRADIENT_KEYS[i.key] for i in inputs)),
                        what.split(" ")[0])  # fmt: skip
 
@@ -277,7 +277,7 @@ def _check_samples(study: Study, doc: dict) -> None:
     """Every sample's value in its key's range, and every sample's config valid (cross-key
     rules, step counts): refused before anything runs."""
     for j, inp in enumerate(study.inputs):
-        section, name = inp.key.split(".")
+        section, name = inp.key.rsplit(".", 1)
         field = SCHEMA[section][name]
         bad = [v for v in study.values[:, j] if not _within(field, v)]
         if bad:
