@@ -257,12 +257,12 @@ def test_one_law_everywhere_is_the_scene_wide_law():
 
 
 def test_the_mandrels_own_law_sets_its_drag():
-    """A frictionless mandrel (a vertical wall: its normal has no z-component) carries no
-    vertical force (1e-9 of the ram force); a shear factor of its own makes it carry the
-    drag, more at m = 0.5 than at 0.1, while the platens keep Coulomb 0.3; with mixed laws
-    the mid-plane reaction equals the top die's force plus the mandrel's (equilibrium,
-    1e-8 relative)."""
-    _, free = _ring("side_die.friction.model=none")
+    """A frictionless mandrel (m = 0; a vertical wall: its normal has no z-component; one
+    compiled program for the three runs) carries no vertical force (1e-9 of the ram
+    force); a shear factor of its own makes it carry the drag, more at m = 0.5 than at 0.1,
+    while the platens keep Coulomb 0.3; with mixed laws the mid-plane reaction equals the
+    top die's force plus the mandrel's (equilibrium, 1e-8 relative)."""
+    _, free = _ring("side_die.friction.model=shear", "side_die.friction.m=0.0")
     _, low = _ring("side_die.friction.model=shear", "side_die.friction.m=0.1")
     sc, high = _ring("side_die.friction.model=shear", "side_die.friction.m=0.5")
     assert [type(d.friction).__name__ for d in sc.inputs.die.members] == ["Coulomb", "Shear"]
@@ -302,13 +302,13 @@ def _billet(*overrides):
 
 def test_full_height_twin_with_its_own_bottom_law():
     """The twin whose bottom die has its own table with the scene's law (Coulomb 0.3)
-    reproduces the half model (force to 1e-8 of the peak); a frictionless bottom die
+    reproduces the half model (force to 1e-8 of the peak); a frictionless bottom die (mu = 0)
     departs from it (the ram force at the end of the stroke drops by more than 0.5 %,
     far above the solver's tolerance: the bottom half of the friction is gone),
     and the two dies still carry equal forces (equilibrium, 1e-8 of the peak)."""
     half = _billet()
     same = _billet(*TWIN, "bottom_die.friction.model=coulomb", "bottom_die.friction.mu=0.3")
-    free = _billet(*TWIN, "bottom_die.friction.model=none")
+    free = _billet(*TWIN, "bottom_die.friction.mu=0.0")  # the twin's program, mu = 0
     peak = np.max(half["force_N"])
     assert len(same["force_N"]) == len(half["force_N"])  # the free twin steps on its own
     assert np.max(np.abs(same["force_N"] - half["force_N"])) <= 1e-8 * peak
@@ -348,6 +348,7 @@ def test_thin_disc_with_two_shear_factors_against_slab_formula():
     assert abs(p_avg / 100.0 / slab - 1.0) <= 0.05, (p_avg / 100.0, slab)
 
 
+@pytest.mark.slow  # a gradient program of its own, as test_several_dies' two-die gradients
 def test_per_die_gradients_against_central_differences():
     """The forging work of a billet on a fixed anvil (3 x 6 q1p0, 30 %) with Coulomb 0.3 on
     the top die and a shear factor 0.3 of its own on the bottom die has one friction
