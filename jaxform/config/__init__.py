@@ -18,15 +18,29 @@ scene) and :mod:`~jaxform.config.requirements` (the gradient-run checks).
 """
 
 from jaxform.config.die_sections import (
+    FRICTION_COEFFICIENT,
+    FRICTION_DIES,
+    FRICTION_MODELS,
     BottomDieConfig,
     DieConfig,
+    DieFrictionConfig,
     FrictionConfig,
     PressConfig,
     SideDieConfig,
     ThermalConfig,
     WearConfig,
 )
-from jaxform.config.document import SCHEMA, SECTIONS, WORKPIECES, Config, typed
+from jaxform.config.document import (
+    SCHEMA,
+    SECTIONS,
+    WORKPIECES,
+    Config,
+    die_friction,
+    friction_dies,
+    friction_keys,
+    friction_source,
+    typed,
+)
 from jaxform.config.loading import (
     CLOSED_DIE_QUALITY,
     defaulted_sections,
@@ -98,6 +112,14 @@ __all__ = [
     "TRIGGERS",
     "TRIGGERS_OFF",
     "WORKPIECES",
+    "FRICTION_COEFFICIENT",
+    "FRICTION_DIES",
+    "FRICTION_MODELS",
+    "DieFrictionConfig",
+    "die_friction",
+    "friction_dies",
+    "friction_keys",
+    "friction_source",
     "defaulted_sections",
     "end_time",
     "given_sections",

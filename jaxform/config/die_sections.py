@@ -211,14 +211,18 @@ class SideDieConfig:
     )
 
 
+FRICTION_MODELS = ("none", "coulomb", "shear", "sticking")
+# the coefficient key of each friction model that has one
+FRICTION_COEFFICIENT = {"coulomb": "mu", "shear": "m"}
+
+
 @section("friction")
 @dataclass(frozen=True, kw_only=True)
 class FrictionConfig:
-    """[friction]: the friction law at the die."""
+    """[friction]: the friction law at the dies (each die's own [<die>.friction] table
+    may replace any of its keys)."""
 
-    model: str = key(
-        "none", choices=("none", "coulomb", "shear", "sticking"), doc="die-workpiece friction law"
-    )
+    model: str = key("none", choices=FRICTION_MODELS, doc="die-workpiece friction law")
     mu: float = key(0.0, low=0.0, high=10.0, doc="Coulomb coefficient (friction.model = coulomb)")
     m: float = key(
         0.0,
@@ -226,6 +230,29 @@ class FrictionConfig:
         high=1.0,
         doc="shear friction factor, tau = m sigma_eq/sqrt(3) (friction.model = shear)",
     )
+
+
+# the die sections that may hold their own friction law, a [<die>.friction] sub-table
+FRICTION_DIES = ("die", "bottom_die", "side_die")
+
+
+@dataclass(frozen=True, kw_only=True)
+class DieFrictionConfig:
+    """[die.friction], [bottom_die.friction], [side_die.friction]: that die's own friction
+    law; a key left out takes [friction]'s (:func:`jaxform.config.document.die_friction`).
+    The one class serves the three tables (:data:`jaxform.config.document.SECTIONS`)."""
+
+    model: str | None = key(
+        choices=FRICTION_MODELS, doc="this die's friction law (default: friction.model)"
+    )
+    mu: float | None = key(
+        low=0.0, high=10.0, doc="this die's Coulomb coefficient (default: friction.mu)"
+    )
+    m: float | None = key(low=0.0, high=1.0, doc="this die's shear factor (default: friction.m)")
+
+
+# keys with no default that take [friction]'s value where left out
+INHERITED = {(f"{d}.friction", k) for d in FRICTION_DIES for k in ("model", "mu", "m")}
 
 
 @section("wear")

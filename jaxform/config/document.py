@@ -9,8 +9,11 @@ from dataclasses import dataclass
 from typing import Any
 
 from jaxform.config.die_sections import (
+    FRICTION_COEFFICIENT,
+    FRICTION_DIES,
     BottomDieConfig,
     DieConfig,
+    DieFrictionConfig,
     FrictionConfig,
     PressConfig,
     SideDieConfig,
@@ -37,31 +40,17 @@ from jaxform.config.workpiece_sections import (
 )
 from jaxform.errors import ConfigError
 
-# every section class under its TOML name, in the order of the documents and the reference
+_BEFORE_FRICTION = (BilletConfig, RingConfig, BlockConfig, MembraneConfig, LoadConfig, MeshConfig,
+                    RemeshConfig, MaterialConfig, DieConfig, PressConfig, BottomDieConfig,
+                    SideDieConfig, FrictionConfig)  # fmt: skip
+_AFTER_FRICTION = (WearConfig, ThermalConfig, TimeConfig, SolverConfig, OutputConfig,
+                   DesignConfig, StudyConfig)  # fmt: skip
+# every section class under its TOML name, in the order of the documents and the
+# reference; a die's friction table ("die.friction") is a section of its own here
 SECTIONS: dict[str, type] = {
-    cls.section_name: cls
-    for cls in (
-        BilletConfig,
-        RingConfig,
-        BlockConfig,
-        MembraneConfig,
-        LoadConfig,
-        MeshConfig,
-        RemeshConfig,
-        MaterialConfig,
-        DieConfig,
-        PressConfig,
-        BottomDieConfig,
-        SideDieConfig,
-        FrictionConfig,
-        WearConfig,
-        ThermalConfig,
-        TimeConfig,
-        SolverConfig,
-        OutputConfig,
-        DesignConfig,
-        StudyConfig,
-    )
+    **{cls.section_name: cls for cls in _BEFORE_FRICTION},
+    **{f"{die}.friction": DieFrictionConfig for die in FRICTION_DIES},
+    **{cls.section_name: cls for cls in _AFTER_FRICTION},
 }
 SCHEMA: dict[str, dict[str, Field]] = bound_lengths(
     {name: schema_of(cls) for name, cls in SECTIONS.items()}
@@ -87,6 +76,10 @@ class Config:
     bottom_die: BottomDieConfig | None = None
     side_die: SideDieConfig | None = None
     friction: FrictionConfig | None = None
+    # the dies' own friction tables ([die.friction] etc.; None outside a die scene)
+    die_friction: DieFrictionConfig | None = None
+    bottom_die_friction: DieFrictionConfig | None = None
+    side_die_friction: DieFrictionConfig | None = None
     wear: WearConfig | None = None
     thermal: ThermalConfig
     time: TimeConfig
@@ -105,8 +98,60 @@ class Config:
         return {
             name: {f.name: thaw(getattr(sec, f.name)) for f in dataclasses.fields(sec)}
             for name in SECTIONS
-            if (sec := getattr(self, name)) is not None
+            if (sec := getattr(self, _attribute(name))) is not None
         }
+
+    def friction_key(self, die: str, coefficient: str) -> str:
+        """The config key that sets ``coefficient`` (mu or m) of die section ``die``."""
+        return friction_source(self.to_dict(), die, coefficient)
+
+    def friction_of(self, die: str) -> FrictionConfig:
+        """The friction law of die section ``die`` (of FRICTION_DIES): its own table's
+        keys over [friction]'s (:func:`die_friction`)."""
+        return FrictionConfig(**die_friction(self.to_dict(), die))
+
+    def die_sections(self) -> tuple[str, ...]:
+        """The die sections that build a die (:func:`friction_dies`)."""
+        return friction_dies(self.to_dict())
+
+
+def _attribute(section_name: str) -> str:
+    """The :class:`Config` attribute of a section ('die.friction' -> 'die_friction')."""
+    return section_name.replace(".", "_")
+
+
+def die_friction(cfg: dict, die: str) -> dict:
+    """The friction keys (model, mu, m) of die section ``die`` in a validated document:
+    each from its [<die>.friction] table where given there, else from [friction]."""
+    own = cfg.get(f"{die}.friction") or {}
+    return {k: v if own.get(k) is None else own[k] for k, v in cfg["friction"].items()}
+
+
+def friction_source(cfg: dict, die: str, coefficient: str) -> str:
+    """The config key that sets ``coefficient`` (mu or m) of die section ``die``."""
+    own = cfg.get(f"{die}.friction") or {}
+    return f"{die}.friction.{coefficient}" if own.get(coefficient) is not None else (
+        f"friction.{coefficient}")  # fmt: skip
+
+
+def friction_keys(cfg: dict) -> set[str]:
+    """The config keys that set a coefficient of some die's friction law in a validated
+    die scene (e.g. {'friction.m'}, {'friction.mu', 'side_die.friction.m'})."""
+    out = set()
+    for die in friction_dies(cfg):
+        coefficient = FRICTION_COEFFICIENT.get(die_friction(cfg, die)["model"])
+        if coefficient:
+            out.add(friction_source(cfg, die, coefficient))
+    return out
+
+
+def friction_dies(cfg: dict) -> tuple[str, ...]:
+    """The die sections of a validated die scene that build a die: the top die, the
+    bottom die of a full-height workpiece, a side die with a profile."""
+    piece = next((cfg[w] for w in ("billet", "ring") if w in cfg), {})
+    full = piece.get("full_height", False)
+    side = bool(cfg.get("side_die", {}).get("profile_mm"))
+    return ("die",) + (("bottom_die",) if full else ()) + (("side_die",) if side else ())
 
 
 def freeze(value: Any) -> Any:
@@ -123,7 +168,7 @@ def typed(cfg: dict) -> Config:
     """The :class:`Config` of a document from :func:`load_config` (validated already)."""
     return Config(
         **{
-            name: SECTIONS[name](**{k: freeze(v) for k, v in table.items()})
+            _attribute(name): SECTIONS[name](**{k: freeze(v) for k, v in table.items()})
             for name, table in cfg.items()
         }
     )
@@ -152,6 +197,7 @@ def workpiece_section(raw: dict) -> str:
 
 def applies(section: str, kind: str) -> bool:
     """Whether a section belongs in a scene with workpiece ``kind``."""
+    section = section.split(".")[0]  # a die's friction table goes with its die
     if section in WORKPIECES:
         return section == kind
     if section in _DIE_SECTIONS:

@@ -16,6 +16,7 @@ from typing import Any
 
 import tomli_w
 
+from jaxform.config.die_sections import FRICTION_DIES, INHERITED
 from jaxform.config.document import SCHEMA, WORKPIECES, Config, applies, typed, workpiece_section
 from jaxform.config.rules import check_document
 from jaxform.config.schema import check_value
@@ -29,7 +30,7 @@ def parse_override(text: str) -> tuple[str, str, Any]:
     if "=" not in text:
         raise ConfigError(f"malformed override {text!r}: expected section.key=value")
     dotted, raw = (s.strip() for s in text.split("=", 1))
-    section, dot, key = dotted.partition(".")
+    section, dot, key = dotted.rpartition(".")  # die.friction.m: section die.friction
     if not dot or not section or not key or "." in key:
         raise ConfigError(
             f"malformed override {text!r}: the key must be section.key, "
@@ -69,6 +70,7 @@ def load_config(path_or_dict: str | PathLike | dict, overrides: Iterable[str] = 
     # a multi-stage process is read by jaxform.process_config.load_document; here its
     # base sections are checked first, then it is refused (a command of one scene)
     process = raw.pop("process", None)
+    _lift_friction_tables(raw)
     apply_overrides(raw, overrides)
     kind = _check_names(raw)
     out = _filled(raw, kind)
@@ -130,15 +132,30 @@ def _filled(raw: dict, kind: str) -> dict[str, dict[str, Any]]:
         out[section] = {}
         for key, f in fields.items():
             name = f"{section}.{key}"
-            if key in given and not (given[key] is None and (section, key) in _CONDITIONAL):
+            optional = (section, key) in _CONDITIONAL | INHERITED
+            if key in given and not (given[key] is None and optional):
                 out[section][key] = check_value(name, f, given[key])
-            elif f.default is None and (section, key) not in _CONDITIONAL:
+            elif f.default is None and not optional:
                 raise ConfigError(
                     f"missing required key {name} ({f.kind} in {f.allowed()}): {f.doc}"
                 )
             else:
                 out[section][key] = copy.deepcopy(f.default)
     return out
+
+
+def _lift_friction_tables(raw: dict) -> None:
+    """Move each TOML sub-table [die.friction] (raw["die"]["friction"]) to the section
+    "die.friction" of the document (as [bottom_die.friction], [side_die.friction])."""
+    for die in FRICTION_DIES:
+        table = raw.get(die)
+        if isinstance(table, dict) and "friction" in table:
+            sub = table.pop("friction")
+            if not isinstance(sub, dict):
+                raise ConfigError(
+                    f"{die}.friction: must be a table of keys (model, mu, m), not {sub!r}"
+                )
+            raw.setdefault(f"{die}.friction", {}).update(sub)
 
 
 def _thermal_properties(out: dict) -> None:
@@ -233,8 +250,14 @@ def read_document(path: str | PathLike) -> dict:
 
 
 def dump_config(cfg: dict, path: str | PathLike) -> None:
-    """Write a (resolved) config as TOML (keys whose value is unset are left out)."""
+    """Write a (resolved) config as TOML (keys whose value is unset are left out; a die's
+    friction table as its sub-table [die.friction], where it sets a key)."""
     clean = {s: {k: v for k, v in t.items() if v is not None} for s, t in cfg.items()}
+    for name in [s for s in clean if "." in s]:
+        table = clean.pop(name)
+        if table:
+            die = name.split(".")[0]
+            clean[die] = {**clean.get(die, {}), "friction": table}
     Path(path).write_bytes(tomli_w.dumps(clean).encode())
 
 
@@ -243,7 +266,9 @@ def describe_schema() -> str:
     rows = ["| key | type | default | allowed | meaning |", "|---|---|---|---|---|"]
     for section, fields in SCHEMA.items():
         for key, f in fields.items():
-            if f.default is None:
+            if (section, key) in INHERITED:
+                default = "[friction]'s"
+            elif f.default is None:
                 default = "required"
             elif f.kind == "bool":
                 default = str(f.default).lower()

@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+from jaxform.config.die_sections import FRICTION_COEFFICIENT, FRICTION_DIES
 from jaxform.config.document import SCHEMA, Config, thaw
 from jaxform.config.schema import MAX_ELEMENTS, MAX_STEPS
 from jaxform.config.stroke import closing_time
@@ -292,12 +293,30 @@ def _full_height_rules(cfg: Config) -> None:
 
 
 def _friction_rules(cfg: Config, raw: dict) -> None:
-    """A Coulomb or shear law names its coefficient."""
+    """A law with a coefficient has it given (in the die's own table or in [friction]);
+    a die's own table belongs to a die the scene has."""
+    need = FRICTION_COEFFICIENT
     model, written = cfg.friction.model, raw.get("friction", {})
-    if model == "coulomb" and "mu" not in written:
-        raise ConfigError("friction.model = 'coulomb' needs friction.mu (float in [0, 10])")
-    if model == "shear" and "m" not in written:
-        raise ConfigError("friction.model = 'shear' needs friction.m (float in [0, 1])")
+    if model in need and need[model] not in written:
+        k = need[model]
+        f = SCHEMA["friction"][k]
+        raise ConfigError(f"friction.model = {model!r} needs friction.{k} ({f.kind} in "
+                          f"{f.allowed()})")  # fmt: skip
+    dies = cfg.die_sections()
+    for die in FRICTION_DIES:
+        own = {k: v for k, v in raw.get(f"{die}.friction", {}).items() if v is not None}
+        if own and die not in dies:
+            raise ConfigError(
+                f"{die}.friction.{sorted(own)[0]}: the scene has no {die} (a bottom die needs "
+                "full_height = true, a side die side_die.profile_mm)"
+            )
+        law = cfg.friction_of(die).model
+        k = need.get(law)
+        if own and k and k not in own and k not in written:
+            raise ConfigError(
+                f"{die}.friction.model = {law!r} needs {die}.friction.{k} or friction.{k} "
+                f"(float in {SCHEMA['friction'][k].allowed()})"
+            )
 
 
 # ----------------------------------------------------------------------------------

@@ -76,6 +76,7 @@ KINDS = {
     "float | None": "float",
     "int": "int",
     "str": "str",
+    "str | None": "str",
     "bool": "bool",
     "tuple[float, ...]": "floats",
     "tuple[str, ...]": "strs",

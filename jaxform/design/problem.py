@@ -14,6 +14,7 @@ Both functions are compiled once per problem; a step that fails raises
 from __future__ import annotations
 
 import csv
+import dataclasses
 from dataclasses import dataclass, replace
 from functools import cached_property, partial
 
@@ -29,7 +30,7 @@ from jaxform.design.requirements import check_groups, check_objective, unmet_gro
 from jaxform.errors import ConfigError
 from jaxform.gradients import check, release, remeshed_schedule, trajectory
 from jaxform.postprocess import nodal_volumes
-from jaxform.scenes import Scene
+from jaxform.scenes import DIE_SECTIONS, Scene
 from jaxform.workpieces import DIE_GROUPS
 from jaxform.xla_options import jit
 
@@ -142,6 +143,21 @@ def available_groups(scene: Scene) -> tuple[str, ...]:
     )
 
 
+def friction_variables(scene: Scene) -> tuple[par.FrictionCoefficient, ...]:
+    """One design variable per coefficient of each die's friction law (the law's fields),
+    in the order of the dies."""
+    die = scene.inputs.die
+    out = []
+    for i, (d, name) in enumerate(zip(die.members, die.names)):
+        law = d.friction
+        for f in dataclasses.fields(law):
+            out.append(par.FrictionCoefficient(
+                die=i, die_name=name, field=f.name, value0=float(getattr(law, f.name)),
+                high=law.coefficient_range[f.name][1],
+                key=scene.settings.friction_key(DIE_SECTIONS[name], f.name)))  # fmt: skip
+    return tuple(out)
+
+
 def build_group(scene: Scene, name: str):
     """The parametrization of design group ``name`` for ``scene``; ConfigError where the
     config does not meet the group's requirements (:mod:`jaxform.design.requirements`)
@@ -163,8 +179,7 @@ def build_group(scene: Scene, name: str):
             bound_log=float(np.log(d.bound_factor)),
         )
     if name == "friction":
-        key = "mu" if cfg.friction.model == "coulomb" else "m"
-        return par.Friction(key, float(getattr(cfg.friction, key)), 10.0 if key == "mu" else 1.0)
+        return par.Friction(friction_variables(scene))
     if name == "speed":
         speed = cfg.die.speed_mm_s or float("nan")
         return par.RamSpeed(speed, bound_log=float(np.log(d.bound_factor)))

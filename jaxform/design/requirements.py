@@ -56,11 +56,14 @@ def _a_die(cfg: Config) -> str | None:
 
 
 def _differentiable_friction(cfg: Config) -> str | None:
-    """A friction law with a coefficient: Coulomb's mu or the shear factor m."""
-    model = cfg.friction.model
-    if model in ("coulomb", "shear"):
+    """Some die's friction law with a coefficient, Coulomb's mu or the shear factor m (its
+    own [<die>.friction] model, else [friction]'s)."""
+    if any(cfg.friction_of(die).model in ("coulomb", "shear") for die in cfg.die_sections()):
         return None
-    return f"friction.model = 'coulomb' or 'shear', not {model!r}"
+    return (
+        f"friction.model = 'coulomb' or 'shear', not {cfg.friction.model!r} (or a die's own "
+        "[<die>.friction] model)"
+    )
 
 
 def _the_speed_press(cfg: Config) -> str | None:
