@@ -42,7 +42,7 @@ import numpy as np
 from jaxform.assembly import Layout
 from jaxform.config import RemeshConfig
 from jaxform.contact import TOUCH_GAP_MM, facets_in_contact
-from jaxform.geometry import polygon_measure
+from jaxform.geometry import nearest_on_segments, polygon_measure, tributary_areas
 from jaxform.mesh import MeshError, boundary_edges, boundary_polygon, polygon_quads
 from jaxform.rezone import gap_function, min_quality
 from jaxform.scenes import scene_on_mesh
@@ -281,18 +281,6 @@ def _outward(p: np.ndarray, axisymmetric: bool):
     return nrm / np.maximum(np.linalg.norm(nrm, axis=1), 1e-300)[:, None], share
 
 
-def _nearest_on_boundary(points: np.ndarray, a: np.ndarray, b: np.ndarray):
-    """For each point, the nearest boundary edge a -> b and the parameter along it."""
-    d = b - a
-    s = np.einsum("pmi,mi->pm", points[:, None] - a[None], d) / np.maximum(
-        np.sum(d * d, axis=1), 1e-300
-    )
-    s = np.clip(s, 0.0, 1.0)
-    dist = np.linalg.norm(points[:, None] - (a[None] + s[..., None] * d[None]), axis=2)
-    k = np.argmin(dist, axis=1)
-    return k, s[np.arange(len(points)), k]
-
-
 @dataclass(frozen=True)
 class ContactMap:
     """The new candidates' multipliers, slip and status from the old candidates: each new
@@ -326,14 +314,14 @@ def contact_map(scene, new_scene, state, pos, new_pos) -> ContactMap:
     cn = np.asarray(idx.contact_nodes)
     status = np.asarray(state.contact_status)
     counted = facets_in_contact(status > 0, np.asarray(idx.contact_facets))
-    area = contact_areas(pos[cn], np.asarray(idx.contact_facets), axi, counted)
+    area = tributary_areas(pos[cn], np.asarray(idx.contact_facets), axi, counted)
     per_area = np.where(area > 0, 1.0 / np.where(area > 0, area, 1.0), 0.0)
     cand = np.full(lay.n_nodes, -1)  # old node -> candidate index
     cand[cn] = np.arange(len(cn))
     edges = boundary_edges(scene.mesh.elements)
     new_cn = np.asarray(new_idx.contact_nodes)
     p = new_pos[new_cn]
-    k, s = _nearest_on_boundary(p, pos[edges[:, 0]], pos[edges[:, 1]])
+    k, s, _ = nearest_on_segments(p, pos[edges[:, 0]], pos[edges[:, 1]])
     ends = cand[edges[k]]  # (n_new, 2)
     is_cand = ends >= 0
     ends = np.where(is_cand, ends, 0)
@@ -341,7 +329,7 @@ def contact_map(scene, new_scene, state, pos, new_pos) -> ContactMap:
     st_end = np.where(is_cand, status[ends], 0)
     new_status = np.where(s < 0.5, st_end[:, 0], st_end[:, 1]).astype(np.int32)
     new_counted = facets_in_contact(new_status > 0, np.asarray(new_idx.contact_facets))
-    new_area = contact_areas(p, np.asarray(new_idx.contact_facets), axi, new_counted)
+    new_area = tributary_areas(p, np.asarray(new_idx.contact_facets), axi, new_counted)
     lam_w = along * per_area[ends] * new_area[:, None]
     return ContactMap(ends, lam_w, along, new_status)
 
@@ -394,18 +382,6 @@ def eqps_integral(scene, pos: np.ndarray, eqps: np.ndarray) -> float:
     (mm^3 axisymmetric, mm^2 plane strain), by the 2 x 2 Gauss rule."""
     axi = scene.model.formulation.axisymmetric
     return float(np.sum(gauss_weights(pos, scene.mesh.elements, axi) * np.asarray(eqps)))
-
-
-def contact_areas(pos: np.ndarray, facets: np.ndarray, axisymmetric: bool, counted) -> np.ndarray:
-    """NumPy :func:`jaxform.contact.tributary_areas` (no compile per new mesh)."""
-    a, b = pos[facets[:, 0]], pos[facets[:, 1]]
-    length = np.linalg.norm(b - a, axis=1) * counted
-    if axisymmetric:
-        wa = 2.0 * np.pi * length * (2.0 * a[:, 0] + b[:, 0]) / 6.0
-        wb = 2.0 * np.pi * length * (a[:, 0] + 2.0 * b[:, 0]) / 6.0
-    else:
-        wa = wb = 0.5 * length
-    return np.bincount(facets[:, 0], wa, len(pos)) + np.bincount(facets[:, 1], wb, len(pos))
 
 
 @dataclass(frozen=True)

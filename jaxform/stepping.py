@@ -35,8 +35,8 @@ from jaxform.contact import (
     facets_in_contact,
     nodal_average,
     shear_bounds,
-    tributary_areas,
 )
+from jaxform.geometry import tributary_areas
 from jaxform.damage import increment as damage_increment
 from jaxform.damage import initial_damage
 from jaxform.formulations import GaussState, initial_gauss_state
@@ -126,7 +126,7 @@ def contact_step(model: Model, state: SimState, inp: Inputs, idx: Indices) -> Co
         # node (the bore or the bulge) let the edge carry up to twice m k
         frames = jax.vmap(lambda p: inp.die.frame(p, state.t, state.t))(pos)
         counted = facets_in_contact(frames.g <= TOUCH_GAP_MM, idx.contact_facets)
-        areas = tributary_areas(pos, idx.contact_facets, model.formulation.axisymmetric, counted)
+        areas = tributary_areas(pos, idx.contact_facets, model.formulation.axisymmetric, counted, jnp)
         bound = shear_bounds(frames.m, eq_nodes, areas)  # m of the die each node faces
     else:
         bound = jnp.zeros(model.layout.n_contact, dtype=pos.dtype)
@@ -327,7 +327,7 @@ def step_wear(model: Model, x, inp: Inputs, idx: Indices, t_new, dt, slip, statu
     pos = model.nodal_positions(x, inp.coords, idx)[idx.contact_nodes]
     frames = jax.vmap(lambda p: inp.die.frame(p, t_new, t_new))(pos)
     counted = facets_in_contact(status > 0, idx.contact_facets)
-    areas = tributary_areas(pos, idx.contact_facets, model.formulation.axisymmetric, counted)
+    areas = tributary_areas(pos, idx.contact_facets, model.formulation.axisymmetric, counted, jnp)
     lam_n = x[idx.mult_dofs[:, 0]]
     pressure = jnp.where(areas > 0.0, lam_n / jnp.where(areas > 0.0, areas, 1.0), 0.0)
     q = node_wear(law, pressure, slip, dt)
