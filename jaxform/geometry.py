@@ -84,3 +84,12 @@ def nearest_on_segments(points: np.ndarray, a: np.ndarray, b: np.ndarray):
     k = np.argmin(dist, axis=1)
     rows = np.arange(len(points))
     return k, s[rows, k], dist[rows, k]
+
+
+def mesh_change(pos, elements, new_pos, new_elements, axisymmetric: bool):
+    """What a new mesh of the section changes (a remesh or a rezoning reports it): (the
+    worst corner quality before, after, the relative change of the material volume)."""
+    v0 = float(np.sum(polygon_measure(pos[elements], axisymmetric)))
+    v1 = float(np.sum(polygon_measure(new_pos[new_elements], axisymmetric)))
+    before = float(min_quality(pos, elements))
+    return before, float(min_quality(new_pos, new_elements)), v1 / v0 - 1.0

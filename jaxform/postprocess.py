@@ -14,7 +14,6 @@
 
 from __future__ import annotations
 
-import jax
 import numpy as np
 
 from jaxform.contact import facets_in_contact
@@ -377,8 +376,6 @@ def extra_history(scene, xs: np.ndarray, times: np.ndarray) -> dict[str, np.ndar
                    fold_depth_mm=fold[:, 3])  # fmt: skip
     out.update(temperature_history(scene, xs))
     return out
-
-
 
 
 def _extended(poly: np.ndarray, reach: float) -> np.ndarray:

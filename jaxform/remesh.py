@@ -39,14 +39,19 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxform.assembly import Layout
 from jaxform.config import RemeshConfig
 from jaxform.contact import TOUCH_GAP_MM, facets_in_contact
-from jaxform.geometry import nearest_on_segments, polygon_measure, tributary_areas
+from jaxform.geometry import (
+    mesh_change,
+    min_quality,
+    nearest_on_segments,
+    polygon_measure,
+    tributary_areas,
+)
 from jaxform.mesh import MeshError, boundary_edges, boundary_polygon, polygon_quads
-from jaxform.rezone import gap_function, min_quality
+from jaxform.rezone import gap_function
 from jaxform.scenes import scene_on_mesh
-from jaxform.transfer import Transfer, gauss_weights
+from jaxform.transfer import StateMap, Transfer, gauss_weights
 
 _CORNER_TURN = np.deg2rad(30.0)  # a sharper turn of the boundary is refined like die contact
 
@@ -334,49 +339,6 @@ def contact_map(scene, new_scene, state, pos, new_pos) -> ContactMap:
     return ContactMap(ends, lam_w, along, new_status)
 
 
-@dataclass(frozen=True, eq=False)
-class StateMap:
-    """One remesh as a fixed map from the old mesh's state to the new mesh's, set up once
-    from the forward run's state (the located points, the recovery patches, the contact
-    weights) and applied to NumPy values (the forward run) or traced JAX values (a
-    gradient run, :mod:`jaxform.gradients`, which differentiates through it).
-
-    :meth:`apply` ``(state, coords)`` -> ``(state, coords)``: the new reference coordinates
-    are the old deformed positions (coords + u) interpolated at the new nodes (plus the
-    fixed offset that makes them the new mesh's nodes exactly at the forward run's state:
-    nodes a rounding outside the old mesh); Gauss-point fields by :class:`Transfer`
-    (patch recovery, then interpolation), F = I; nodal fields besides u (pressure,
-    temperature) and the predictor's rates by interpolation; contact by
-    :class:`ContactMap`; the damage integrals (Gauss-point fields) like the material
-    state; time, friction work, heat and die wear carry over."""
-
-    old: Layout
-    new: Layout
-    move: Transfer
-    coords_offset: np.ndarray  # (n_new, 2) mm
-    contact: ContactMap
-
-    def apply(self, state, coords, xp=np):
-        old, new = self.old, self.new
-        nodal = old.nodal(state.x)
-        pos = coords + nodal[:, :2]
-        new_coords = self.move.nodal(pos, xp) + self.coords_offset
-        cat = xp.concatenate
-        rest = self.move.nodal(nodal[:, 2:], xp)  # pressure, temperature
-        lam, slip = self.contact.apply(old.node_multipliers(state.x), state.slip_mm, xp)
-        facets = xp.zeros(new.n_facets)
-        x = cat([cat([xp.zeros((new.n_nodes, 2)), rest], axis=1).ravel(), lam.ravel(), facets])
-        rate = self.move.nodal(old.nodal(state.x_rate), xp)
-        x_rate = cat([rate.ravel(), xp.zeros(2 * new.n_contact), facets])
-        eye = xp.broadcast_to(xp.eye(3), (new.n_elements, 4, 3, 3))
-        mat = jax.tree_util.tree_map(lambda v: self.move.gauss(v, xp), state.gauss.mat)
-        status = self.contact.status.astype(state.contact_status.dtype)
-        damage = self.move.gauss(state.damage, xp)
-        return replace(state, x=x, gauss=replace(state.gauss, F=eye, mat=mat), x_rate=x_rate,
-                       slip_mm=slip, contact_status=xp.asarray(status),
-                       damage=damage), new_coords  # fmt: skip
-
-
 def eqps_integral(scene, pos: np.ndarray, eqps: np.ndarray) -> float:
     """Integral of the equivalent plastic strain over the section at positions ``pos``
     (mm^3 axisymmetric, mm^2 plane strain), by the 2 x 2 Gauss rule."""
@@ -418,17 +380,16 @@ def remesh(scene, state, settings: RemeshConfig) -> Remeshed:
     new_state, _ = transfer.apply(host, coords)
     new_state = jax.tree_util.tree_map(jnp.asarray, new_state)
     axi = scene.model.formulation.axisymmetric
-    v0 = float(np.sum(polygon_measure(pos[elements], axi)))
-    v1 = float(np.sum(polygon_measure(mesh.coords[mesh.elements], axi)))
+    q0, q1, volume_change = mesh_change(pos, elements, mesh.coords, mesh.elements, axi)
     report = RemeshReport(
         time_s=t,
         nodes_before=lay.n_nodes,
         nodes_after=mesh.n_nodes,
         elements_before=len(elements),
         elements_after=mesh.n_elements,
-        quality_before=float(min_quality(pos, elements)),
-        quality_after=float(min_quality(mesh.coords, mesh.elements)),
-        volume_change=v1 / v0 - 1.0,
+        quality_before=q0,
+        quality_after=q1,
+        volume_change=volume_change,
         eqps_integral_before=eqps_integral(scene, pos, host.gauss.mat.eqps),
         eqps_integral_after=eqps_integral(new_scene, mesh.coords, new_state.gauss.mat.eqps),
         seconds=time.perf_counter() - start,
