@@ -22,7 +22,8 @@ the nodes (:func:`smooth`):
    element, averaged at the nodes, limited to the range of the Gauss values around the
    node, and interpolated (bilinear, in the old element that contains the new point);
    nodal pressures (q1q1) and the nodal velocities of the rate predictor likewise;
-   contact multipliers stay with their (boundary) node;
+   contact multipliers, slip and status stay with their (boundary) node: the same
+   :class:`jaxform.transfer.StateMap` as a remesh's, with no contact map;
 3. the rezoned configuration becomes the new reference (u = 0, F_n = I): the material
    update is incremental (thesis: updated-Lagrangian stress update), so nothing else
    refers to the initial mesh.  Outputs keep measuring displacements from the initial

@@ -19,6 +19,10 @@ Both parts are set up once from the geometry (host NumPy) and then applied to th
 by NumPy or by traced JAX (argument ``xp``): a fixed, piecewise-linear map of the values
 (linear where no limiter acts), which a gradient run differentiates
 (:mod:`jaxform.gradients`).
+
+:class:`StateMap` maps a whole simulation state with it, field by field as each field
+declares what it is indexed over (:mod:`jaxform.fields`): the one map of a remesh, of a
+rezoning (same topology, no contact map) and of a trim (:mod:`jaxform.process`).
 """
 
 from __future__ import annotations
