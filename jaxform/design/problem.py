@@ -138,7 +138,7 @@ def available_groups(scene: Scene) -> tuple[str, ...]:
     check_design_scene(scene)
     ok = {
         "friction": bool(friction_variables(scene)),
-        "thermal": scene.inputs.thermal is not None,
+        "thermal": scene.model.layout.temperature,
     }
     return tuple(g for g in scene.workpiece.design_groups() if ok.get(g, True))
 
@@ -261,7 +261,7 @@ def build_objective(scene: Scene):
     objective = _base_objective(scene)
     d = scene.settings.design
     if d.max_temperature_K > 0.0:
-        if scene.inputs.thermal is None:
+        if not scene.model.layout.temperature:
             raise ConfigError("design.max_temperature_K > 0 needs thermal.model = 'coupled'")
         return obj.TemperatureLimit(objective, d.max_temperature_K, d.temperature_penalty)
     return objective
@@ -301,7 +301,7 @@ def _base_objective(scene: Scene):
         keep = c["stroke_mm"] > 0
         return obj.ForceMisfit(c["stroke_mm"][keep], c["force_N"][keep])
     if name == "temperature_misfit":
-        if scene.inputs.thermal is None:
+        if not scene.model.layout.temperature:
             raise ConfigError(
                 "design.objective = 'temperature_misfit' needs thermal.model = 'coupled'"
             )
