@@ -202,9 +202,9 @@ def run_jaxform(n: int, element: str, split: bool = True) -> dict:
         r, vals, *_ = rj(x, ctx)
 
         def element_jacobians(x, ctx):
-            fn = model._element_fn(ctx)
-            xe, data, _, gnew, *_ = model._element_residuals(fn, x, ctx)
-            return model._element_jacobians(fn, xe, data, ctx.gauss, gnew)
+            term = model.element
+            ep = term.residual_pass(x, ctx, model.layout)
+            return term.jacobians(term.element_fn(ctx, model.layout), ep, ctx.gauss)
 
         elem = jax.jit(element_jacobians)
         out["assembly_s"] = best_of(lambda: rj(x, ctx), 3)

@@ -5,14 +5,21 @@ Unknown vector x = [nodal fields (n_nodes * n_fields) | contact multipliers (2 n
 p]); candidate i's normal and tangential multipliers at n_nodes * n_fields + 2 i + (0, 1);
 facet f's corner-contact multiplier (:func:`jaxform.contact.facet_terms`) after those.
 
-Set-up (NumPy, once per scene) builds :class:`Indices`: element dof maps, Dirichlet dofs,
-contact candidates, and the *unique* sparsity pattern holding every entry any element
-or any contact candidate can ever produce, with the map from each raw entry to its
-unique slot.  Contact changes never change the pattern.
+The assembly is a tuple of terms (:attr:`Model.terms`): the element term (the
+formulation with the material law, :class:`ElementTerm`; with a temperature field the
+:class:`HeatTerm` that wraps it), node contact, facet (corner) contact, the load and the
+fixed (Dirichlet) rows.  Each term declares the unknowns of its blocks (``dofs``: its
+part of the sparsity pattern), its part of the residual and its Jacobian blocks; the
+global pattern and the value vector are the concatenation over the same tuple, so they
+cannot drift apart.  Set-up (NumPy, once per mesh): :func:`build_indices` gives the
+:class:`Indices` (element dof maps, Dirichlet dofs, contact candidates),
+:meth:`Model.with_pattern` the *unique* pattern holding every entry any term can ever
+produce, with the map from each raw entry to its unique slot.  Contact changes never
+change the pattern.
 
 In jit: element residuals are vmapped over elements; their Jacobians come from
-``jax.jacfwd`` of the same function (no hand-derived tangent), and are summed into the
-pattern with one segment_sum.  Dirichlet rows become identity rows.
+``jax.jacfwd`` of the same function (no hand-derived tangent), and every term's blocks
+are summed into the pattern with one segment_sum.  Dirichlet rows become identity rows.
 
 The assembly is two passes.  The residual pass vmaps the element function over all
 elements at once: it gives R and the new Gauss state, and the material's local solves
@@ -38,15 +45,16 @@ of the compiled program altogether.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import partial
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from jaxform import element as el
-from jaxform.contact import ContactLaw, ContactStep, facet_terms
+from jaxform.contact import TOUCH_GAP_MM, ContactLaw, ContactStep, facet_terms
 from jaxform.formulations import Formulation, GaussState, PointGiven
 from jaxform.heat import ElementHeat, ThermalInputs, element_heat, plastic_work
 from jaxform.mesh import boundary_edges
@@ -132,8 +140,7 @@ class Layout:
 
     def node_multipliers(self, x):
         """(n_contact, 2) normal and tangential multipliers of the contact candidates."""
-        start = self.n_node_dofs
-        return x[start : start + 2 * self.n_contact].reshape(self.n_contact, 2)
+        return self.split(x)[1]
 
     @property
     def n_node_dofs(self) -> int:
@@ -152,8 +159,33 @@ class Layout:
 
     def nodal(self, x):
         """The nodal block of x, (n_nodes, n_fields): u_r, u_z[, p][, T] per node (a view for
-        NumPy arrays).  The one place that knows the layout of x's nodal part."""
-        return x[: self.n_node_dofs].reshape(self.n_nodes, self.n_fields)
+        NumPy arrays)."""
+        return self.split(x)[0]
+
+    def split(self, x):
+        """x (..., n_dofs) in its blocks: (nodal fields (..., n_nodes, n_fields), the
+        candidates' normal and tangential multipliers (..., n_contact, 2), the corner
+        facets' multipliers (..., n_facets)); leading axes kept, NumPy views or JAX.  With
+        :meth:`join` the one place that knows the layout of x."""
+        lead, a = x.shape[:-1], self.n_node_dofs
+        b = a + 2 * self.n_contact
+        return (
+            x[..., :a].reshape(lead + (self.n_nodes, self.n_fields)),
+            x[..., a:b].reshape(lead + (self.n_contact, 2)),
+            x[..., b : b + self.n_facets],
+        )
+
+    def join(self, nodal, node_multipliers, facet_multipliers, xp=np):
+        """The vector x (..., n_dofs) of its blocks (as :meth:`split` gives them)."""
+        lead = nodal.shape[:-2]
+        return xp.concatenate(
+            [
+                nodal.reshape(lead + (self.n_node_dofs,)),
+                node_multipliers.reshape(lead + (2 * self.n_contact,)),
+                facet_multipliers,
+            ],
+            axis=-1,
+        )
 
 
 def _device_int32(a) -> jax.Array:
@@ -173,9 +205,11 @@ def build_indices(
     load_facets: np.ndarray | None = None,
     corner_contact: bool = False,
 ) -> tuple[Layout, Indices]:
-    """contact_facets: (n_f, 2) node pairs of the free surface (for contact areas; with
-    ``corner_contact`` each also gets a corner-contact multiplier); load_facets: (n_lf, 2)
-    node pairs of the boundary carrying a traction load."""
+    """(Layout, Indices) of a mesh's unknowns, without the sparsity pattern (that is the
+    terms', :meth:`Model.with_pattern`).  contact_facets: (n_f, 2) node pairs of the free
+    surface (for contact areas; with ``corner_contact`` each also gets a corner-contact
+    multiplier); load_facets: (n_lf, 2) node pairs of the boundary carrying a traction
+    load."""
     nf = n_fields
     n_nodes = mesh.n_nodes
     elements = np.asarray(mesh.elements, dtype=np.int64)
@@ -187,24 +221,10 @@ def build_indices(
     walked = _oriented(elements, contact_facets)
     corner = walked if corner_contact else np.zeros((0, 2), int)
     n_fc = len(corner)
-    n = ndof_nodes + 2 * n_c + n_fc
     fdofs = (corner[:, :, None] * nf + np.arange(2)[None, None, :]).reshape(n_fc, 4)
     fmult = ndof_nodes + 2 * n_c + np.arange(n_fc)
-    # raw entries: element blocks, contact 3x3 blocks (u_r, u_z, lambda), diagonal
-    er = np.repeat(edofs[:, :, None], edofs.shape[1], axis=2).ravel()
-    ec = np.repeat(edofs[:, None, :], edofs.shape[1], axis=1).ravel()
-    cblock = np.column_stack([cdofs, mdofs])  # (n_c, 4): u_r, u_z, lambda_n, lambda_t
-    cr = np.repeat(cblock[:, :, None], 4, axis=2).ravel()
-    cc = np.repeat(cblock[:, None, :], 4, axis=1).ravel()
-    fblock = np.column_stack([fdofs, fmult])  # (n_fc, 5): u of a, u of b, mu
-    fr = np.repeat(fblock[:, :, None], 5, axis=2).ravel()
-    fc = np.repeat(fblock[:, None, :], 5, axis=1).ravel()
-    dr = np.arange(n)
-    raw_r = np.concatenate([er, cr, fr, dr])
-    raw_c = np.concatenate([ec, cc, fc, dr])
-    keys = raw_r * n + raw_c
-    uniq, slot = np.unique(keys, return_inverse=True)
-    layout = Layout(n_nodes, nf, n_c, len(elements), len(uniq), n_fc)
+    layout = Layout(n_nodes, nf, n_c, len(elements), 0, n_fc)
+    empty = _device_int32(np.zeros(0, np.int64))
     idx = Indices(
         edofs=_device_int32(edofs),
         elements=_device_int32(elements),
@@ -216,9 +236,9 @@ def build_indices(
         contact_fixed=jax.device_put(np.isin(cdofs[:, :2], np.asarray(fixed_dofs))),
         facet_dofs=_device_int32(fdofs),
         facet_mult=_device_int32(fmult),
-        rows=_device_int32(uniq // n),
-        cols=_device_int32(uniq % n),
-        slot=_device_int32(slot.ravel()),
+        rows=empty,
+        cols=empty,
+        slot=empty,
         bottom_reaction_dofs=_device_int32(
             reaction_dofs if reaction_dofs is not None else np.zeros(0, np.int64)
         ),
@@ -252,61 +272,83 @@ def _local_facets(contact_nodes, facets) -> np.ndarray:
     return out
 
 
-@dataclass(frozen=True)
-class Model:
-    """What the assembly needs besides arrays: formulation, law, contact law, sizes (static)."""
+def _blocks_pattern(dofs: np.ndarray):
+    """(rows, cols) of the dense k x k blocks over the dof lists ``dofs`` (n_blocks, k),
+    each block row-major: the order of a (n_blocks, k, k) array's ravel."""
+    k = dofs.shape[1]
+    rows = np.repeat(dofs[:, :, None], k, axis=2).ravel()
+    cols = np.repeat(dofs[:, None, :], k, axis=1).ravel()
+    return rows, cols
 
-    formulation: Formulation
-    law: object
-    layout: Layout
-    contact: ContactLaw = ContactLaw()
-    jacobian_chunk: int = 512  # elements per chunk of the element Jacobians; 0: one vmap
 
-    # -- element level --------------------------------------------------------------
-    def _element_fn(self, ctx: StepContext):
-        """The element function of the step: (dofs, (x_ref, heat), Gauss state[,
-        solution]) -> (r_e, aux), aux = (r_e, new Gauss state, code, heat scale (4,))."""
-        form, law, lay = self.formulation, self.law, self.layout
-        params, dt, th = ctx.params, ctx.dt, ctx.thermal
+class ElementPass(NamedTuple):
+    """The element term's pass over all elements at x: the gathered dofs, the element
+    data, the element residuals r_e, the new Gauss state, the status codes, the heat
+    scales, and (a Jacobian pass) the element Jacobian blocks k_e (else None)."""
 
-        def fn(dofs_flat, elem, gstate, solution=None):
-            x_ref, heat = elem
-            dofs = dofs_flat.reshape(4, lay.n_fields)
-            if th is None:
-                given = PointGiven(solution)
-                r, gnew, code = form.residual(law, params, dt, x_ref, dofs, gstate, given)
-                return r.ravel(), (r.ravel(), gnew, code, jnp.zeros(4, dofs.dtype))
-            theta = dofs[:, -1]  # the change from the billet temperature (K)
-            temp = th.billet_temperature_K + theta
-            given = PointGiven(solution, el.N_GP @ temp)
-            r, gnew, code = form.residual(law, params, dt, x_ref, dofs[:, :-1], gstate, given)
-            work = plastic_work(gstate.mat, gnew.mat)
-            terms = element_heat(th, dt, x_ref, dofs[:, :2], theta, heat, work, form.axisymmetric)
-            # thermal rows: the heat of the step (mJ = N mm), like forces in N for mm parts
-            r = jnp.concatenate([r, dt * terms.residual()[:, None]], axis=1)
-            code = jnp.maximum(code, jnp.where(jnp.all(temp > 0.0), 0, NO_TEMPERATURE))
-            return r.ravel(), (r.ravel(), gnew, code, dt * terms.magnitude())
+    xe: jax.Array
+    elem: tuple
+    r_e: jax.Array
+    gauss: GaussState
+    code: jax.Array
+    heat: jax.Array
+    k_e: jax.Array | None = None
 
-        return fn
 
-    def _element_data(self, ctx: StepContext):
-        """What each element's function reads besides its dofs and Gauss state."""
-        return ctx.coords[ctx.idx.elements], ctx.heat
+# -- terms --------------------------------------------------------------------------
+# A term of the assembly (static, hashable) declares
+#   dofs(idx) -> (n_blocks, k): the unknowns of each of its blocks: its Jacobian entries
+#       are the k x k blocks over them (the sparsity pattern, :meth:`Model.with_pattern`);
+#   jacobian(x, ctx, ep) -> (n_blocks, k, k): the values of those blocks (by jax.jacfwd);
+#   add_residual(r, x, ctx, ep) -> r: the global residual with its part;
+#   scale(x, ctx, ep, lay) -> (): its force scale (N; mJ for heat), 0 for none;
+#   multipliers(x, idx) -> (m,): its multipliers (their norm is one force scale);
+#   constrain(vals, idx, n) -> vals: the Jacobian values after its rows' conditions.
+# The global pattern and value vector are the concatenation of the terms' blocks in the
+# order of :attr:`Model.terms`, so the pattern cannot drift from the values.
 
-    def _element_residuals(self, fn, x, ctx: StepContext):
-        """The residual pass: (dofs, element data, r_e, new Gauss state, codes, heat
-        scales) of every element, one vmap (the material's local solves run vectorized
-        over the whole mesh)."""
-        xe, elem = self._gather(x, ctx.idx), self._element_data(ctx)
+
+class _Term:
+    """Defaults of a term: no multipliers, no scale, no conditions on the Jacobian."""
+
+    def multipliers(self, x, idx: Indices):
+        return jnp.zeros(0, x.dtype)
+
+    def scale(self, x, ctx: StepContext, ep: ElementPass, lay: Layout):
+        return jnp.zeros((), x.dtype)
+
+    def constrain(self, vals, idx: Indices, n: int):
+        return vals
+
+
+class _Elements(_Term):
+    """What the element terms share: the element dofs' blocks, the residual pass (one
+    vmap over the elements) and the Jacobian pass (vmapped jacfwd in chunks)."""
+
+    def dofs(self, idx: Indices):
+        return idx.edofs
+
+    def jacobian(self, x, ctx: StepContext, ep: ElementPass):
+        return ep.k_e
+
+    def add_residual(self, r, x, ctx: StepContext, ep: ElementPass):
+        return r.at[ctx.idx.edofs].add(ep.r_e)
+
+    def residual_pass(self, x, ctx: StepContext, lay: Layout) -> ElementPass:
+        """The residual pass: r_e, new Gauss state, codes, heat scales of every element,
+        one vmap (the material's local solves run vectorized over the whole mesh)."""
+        fn = self.element_fn(ctx, lay)
+        xe, elem = x[ctx.idx.edofs], self.element_data(ctx)
         r_e, (_, gnew, ok_e, heat_e) = jax.vmap(fn)(xe, elem, ctx.gauss)
-        return xe, elem, r_e, gnew, ok_e, heat_e
+        return ElementPass(xe, elem, r_e, gnew, ok_e, heat_e)
 
-    def _element_jacobians(self, fn, xe, elem, gstate, solution: GaussState):
+    def jacobians(self, fn, ep: ElementPass, gstate):
         """vmap(jacfwd(fn, has_aux=True)) over the elements, in chunks of
-        ``jacobian_chunk`` (see the module docstring), at the new Gauss state
-        ``solution`` of the residual pass (no local solve is repeated); returns what the
-        plain vmap returns (for the element function: (k_e, aux))."""
+        ``jacobian_chunk`` (see the module docstring), at the new Gauss state of the
+        residual pass ``ep`` (no local solve is repeated); returns what the plain vmap
+        returns (for the element function: (k_e, aux))."""
         jac = jax.vmap(jax.jacfwd(fn, has_aux=True))
+        xe, elem, solution = ep.xe, ep.elem, ep.gauss
         n_el, b = xe.shape[0], self.jacobian_chunk
         if b <= 0 or n_el <= b:
             return jac(xe, elem, gstate, solution)
@@ -322,60 +364,209 @@ class Model:
         )
         return jax.tree_util.tree_map(lambda a: a.reshape((-1,) + a.shape[2:])[:n_el], out)
 
-    def heat_flows(self, x, ctx: StepContext, gnew: GaussState):
-        """(4,) the heat of a converged step (mJ): stored, generated by plastic work, given
-        to the dies, given to the air; stored = plastic - dies - air at convergence."""
-        if ctx.thermal is None:
-            return jnp.zeros(4, dtype=x.dtype)
-        lay, form = self.layout, self.formulation
+    def force_scale(self, ep: ElementPass, lay: Layout):
+        """The element forces' scale: the norm of the displacement rows of r_e (N)."""
+        r_u_e = ep.r_e.reshape(ep.r_e.shape[0], 4, lay.n_fields)[:, :, :2]
+        return jnp.sqrt(jnp.sum(r_u_e**2))
+
+
+@dataclass(frozen=True)
+class ElementTerm(_Elements):
+    """The element mechanics: the formulation's residual of each element with the
+    material law; the Jacobian blocks by jacfwd of the same function."""
+
+    formulation: Formulation
+    law: object
+    jacobian_chunk: int = 512  # elements per chunk of the element Jacobians; 0: one vmap
+
+    def mechanics(self, ctx: StepContext, x_ref, dofs, gstate, given: PointGiven):
+        """(r (4, n_fields of the mechanics), new Gauss state, code) of one element."""
+        form = self.formulation
+        return form.residual(self.law, ctx.params, ctx.dt, x_ref, dofs, gstate, given)
+
+    def element_fn(self, ctx: StepContext, lay: Layout):
+        """The element function of the step: (dofs, (x_ref, heat), Gauss state[,
+        solution]) -> (r_e, aux), aux = (r_e, new Gauss state, code, heat scale (4,))."""
+
+        def fn(dofs_flat, elem, gstate, solution=None):
+            x_ref, _ = elem
+            dofs = dofs_flat.reshape(4, lay.n_fields)
+            r, gnew, code = self.mechanics(ctx, x_ref, dofs, gstate, PointGiven(solution))
+            return r.ravel(), (r.ravel(), gnew, code, jnp.zeros(4, dofs.dtype))
+
+        return fn
+
+    def element_data(self, ctx: StepContext):
+        """What each element's function reads besides its dofs and Gauss state."""
+        return ctx.coords[ctx.idx.elements], None
+
+    def scale(self, x, ctx: StepContext, ep: ElementPass, lay: Layout):
+        return self.force_scale(ep, lay)
+
+    def heat_flows(self, x, ctx: StepContext, gnew: GaussState, lay: Layout):
+        """No heat flows without a temperature field: (4,) zeros."""
+        return jnp.zeros(4, dtype=x.dtype)
+
+    def step_heat(self, lay: Layout, x, t, inp, idx: Indices, t_new):
+        """No thermal data without a temperature field."""
+        return None
+
+    def die_temperature(self, thermal, t, otherwise):
+        """The die temperature (K) at t: without a temperature field, ``otherwise``."""
+        return otherwise
+
+    def temperatures(self, lay: Layout, x, thermal):
+        """No nodal temperatures without a temperature field."""
+        return None
+
+
+@dataclass(frozen=True)
+class HeatTerm(_Elements):
+    """The element mechanics coupled with the heat balance of each element
+    (:mod:`jaxform.heat`): the last nodal field is the temperature change theta (K); the
+    mechanics see the Gauss-point temperatures, the heat rows the plastic work; one
+    element function, so jacfwd gives the coupled blocks."""
+
+    mechanics: ElementTerm
+
+    @property
+    def jacobian_chunk(self) -> int:
+        return self.mechanics.jacobian_chunk
+
+    def element_fn(self, ctx: StepContext, lay: Layout):
+        """The coupled element function (as :meth:`ElementTerm.element_fn`), its last
+        row block the heat of the step (mJ)."""
+        dt, th, axi = ctx.dt, ctx.thermal, self.mechanics.formulation.axisymmetric
+
+        def fn(dofs_flat, elem, gstate, solution=None):
+            x_ref, heat = elem
+            dofs = dofs_flat.reshape(4, lay.n_fields)
+            theta = dofs[:, -1]  # the change from the billet temperature (K)
+            temp = th.billet_temperature_K + theta
+            given = PointGiven(solution, el.N_GP @ temp)
+            r, gnew, code = self.mechanics.mechanics(ctx, x_ref, dofs[:, :-1], gstate, given)
+            work = plastic_work(gstate.mat, gnew.mat)
+            terms = element_heat(th, dt, x_ref, dofs[:, :2], theta, heat, work, axi)
+            # thermal rows: the heat of the step (mJ = N mm), like forces in N for mm parts
+            r = jnp.concatenate([r, dt * terms.residual()[:, None]], axis=1)
+            code = jnp.maximum(code, jnp.where(jnp.all(temp > 0.0), 0, NO_TEMPERATURE))
+            return r.ravel(), (r.ravel(), gnew, code, dt * terms.magnitude())
+
+        return fn
+
+    def element_data(self, ctx: StepContext):
+        return ctx.coords[ctx.idx.elements], ctx.heat
+
+    def scale(self, x, ctx: StepContext, ep: ElementPass, lay: Layout):
+        # the heat of the step (mJ): what the thermal rows carry
+        return jnp.maximum(self.force_scale(ep, lay), jnp.sqrt(jnp.sum(ep.heat**2)))
+
+    def heat_flows(self, x, ctx: StepContext, gnew: GaussState, lay: Layout):
+        """(4,) the heat of a converged step (mJ): stored, generated by plastic work,
+        given to the dies, given to the air; stored = plastic - dies - air at
+        convergence."""
+        axi = self.mechanics.formulation.axisymmetric
         nodal = lay.nodal(x)[ctx.idx.elements]  # (n_el, 4, n_fields)
-        x_ref, heat = self._element_data(ctx)
+        x_ref, heat = self.element_data(ctx)
 
         def one(x_e, u, theta, h, old, new):
             work = plastic_work(old, new)
-            terms = element_heat(ctx.thermal, ctx.dt, x_e, u, theta, h, work, form.axisymmetric)
+            terms = element_heat(ctx.thermal, ctx.dt, x_e, u, theta, h, work, axi)
             return jnp.stack([jnp.sum(terms.stored), jnp.sum(terms.plastic),
                               jnp.sum(terms.die), jnp.sum(terms.air)])  # fmt: skip
 
         per_el = jax.vmap(one)(x_ref, nodal[..., :2], nodal[..., -1], heat, ctx.gauss.mat, gnew.mat)
         return ctx.dt * per_el.sum(axis=0)
 
-    def _gather(self, x, idx: Indices):
-        return x[idx.edofs]
+    def step_heat(self, lay: Layout, x, t, inp, idx: Indices, t_new) -> ElementHeat:
+        """The thermal data of each element for a step from (x, t) to t_new: nodal
+        temperature changes at t, exposed edges, and the edges whose two nodes touch a
+        die at t (gap <= TOUCH_GAP_MM, as for shear friction; none before the end of the
+        dwell, ``thermal.dwell_s``), the die temperature at t_new."""
+        theta_old = lay.nodal(x)[:, -1][idx.elements]
+        touching = jnp.zeros(lay.n_nodes, dtype=bool)
+        if inp.die is not None and lay.n_contact:
+            pos = (inp.coords + lay.nodal(x)[:, :2])[idx.contact_nodes]
+            gaps = jax.vmap(lambda p: inp.die.gap(p, t)[0])(pos)
+            after_dwell = t >= inp.thermal.dwell_s * (1.0 - 1e-9)  # in air before
+            touching = touching.at[idx.contact_nodes].set((gaps <= TOUCH_GAP_MM) & after_dwell)
+        nodes = touching[idx.elements]
+        touch = (nodes & jnp.roll(nodes, -1, axis=1)).astype(theta_old.dtype)
+        die_k = jnp.broadcast_to(inp.thermal.die_temperature(t_new), touch.shape[:1])
+        return ElementHeat(theta_old=theta_old, exposed=idx.exposed_edges, touch=touch,
+                           die_K=die_k)  # fmt: skip
 
-    def nodal_positions(self, x, coords, idx: Indices):
-        return coords + self.layout.nodal(x)[:, :2]
+    def die_temperature(self, thermal, t, otherwise):
+        """The die temperature (K) at t of the thermal inputs."""
+        return thermal.die_temperature(t)
 
-    # -- global ---------------------------------------------------------------------
-    def residual(self, x, ctx: StepContext):
-        """Global residual; returns (R, new Gauss state, status code, force scale)."""
-        fn = self._element_fn(ctx)
-        _, _, r_e, gnew, ok_e, heat_e = self._element_residuals(fn, x, ctx)
-        return self._finish_residual(x, r_e, gnew, ok_e, heat_e, ctx)
+    def temperatures(self, lay: Layout, x, thermal):
+        """(n_nodes,) nodal temperatures (K) of x."""
+        return lay.temperatures(x, thermal.billet_temperature_K)
 
-    def _contact_fn(self, ctx: StepContext):
+
+@dataclass(frozen=True)
+class NodeContact(_Term):
+    """Node-to-die contact of each candidate (:class:`jaxform.contact.ContactLaw`): its
+    block is (u_r, u_z, lambda_n, lambda_t)."""
+
+    law: ContactLaw
+    layout: Layout
+
+    def dofs(self, idx: Indices):
+        return np.concatenate([idx.contact_dofs, idx.mult_dofs], axis=1)
+
+    def _fn(self, ctx: StepContext):
         def fn(v, k):  # v = (x_r, x_z, lambda_n, lambda_t) of candidate k
-            r_u, comp = self.contact.pair_terms(
+            r_u, comp = self.law.pair_terms(
                 ctx.die, v[:2], v[2:], ctx.t, ctx.c_contact, ctx.cstep, k
             )
             return jnp.concatenate([r_u, comp])
 
         return fn
 
-    def _contact_vars(self, x, coords, idx):
-        pos = self.nodal_positions(x, coords, idx)[idx.contact_nodes]
+    def variables(self, x, ctx: StepContext):
+        """(n_c, 4) current positions and multipliers of the candidates."""
+        idx = ctx.idx
+        pos = (ctx.coords + self.layout.nodal(x)[:, :2])[idx.contact_nodes]
         return jnp.concatenate([pos, x[idx.mult_dofs]], axis=1)
 
-    def facet_ends(self, x, coords, idx: Indices):
-        """(n_fc, 2, 2) current positions of the corner-contact facets' nodes a, b."""
-        nodes = idx.facet_dofs[:, ::2] // self.layout.n_fields
-        return self.nodal_positions(x, coords, idx)[nodes]
+    def jacobian(self, x, ctx: StepContext, ep: ElementPass):
+        n_c = self.layout.n_contact
+        return jax.vmap(jax.jacfwd(self._fn(ctx)))(self.variables(x, ctx), jnp.arange(n_c))
 
-    def _facet_terms(self, x, ctx: StepContext, derivative: bool):
-        """Corner contact of every facet (:func:`jaxform.contact.facet_terms`): its (n_fc,
-        5) residual entries, or with ``derivative`` their (n_fc, 5, 5) Jacobian blocks."""
+    def add_residual(self, r, x, ctx: StepContext, ep: ElementPass):
         idx = ctx.idx
-        pos = self.facet_ends(x, ctx.coords, idx).reshape(-1, 4)
+        rc = jax.vmap(self._fn(ctx))(self.variables(x, ctx), jnp.arange(self.layout.n_contact))
+        return r.at[idx.contact_dofs].add(rc[:, :2]).at[idx.mult_dofs].set(rc[:, 2:])
+
+    def multipliers(self, x, idx: Indices):
+        return x[idx.mult_dofs].ravel()
+
+    def report(self, x, ctx: StepContext):
+        """Per candidate at a converged x: (status 0/1/2, normal, tangent, slip
+        increment)."""
+        return jax.vmap(
+            lambda vk, k: self.law.pair_status(
+                ctx.die, vk[:2], vk[2:], ctx.t, ctx.c_contact, ctx.cstep, k
+            )
+        )(self.variables(x, ctx), jnp.arange(self.layout.n_contact))
+
+
+@dataclass(frozen=True)
+class FacetContact(_Term):
+    """Corner contact of each free-surface facet (:func:`jaxform.contact.facet_terms`):
+    its block is (u of a, u of b, mu)."""
+
+    layout: Layout
+
+    def dofs(self, idx: Indices):
+        return np.concatenate([idx.facet_dofs, idx.facet_mult[:, None]], axis=1)
+
+    def _terms(self, x, ctx: StepContext, derivative: bool):
+        idx, lay = ctx.idx, self.layout
+        nodes = idx.facet_dofs[:, ::2] // lay.n_fields
+        pos = (ctx.coords + lay.nodal(x)[:, :2])[nodes].reshape(-1, 4)
         v = jnp.concatenate([pos, x[idx.facet_mult][:, None]], axis=1)
 
         def fn(vf):
@@ -383,26 +574,137 @@ class Model:
 
         return jax.vmap(jax.jacfwd(fn) if derivative else fn)(v)
 
+    def jacobian(self, x, ctx: StepContext, ep: ElementPass):
+        return self._terms(x, ctx, True)
+
+    def add_residual(self, r, x, ctx: StepContext, ep: ElementPass):
+        idx = ctx.idx
+        rf = self._terms(x, ctx, False)
+        return r.at[idx.facet_dofs].add(rf[:, :4]).at[idx.facet_mult].set(rf[:, 4])
+
+    def multipliers(self, x, idx: Indices):
+        return x[idx.facet_mult]
+
+
+@dataclass(frozen=True)
+class Load(_Term):
+    """The dead load ctx.f_ext (N; None: no load): R = ... - f_ext; no Jacobian entries."""
+
+    def dofs(self, idx: Indices):
+        return np.zeros((0, 0), np.int64)
+
+    def jacobian(self, x, ctx: StepContext, ep: ElementPass):
+        return jnp.zeros((0, 0, 0), x.dtype)
+
+    def add_residual(self, r, x, ctx: StepContext, ep: ElementPass):
+        return r if ctx.f_ext is None else r - ctx.f_ext
+
+    def scale(self, x, ctx: StepContext, ep: ElementPass, lay: Layout):
+        return jnp.zeros((), x.dtype) if ctx.f_ext is None else jnp.linalg.norm(ctx.f_ext)
+
+
+@dataclass(frozen=True)
+class FixedRows(_Term):
+    """Dirichlet conditions (value 0): the fixed dofs' residual rows are x there, their
+    Jacobian rows identity rows; its blocks are the diagonal of every unknown (so that
+    the identity rows and the multiplier rows' diagonal are in the pattern)."""
+
+    n_dofs: int
+
+    def dofs(self, idx: Indices):
+        return np.arange(self.n_dofs)[:, None]
+
+    def jacobian(self, x, ctx: StepContext, ep: ElementPass):
+        return jnp.zeros(self.n_dofs, x.dtype)
+
+    def add_residual(self, r, x, ctx: StepContext, ep: ElementPass):
+        return r.at[ctx.idx.fixed].set(x[ctx.idx.fixed])
+
+    def constrain(self, vals, idx: Indices, n: int):
+        fixed_row = jnp.zeros(n, dtype=bool).at[idx.fixed].set(True)
+        is_fixed = fixed_row[idx.rows]
+        return jnp.where(is_fixed, jnp.where(idx.rows == idx.cols, 1.0, 0.0), vals)
+
+
+@dataclass(frozen=True)
+class Model:
+    """The assembly (static, hashable): the element formulation and material law, the
+    contact law, the sizes; :attr:`terms` the tuple of terms it assembles."""
+
+    formulation: Formulation
+    law: object
+    layout: Layout
+    contact: ContactLaw = ContactLaw()
+    jacobian_chunk: int = 512  # elements per chunk of the element Jacobians; 0: one vmap
+
+    @property
+    def element(self):
+        """The element term: the mechanics (:class:`ElementTerm`), coupled with heat
+        (:class:`HeatTerm`) where the layout has a temperature field."""
+        mechanics = ElementTerm(self.formulation, self.law, self.jacobian_chunk)
+        return HeatTerm(mechanics) if self.layout.temperature else mechanics
+
+    @property
+    def terms(self) -> tuple:
+        """The terms in assembly order: element, node contact (with candidates), facet
+        contact (with corner contact), load, fixed rows."""
+        lay = self.layout
+        return (
+            self.element,
+            *((NodeContact(self.contact, lay),) if lay.n_contact else ()),
+            *((FacetContact(lay),) if lay.n_facets else ()),
+            Load(),
+            FixedRows(lay.n_dofs),
+        )
+
+    def with_pattern(self, idx: Indices) -> tuple[Model, Indices]:
+        """(the model with its number of nonzeros, the indices with the pattern): the
+        *unique* entries of every term's blocks (host NumPy, once per mesh), and the map
+        from each raw entry (the terms' blocks in order) to its unique slot.  Contact
+        changes never change the pattern."""
+        n = self.layout.n_dofs
+        host = jax.tree_util.tree_map(np.asarray, idx)
+        parts = [_blocks_pattern(np.asarray(t.dofs(host), np.int64)) for t in self.terms]
+        keys = np.concatenate([r for r, _ in parts]) * n + np.concatenate([c for _, c in parts])
+        uniq, slot = np.unique(keys, return_inverse=True)
+        idx = replace(idx, rows=_device_int32(uniq // n), cols=_device_int32(uniq % n),
+                      slot=_device_int32(slot.ravel()))  # fmt: skip
+        return replace(self, layout=replace(self.layout, n_nonzeros=len(uniq))), idx
+
+    def nodal_positions(self, x, coords, idx: Indices):
+        return coords + self.layout.nodal(x)[:, :2]
+
+    def facet_ends(self, x, coords, idx: Indices):
+        """(n_fc, 2, 2) current positions of the corner-contact facets' nodes a, b."""
+        nodes = idx.facet_dofs[:, ::2] // self.layout.n_fields
+        return self.nodal_positions(x, coords, idx)[nodes]
+
+    def heat_flows(self, x, ctx: StepContext, gnew: GaussState):
+        """(4,) the heat of a converged step (mJ): stored, generated by plastic work, given
+        to the dies, given to the air (zeros without a temperature field)."""
+        return self.element.heat_flows(x, ctx, gnew, self.layout)
+
     def contact_report(self, x, ctx: StepContext):
         """Per candidate at a converged x: (status 0/1/2, normal, tangent, slip increment)."""
         if self.layout.n_contact == 0:
             z = jnp.zeros((0, 2), dtype=x.dtype)
             return jnp.zeros(0, jnp.int32), z, z, jnp.zeros(0, dtype=x.dtype)
-        v = self._contact_vars(x, ctx.coords, ctx.idx)
-        return jax.vmap(
-            lambda vk, k: self.contact.pair_status(
-                ctx.die, vk[:2], vk[2:], ctx.t, ctx.c_contact, ctx.cstep, k
-            )
-        )(v, jnp.arange(self.layout.n_contact))
+        return NodeContact(self.contact, self.layout).report(x, ctx)
+
+    # -- global ---------------------------------------------------------------------
+    def residual(self, x, ctx: StepContext):
+        """Global residual; returns (R, new Gauss state, status code, force scale)."""
+        ep = self.element.residual_pass(x, ctx, self.layout)
+        return self._finish_residual(x, ep, ctx)
 
     def residual_and_jacobian(self, x, ctx: StepContext):
         """(R, Jacobian values on the pattern, new Gauss state, status code, force scale).
         A dead load ctx.f_ext adds nothing to the Jacobian."""
-        fn = self._element_fn(ctx)
-        xe, elem, r_e, gnew, ok_e, heat_e = self._element_residuals(fn, x, ctx)
-        k_e, _ = self._element_jacobians(fn, xe, elem, ctx.gauss, gnew)
-        r, gnew, ok, scale = self._finish_residual(x, r_e, gnew, ok_e, heat_e, ctx)
-        return r, self._jacobian_values(x, k_e, ctx), gnew, ok, scale
+        element = self.element
+        ep = element.residual_pass(x, ctx, self.layout)
+        k_e, _ = element.jacobians(element.element_fn(ctx, self.layout), ep, ctx.gauss)
+        r, gnew, ok, scale = self._finish_residual(x, ep, ctx)
+        return r, self._jacobian_values(x, ep._replace(k_e=k_e), ctx), gnew, ok, scale
 
     def jacobian_and_state_vjp(self, x, ctx: StepContext, g_bar: GaussState):
         """(Jacobian values on the pattern, (dG/dx)^T g_bar) at x, G the new Gauss state.
@@ -412,70 +714,46 @@ class Model:
         new Gauss state in the same tangents; contracting it with the cotangent g_bar
         right away costs a few small products instead of a reverse pass through the
         local material solves."""
-        fn = self._element_fn(ctx)
+        element = self.element
+        fn = element.element_fn(ctx, self.layout)
 
         def fn_state(dofs_flat, elem, gs, solution):
             r, (_, gnew, code, _) = fn(dofs_flat, elem, gs, solution)
             return (r, gnew), code
 
-        xe, elem, _, g_conv, _, _ = self._element_residuals(fn, x, ctx)
-        (k_e, dg_e), _ = self._element_jacobians(fn_state, xe, elem, ctx.gauss, g_conv)
+        ep = element.residual_pass(x, ctx, self.layout)
+        (k_e, dg_e), _ = element.jacobians(fn_state, ep, ctx.gauss)
         n_e, n_d = k_e.shape[0], k_e.shape[-1]
         xg_e = sum(
             jnp.einsum("ek,ekd->ed", gb.reshape(n_e, -1), dg.reshape(n_e, -1, n_d))
             for gb, dg in zip(jax.tree_util.tree_leaves(g_bar), jax.tree_util.tree_leaves(dg_e))
         )
         xg = jnp.zeros(self.layout.n_dofs, dtype=x.dtype).at[ctx.idx.edofs].add(xg_e)
-        return self._jacobian_values(x, k_e, ctx), xg
+        return self._jacobian_values(x, ep._replace(k_e=k_e), ctx), xg
 
-    def _jacobian_values(self, x, k_e, ctx: StepContext):
-        """Element and contact blocks summed into the pattern; Dirichlet rows identity."""
-        idx = ctx.idx
-        # contact blocks (4 x 4 per candidate)
-        if self.layout.n_contact:
-            k_c = jax.vmap(jax.jacfwd(self._contact_fn(ctx)))(
-                self._contact_vars(x, ctx.coords, idx), jnp.arange(self.layout.n_contact)
-            )
-        else:
-            k_c = jnp.zeros((0, 4, 4), dtype=x.dtype)
-        k_f = self._facet_terms(x, ctx, True) if self.layout.n_facets else jnp.zeros(0, x.dtype)
-        n = self.layout.n_dofs
-        raw = jnp.concatenate([k_e.ravel(), k_c.ravel(), k_f.ravel(), jnp.zeros(n, x.dtype)])
+    def _jacobian_values(self, x, ep: ElementPass, ctx: StepContext):
+        """Every term's blocks summed into the pattern, then each term's conditions on
+        its rows (Dirichlet rows identity)."""
+        idx, n = ctx.idx, self.layout.n_dofs
+        raw = jnp.concatenate([t.jacobian(x, ctx, ep).ravel() for t in self.terms])
         vals = jax.ops.segment_sum(raw, idx.slot, num_segments=self.layout.n_nonzeros)
-        # Dirichlet rows -> identity rows
-        fixed_row = jnp.zeros(n, dtype=bool).at[idx.fixed].set(True)
-        is_fixed = fixed_row[idx.rows]
-        return jnp.where(is_fixed, jnp.where(idx.rows == idx.cols, 1.0, 0.0), vals)
+        for t in self.terms:
+            vals = t.constrain(vals, idx, n)
+        return vals
 
-    def _finish_residual(self, x, r_e, gnew, ok_e, heat_e, ctx: StepContext):
-        idx, f_ext = ctx.idx, ctx.f_ext
-        n = self.layout.n_dofs
-        r = jnp.zeros(n, dtype=x.dtype).at[idx.edofs].add(r_e)
-        lam = x[idx.mult_dofs]
-        if self.layout.n_contact:
-            rc = jax.vmap(self._contact_fn(ctx))(
-                self._contact_vars(x, ctx.coords, idx), jnp.arange(self.layout.n_contact)
-            )
-            r = r.at[idx.contact_dofs].add(rc[:, :2])
-            r = r.at[idx.mult_dofs].set(rc[:, 2:])
-        if self.layout.n_facets:
-            rf = self._facet_terms(x, ctx, False)
-            r = r.at[idx.facet_dofs].add(rf[:, :4])
-            r = r.at[idx.facet_mult].set(rf[:, 4])
-            lam = jnp.concatenate([lam.ravel(), x[idx.facet_mult]])
-        if f_ext is not None:
-            r = r - f_ext
-        r = r.at[idx.fixed].set(x[idx.fixed])
-        nf = self.layout.n_fields
-        r_u_e = r_e.reshape(r_e.shape[0], 4, nf)[:, :, :2]
-        scale = jnp.maximum(jnp.sqrt(jnp.sum(r_u_e**2)), jnp.linalg.norm(lam))
-        if f_ext is not None:
-            scale = jnp.maximum(scale, jnp.linalg.norm(f_ext))
-        if ctx.thermal is not None:  # the heat of the step (mJ): what the thermal rows carry
-            scale = jnp.maximum(scale, jnp.sqrt(jnp.sum(heat_e**2)))
-        code = jnp.max(ok_e)
+    def _finish_residual(self, x, ep: ElementPass, ctx: StepContext):
+        """(R, new Gauss state, status code, force scale): every term's part of R in
+        order; the scale the largest of the terms' and the multipliers' norm."""
+        r = jnp.zeros(self.layout.n_dofs, dtype=x.dtype)
+        for t in self.terms:
+            r = t.add_residual(r, x, ctx, ep)
+        lam = jnp.concatenate([t.multipliers(x, ctx.idx) for t in self.terms])
+        scale = jnp.linalg.norm(lam)
+        for t in self.terms:
+            scale = jnp.maximum(scale, t.scale(x, ctx, ep, self.layout))
+        code = jnp.max(ep.code)
         code = jnp.where(jnp.all(jnp.isfinite(r)), code, NOT_FINITE)
-        return r, gnew, code, scale
+        return r, ep.gauss, code, scale
 
 
 @partial(jax.jit, static_argnums=0)
@@ -486,5 +764,5 @@ def internal_forces(model: Model, x, gstate, coords, dt, params, idx: Indices):
     zero = jnp.zeros((), dtype=x.dtype)
     ctx = StepContext(gauss=gstate, coords=coords, t=zero, dt=dt, params=params, die=None,
                       c_contact=zero, cstep=None, idx=idx)  # fmt: skip
-    _, _, r_e, _, _, _ = model._element_residuals(model._element_fn(ctx), x, ctx)
-    return jnp.zeros(model.layout.n_dofs, dtype=x.dtype).at[idx.edofs].add(r_e)
+    ep = model.element.residual_pass(x, ctx, model.layout)
+    return jnp.zeros(model.layout.n_dofs, dtype=x.dtype).at[idx.edofs].add(ep.r_e)

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from functools import partial
 
 import jax
 import jax.numpy as jnp
@@ -38,6 +39,7 @@ import numpy as np
 
 from jaxform import mesh as meshing
 from jaxform.assembly import Layout, build_indices
+from jaxform.fields import OUTPUT_FIELDS, FieldMap, map_state
 from jaxform.linear import choose_backend
 from jaxform.solver import choose_method
 
@@ -79,24 +81,20 @@ class Padded:
     real: Layout
     bucket: Bucket
 
-    def _blocks(self, lay: Layout):
-        return (lay.n_node_dofs, 2 * lay.n_contact, lay.n_facets)
-
     def _pad_x(self, x, xp=np):
         x = np.asarray(x) if xp is np else x
-        out, start = [], 0
-        for n_real, n_cap in zip(self._blocks(self.real), self._blocks(self.scene.model.layout)):
-            out += [x[start : start + n_real], xp.zeros(n_cap - n_real, x.dtype)]
-            start += n_real
-        return xp.concatenate(out)
+        cap = self.scene.model.layout
+        nodal, lam, facets = self.real.split(x)
+        pad = partial(_pad_rows, xp=xp)
+        return cap.join(pad(nodal, cap.n_nodes), pad(lam, cap.n_contact),
+                        pad(facets, cap.n_facets), xp)  # fmt: skip
 
     def _trim_x(self, x, xp=np):
         x = np.asarray(x) if xp is np else x
-        out, start = [], 0
-        for n_real, n_cap in zip(self._blocks(self.real), self._blocks(self.scene.model.layout)):
-            out.append(x[..., start : start + n_real])
-            start += n_cap
-        return xp.concatenate(out, axis=-1)
+        real = self.real
+        nodal, lam, facets = self.scene.model.layout.split(x)
+        return real.join(nodal[..., : real.n_nodes, :], lam[..., : real.n_contact, :],
+                         facets[..., : real.n_facets], xp)  # fmt: skip
 
     def coords(self, coords, xp=np):
         """The real scene's reference coordinates with the ghost nodes' after them."""
@@ -104,63 +102,94 @@ class Padded:
         return xp.concatenate([coords, ghost])
 
     def state(self, state, xp=np):
-        """The real scene's state in the padded layout (ghosts at rest, initial state).
-        Host NumPy (so a new mesh compiles nothing here), or traced JAX (``xp=jnp``: a
-        gradient run differentiates through it)."""
-        lay = self.scene.model.layout
-        ghost_el = lay.n_elements - self.real.n_elements
-        with jax.ensure_compile_time_eval():  # constants, also inside a traced run
-            init = self.scene.model.law.initial_state(self.scene.inputs.params)
-        ghost = type(state.gauss)(F=np.broadcast_to(np.eye(3), (ghost_el, 4, 3, 3)), mat=init)
-        host = xp is np
-
-        def pad(a, b):
-            a = np.asarray(a) if host else a
-            return xp.concatenate([a, np.broadcast_to(np.asarray(b, a.dtype),
-                                                      (ghost_el,) + a.shape[1:])])  # fmt: skip
-
-        pad_c = lay.n_contact - self.real.n_contact
-        status = np.asarray(state.contact_status) if host else state.contact_status
-        out = replace(
-            state,
-            x=self._pad_x(state.x, xp),
-            x_rate=self._pad_x(state.x_rate, xp),
-            gauss=jax.tree_util.tree_map(pad, state.gauss, ghost),
-            slip_mm=xp.concatenate([state.slip_mm, xp.zeros(pad_c)]),
-            contact_status=xp.concatenate([status, xp.zeros(pad_c, status.dtype)]),
-            damage=pad(state.damage, 0.0),
-        )
-        return jax.tree_util.tree_map(jnp.asarray, out) if host else out
+        """The real scene's state in the padded layout (ghosts at rest, initial state),
+        field by field as each declares (:mod:`jaxform.fields`).  Host NumPy (so a new
+        mesh compiles nothing here), or traced JAX (``xp=jnp``: a gradient run
+        differentiates through it)."""
+        out = map_state(state, _Pad(self, xp))
+        return jax.tree_util.tree_map(jnp.asarray, out) if xp is np else out
 
     def trim(self, state, xp=np):
         """A padded state in the real scene's layout (host NumPy slices, or traced JAX)."""
-        ne, nc = self.real.n_elements, self.real.n_contact
-        host = xp is np
-        part = (lambda a, n: jnp.asarray(np.asarray(a)[:n])) if host else (lambda a, n: a[:n])
-        vec = (lambda a: jnp.asarray(self._trim_x(a))) if host else (lambda a: self._trim_x(a, xp))
-        return replace(
-            state,
-            x=vec(state.x),
-            x_rate=vec(state.x_rate),
-            gauss=jax.tree_util.tree_map(lambda a: part(a, ne), state.gauss),
-            slip_mm=part(state.slip_mm, nc),
-            contact_status=part(state.contact_status, nc),
-            damage=part(state.damage, ne),
-        )
+        out = map_state(state, _Trim(self, xp, 0))
+        return jax.tree_util.tree_map(jnp.asarray, out) if xp is np else out
 
     def trim_outputs(self, outs: dict) -> dict:
         """A chunk's outputs (host arrays, leading axis the steps) in the real layout."""
-        ne, nc = self.real.n_elements, self.real.n_contact
+        trim = _Trim(self, np, 1)
         out = dict(outs)  # (a chunk that failed singular has no fields)
-        if "x" in outs:
-            out["x"] = self._trim_x(outs["x"])
-        for k in ("stress", "s", "eqps", "damage"):
+        for k, kind in OUTPUT_FIELDS.items():
             if k in outs:
-                out[k] = outs[k][:, :ne]
-        for k in ("slip_mm", "contact_status"):
-            if k in outs:
-                out[k] = outs[k][:, :nc]
+                out[k] = getattr(trim, kind.method)(outs[k])
         return out
+
+
+def _pad_rows(a, n: int, xp=np):
+    """``a`` with zero rows after its own to n rows."""
+    return xp.concatenate([a, xp.zeros((n - a.shape[0],) + a.shape[1:], a.dtype)])
+
+
+class _Pad(FieldMap):
+    """The fields of a real scene's state in its padded layout: ghost nodes, candidates
+    and facets at rest (zeros), ghost elements in the material's initial state."""
+
+    def __init__(self, padded: Padded, xp):
+        self.p, self.xp = padded, xp
+        self.ghost_el = padded.scene.model.layout.n_elements - padded.real.n_elements
+
+    def _host(self, a):
+        return np.asarray(a) if self.xp is np else a
+
+    def unknowns(self, x):
+        return self.p._pad_x(x, self.xp)
+
+    rates = unknowns
+
+    def element(self, value, rest=0.0):
+        a = self._host(value)
+        ghost = np.broadcast_to(np.asarray(rest, a.dtype), (self.ghost_el,) + a.shape[1:])
+        return self.xp.concatenate([a, ghost])
+
+    def gauss(self, value):
+        model, params = self.p.scene.model, self.p.scene.inputs.params
+        with jax.ensure_compile_time_eval():  # constants, also inside a traced run
+            init = model.law.initial_state(params)
+        rest = type(value)(F=np.eye(3), mat=init)
+        return jax.tree_util.tree_map(self.element, value, rest)
+
+    def candidate(self, value):
+        n = self.p.scene.model.layout.n_contact
+        return _pad_rows(self._host(value), n, self.xp)
+
+    status = candidate
+
+
+class _Trim(FieldMap):
+    """The fields of a padded state in the real scene's layout (``lead`` leading axes
+    before the one indexed: 1 for a chunk's outputs, leading axis the steps)."""
+
+    def __init__(self, padded: Padded, xp, lead: int):
+        self.p, self.xp, self.lead = padded, xp, lead
+
+    def _part(self, a, n):
+        a = np.asarray(a) if self.xp is np else a
+        return a[(slice(None),) * self.lead + (slice(0, n),)]
+
+    def unknowns(self, x):
+        return self.p._trim_x(x, self.xp)
+
+    rates = unknowns
+
+    def element(self, value):
+        return self._part(value, self.p.real.n_elements)
+
+    def gauss(self, value):
+        return jax.tree_util.tree_map(self.element, value)
+
+    def candidate(self, value):
+        return self._part(value, self.p.real.n_contact)
+
+    status = candidate
 
 
 def _ghost_square(coords: np.ndarray, die=None, t_end: float = 0.0) -> np.ndarray:
@@ -255,6 +284,9 @@ def _padded(scene, bucket: Bucket) -> Padded:
     reaction = np.concatenate([reaction, np.full(bucket.nodes - len(reaction), g[0] * nf + 1)])
     layout, pidx = build_indices(ghost_mesh, nf, fixed, contact_nodes, reaction_dofs=reaction,
                                  contact_facets=facets, corner_contact=corner)  # fmt: skip
+    layout = replace(layout, temperature=real.temperature)
+    pmodel, pidx = replace(scene.model, layout=layout).with_pattern(pidx)
+    layout = pmodel.layout
     # the pattern padded to its capacity by a band of zeros between isolated ghost dofs
     cap = bucket.nonzeros(nf, corner)
     n_dofs = layout.n_dofs
@@ -270,7 +302,7 @@ def _padded(scene, bucket: Bucket) -> Padded:
         cols=jnp.asarray(keys % n_dofs, dtype=jnp.int32),
         slot=jnp.asarray(new_slot, dtype=jnp.int32),
     )
-    layout = replace(layout, n_nonzeros=cap, temperature=real.temperature)
+    layout = replace(layout, n_nonzeros=cap)
     if real.temperature:
         edges = np.zeros((len(elements), 4))
         edges[:n_el] = np.asarray(idx.exposed_edges)

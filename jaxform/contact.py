@@ -281,25 +281,6 @@ def facet_normal(xa, xb):
     return jnp.stack([d[..., 1], -d[..., 0]], axis=-1) / jnp.linalg.norm(d, axis=-1, keepdims=True)
 
 
-def tributary_areas(pos, facets, axisymmetric: bool, counted=None):
-    """Contact area (mm^2) of each candidate node: integral of its shape function over the
-    adjacent free-surface facets (x 2 pi r for axisymmetry; per mm depth in plane strain).
-
-    pos: (n_c, 2) current positions; facets: (n_f, 2) local candidate indices; counted:
-    optional (n_f,) 0/1 weights (which facets are in contact)."""
-    a, b = pos[facets[:, 0]], pos[facets[:, 1]]
-    length = jnp.sqrt(jnp.sum((b - a) ** 2, axis=1))
-    if counted is not None:
-        length = length * counted
-    if axisymmetric:
-        wa = 2.0 * jnp.pi * length * (2.0 * a[:, 0] + b[:, 0]) / 6.0
-        wb = 2.0 * jnp.pi * length * (a[:, 0] + 2.0 * b[:, 0]) / 6.0
-    else:
-        wa = wb = 0.5 * length
-    area = jnp.zeros(pos.shape[0], dtype=pos.dtype)
-    return area.at[facets[:, 0]].add(wa).at[facets[:, 1]].add(wb)
-
-
 def nodal_average(values_el, elements, n_nodes: int):
     """Average of element values (n_el,) over the elements around each node."""
     total = jnp.zeros(n_nodes, values_el.dtype).at[elements].add(values_el[:, None])
@@ -314,5 +295,5 @@ def facets_in_contact(touching, facets):
     """(n_f,) 1.0 for the candidate facets whose two nodes are touching (a (n_c,) bool
     mask: gap <= TOUCH_GAP_MM at a step's start, or the converged contact status), else
     0.0: the facets whose area carries the contact tractions (``counted`` of
-    :func:`tributary_areas`)."""
+    :func:`jaxform.geometry.tributary_areas`)."""
     return (touching[facets[:, 0]] & touching[facets[:, 1]]).astype(float)

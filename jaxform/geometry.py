@@ -48,3 +48,48 @@ def min_quality(pos, elements):
     """The mesh quality that triggers rezoning and remeshing: the worst corner of any
     element."""
     return corner_qualities(pos, elements).min()
+
+
+def tributary_areas(pos, facets, axisymmetric: bool, counted=None, xp=np):
+    """Contact area of each node (mm^2; plane strain: per mm of depth): the integral of its
+    shape function over the facets around it (x 2 pi r for an axisymmetric section).
+
+    pos: (n, 2) positions; facets: (n_f, 2) node indices into pos; counted: optional
+    (n_f,) 0/1 weights (which facets count, e.g. those in contact); ``xp``: NumPy (host,
+    nothing compiled) or ``jax.numpy`` (traced)."""
+    a, b = pos[facets[:, 0]], pos[facets[:, 1]]
+    length = xp.sqrt(xp.sum((b - a) ** 2, axis=1))
+    if counted is not None:
+        length = length * counted
+    if axisymmetric:
+        wa = 2.0 * np.pi * length * (2.0 * a[:, 0] + b[:, 0]) / 6.0
+        wb = 2.0 * np.pi * length * (a[:, 0] + 2.0 * b[:, 0]) / 6.0
+    else:
+        wa = wb = 0.5 * length
+    n = pos.shape[0]
+    if xp is np:
+        return np.bincount(facets[:, 0], wa, n) + np.bincount(facets[:, 1], wb, n)
+    return xp.zeros(n, dtype=pos.dtype).at[facets[:, 0]].add(wa).at[facets[:, 1]].add(wb)
+
+
+def nearest_on_segments(points: np.ndarray, a: np.ndarray, b: np.ndarray):
+    """For each of the points (p, 2), the nearest of the segments a -> b (m, 2): (its index
+    (p,), the parameter along it (p,) in [0, 1], the distance (p,), mm).  Host NumPy."""
+    d = b - a
+    s = np.einsum("pmi,mi->pm", points[:, None] - a[None], d) / np.maximum(
+        np.sum(d * d, axis=1), 1e-300
+    )
+    s = np.clip(s, 0.0, 1.0)
+    dist = np.linalg.norm(points[:, None] - (a[None] + s[..., None] * d[None]), axis=2)
+    k = np.argmin(dist, axis=1)
+    rows = np.arange(len(points))
+    return k, s[rows, k], dist[rows, k]
+
+
+def mesh_change(pos, elements, new_pos, new_elements, axisymmetric: bool):
+    """What a new mesh of the section changes (a remesh or a rezoning reports it): (the
+    worst corner quality before, after, the relative change of the material volume)."""
+    v0 = float(np.sum(polygon_measure(pos[elements], axisymmetric)))
+    v1 = float(np.sum(polygon_measure(new_pos[new_elements], axisymmetric)))
+    before = float(min_quality(pos, elements))
+    return before, float(min_quality(new_pos, new_elements)), v1 / v0 - 1.0

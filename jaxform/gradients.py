@@ -98,8 +98,7 @@ class Trajectory:
 
 
 def _temperatures(model, x, inputs: Inputs):
-    th = inputs.thermal
-    return None if th is None else model.layout.temperatures(x, th.billet_temperature_K)
+    return model.element.temperatures(model.layout, x, inputs.thermal)
 
 
 class GradientRunError(RuntimeError):

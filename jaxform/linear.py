@@ -3,7 +3,7 @@ inside jit.
 
 A matrix is given as values ``vals`` on a fixed sparsity pattern (unique rows/cols
 computed once at set-up, passed in as *arguments* so that no large constant is baked
-into the compiled program; the pattern from :func:`jaxform.assembly.build_indices` is
+into the compiled program; the pattern from :meth:`jaxform.assembly.Model.with_pattern` is
 sorted row-major).  Every backend implements :class:`LinearSolver`:
 
 * :class:`DenseLU` (``dense``) scatters into an n x n array and calls LU;

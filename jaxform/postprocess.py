@@ -14,12 +14,11 @@
 
 from __future__ import annotations
 
-import jax
 import numpy as np
 
-from jaxform.contact import facets_in_contact, tributary_areas
+from jaxform.contact import facets_in_contact
 from jaxform.dies import sample_rounded
-from jaxform.geometry import polygon_measure
+from jaxform.geometry import nearest_on_segments, polygon_measure, tributary_areas
 from jaxform.mesh import boundary_edges
 
 
@@ -157,18 +156,6 @@ def _inside(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.sum(crosses & (px < xc), axis=1) % 2 == 1
 
 
-def _distance_to(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    d = b - a
-    s = np.clip(
-        np.einsum("pmi,mi->pm", points[:, None, :] - a[None], d)
-        / np.maximum(np.sum(d * d, axis=1), 1e-300),
-        0.0,
-        1.0,
-    )
-    q = a[None] + s[..., None] * d[None]
-    return np.min(np.linalg.norm(points[:, None, :] - q, axis=2), axis=1)
-
-
 def _clipped_boundary_integral(p0, p1, a, b, keep_on_boundary, tol, axisymmetric):
     """Green's-theorem integral (int r^2/2 dz, axisymmetric; int r dz, plane strain) over
     the parts of the directed edges p0 -> p1 inside the region bounded by the edges a -> b
@@ -185,7 +172,7 @@ def _clipped_boundary_integral(p0, p1, a, b, keep_on_boundary, tol, axisymmetric
         ts = np.concatenate([[0.0], np.sort(t[k][hit[k]]), [1.0]])
         q = p0[k] + ts[:, None] * d[k]
         mid = 0.5 * (q[:-1] + q[1:])
-        near = _distance_to(mid, a, b) <= tol
+        near = nearest_on_segments(mid, a, b)[2] <= tol
         keep = np.where(near, keep_on_boundary, _inside(mid, a, b))
         r0, z0, r1, z1 = q[:-1, 0], q[:-1, 1], q[1:, 0], q[1:, 1]
         if axisymmetric:
@@ -206,7 +193,7 @@ def overlap_depth(die_points: np.ndarray, pos: np.ndarray, edges: np.ndarray) ->
     inside = _inside(die_points, a, b)
     if not inside.any():
         return 0.0
-    return float(np.max(_distance_to(die_points[inside], a, b)))
+    return float(np.max(nearest_on_segments(die_points[inside], a, b)[2]))
 
 
 def die_overlap(scene, pos: np.ndarray, t: float) -> float:
@@ -391,11 +378,6 @@ def extra_history(scene, xs: np.ndarray, times: np.ndarray) -> dict[str, np.ndar
     return out
 
 
-# one compiled call per shape (the facets in contact as weights, not as a subset: the same
-# shapes every row), not a few dozen eager operations compiled again per contact set
-_tributary_areas = jax.jit(tributary_areas, static_argnums=2)
-
-
 def _extended(poly: np.ndarray, reach: float) -> np.ndarray:
     """The polyline with its first and last segments carried on by ``reach`` mm (a die's
     end segments run to infinity)."""
@@ -429,16 +411,10 @@ def arc_position(poly: np.ndarray, points: np.ndarray, start: float = 0.0):
     vertex, and its distance (mm) from it.  Along a vertical wall s runs with z where r
     stands still."""
     a, b = poly[:-1], poly[1:]
-    d = b - a
-    length = np.linalg.norm(d, axis=1)
+    length = np.linalg.norm(b - a, axis=1)
     s0 = start + np.r_[0.0, np.cumsum(length)[:-1]]
-    rel = points[:, None, :] - a[None]
-    u = np.clip(np.sum(rel * d[None], axis=2) / np.maximum(length**2, 1e-300), 0.0, 1.0)
-    q = a[None] + u[..., None] * d[None]
-    dist = np.linalg.norm(points[:, None, :] - q, axis=2)
-    k = np.argmin(dist, axis=1)
-    rows = np.arange(len(points))
-    return s0[k] + u[rows, k] * length[k], dist[rows, k]
+    k, u, dist = nearest_on_segments(points, a, b)
+    return s0[k] + u * length[k], dist
 
 
 def contact_profile(
@@ -449,8 +425,6 @@ def contact_profile(
     the node faces (the nearest die at t, from its profile's first point; negative on the
     extension before it) and ``die``, that die's name: the axis a profile is drawn
     against (a vertical die wall has one r but spreads along s)."""
-    import jax.numpy as jnp
-
     idx = scene.idx
     pos = positions(scene, x)[np.asarray(idx.contact_nodes)]
     lay = scene.model.layout
@@ -460,11 +434,7 @@ def contact_profile(
     # no traction, and counting it made a uniform pressure read low at the edge
     facets = np.asarray(idx.contact_facets)
     counted = np.asarray(facets_in_contact(np.asarray(status) > 0, facets))
-    area = np.asarray(
-        _tributary_areas(
-            jnp.asarray(pos), jnp.asarray(facets), scene.model.formulation.axisymmetric, counted
-        )
-    )
+    area = tributary_areas(pos, facets, scene.model.formulation.axisymmetric, counted)
     safe = np.where(area > 0, area, 1.0)
     along = {}
     if t is not None and scene.inputs.die is not None:

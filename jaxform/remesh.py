@@ -39,14 +39,19 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxform.assembly import Layout
 from jaxform.config import RemeshConfig
 from jaxform.contact import TOUCH_GAP_MM, facets_in_contact
-from jaxform.geometry import polygon_measure
+from jaxform.geometry import (
+    mesh_change,
+    min_quality,
+    nearest_on_segments,
+    polygon_measure,
+    tributary_areas,
+)
 from jaxform.mesh import MeshError, boundary_edges, boundary_polygon, polygon_quads
-from jaxform.rezone import gap_function, min_quality
+from jaxform.rezone import gap_function
 from jaxform.scenes import scene_on_mesh
-from jaxform.transfer import Transfer, gauss_weights
+from jaxform.transfer import StateMap, Transfer, gauss_weights
 
 _CORNER_TURN = np.deg2rad(30.0)  # a sharper turn of the boundary is refined like die contact
 
@@ -281,18 +286,6 @@ def _outward(p: np.ndarray, axisymmetric: bool):
     return nrm / np.maximum(np.linalg.norm(nrm, axis=1), 1e-300)[:, None], share
 
 
-def _nearest_on_boundary(points: np.ndarray, a: np.ndarray, b: np.ndarray):
-    """For each point, the nearest boundary edge a -> b and the parameter along it."""
-    d = b - a
-    s = np.einsum("pmi,mi->pm", points[:, None] - a[None], d) / np.maximum(
-        np.sum(d * d, axis=1), 1e-300
-    )
-    s = np.clip(s, 0.0, 1.0)
-    dist = np.linalg.norm(points[:, None] - (a[None] + s[..., None] * d[None]), axis=2)
-    k = np.argmin(dist, axis=1)
-    return k, s[np.arange(len(points)), k]
-
-
 @dataclass(frozen=True)
 class ContactMap:
     """The new candidates' multipliers, slip and status from the old candidates: each new
@@ -326,14 +319,14 @@ def contact_map(scene, new_scene, state, pos, new_pos) -> ContactMap:
     cn = np.asarray(idx.contact_nodes)
     status = np.asarray(state.contact_status)
     counted = facets_in_contact(status > 0, np.asarray(idx.contact_facets))
-    area = contact_areas(pos[cn], np.asarray(idx.contact_facets), axi, counted)
+    area = tributary_areas(pos[cn], np.asarray(idx.contact_facets), axi, counted)
     per_area = np.where(area > 0, 1.0 / np.where(area > 0, area, 1.0), 0.0)
     cand = np.full(lay.n_nodes, -1)  # old node -> candidate index
     cand[cn] = np.arange(len(cn))
     edges = boundary_edges(scene.mesh.elements)
     new_cn = np.asarray(new_idx.contact_nodes)
     p = new_pos[new_cn]
-    k, s = _nearest_on_boundary(p, pos[edges[:, 0]], pos[edges[:, 1]])
+    k, s, _ = nearest_on_segments(p, pos[edges[:, 0]], pos[edges[:, 1]])
     ends = cand[edges[k]]  # (n_new, 2)
     is_cand = ends >= 0
     ends = np.where(is_cand, ends, 0)
@@ -341,52 +334,9 @@ def contact_map(scene, new_scene, state, pos, new_pos) -> ContactMap:
     st_end = np.where(is_cand, status[ends], 0)
     new_status = np.where(s < 0.5, st_end[:, 0], st_end[:, 1]).astype(np.int32)
     new_counted = facets_in_contact(new_status > 0, np.asarray(new_idx.contact_facets))
-    new_area = contact_areas(p, np.asarray(new_idx.contact_facets), axi, new_counted)
+    new_area = tributary_areas(p, np.asarray(new_idx.contact_facets), axi, new_counted)
     lam_w = along * per_area[ends] * new_area[:, None]
     return ContactMap(ends, lam_w, along, new_status)
-
-
-@dataclass(frozen=True, eq=False)
-class StateMap:
-    """One remesh as a fixed map from the old mesh's state to the new mesh's, set up once
-    from the forward run's state (the located points, the recovery patches, the contact
-    weights) and applied to NumPy values (the forward run) or traced JAX values (a
-    gradient run, :mod:`jaxform.gradients`, which differentiates through it).
-
-    :meth:`apply` ``(state, coords)`` -> ``(state, coords)``: the new reference coordinates
-    are the old deformed positions (coords + u) interpolated at the new nodes (plus the
-    fixed offset that makes them the new mesh's nodes exactly at the forward run's state:
-    nodes a rounding outside the old mesh); Gauss-point fields by :class:`Transfer`
-    (patch recovery, then interpolation), F = I; nodal fields besides u (pressure,
-    temperature) and the predictor's rates by interpolation; contact by
-    :class:`ContactMap`; the damage integrals (Gauss-point fields) like the material
-    state; time, friction work, heat and die wear carry over."""
-
-    old: Layout
-    new: Layout
-    move: Transfer
-    coords_offset: np.ndarray  # (n_new, 2) mm
-    contact: ContactMap
-
-    def apply(self, state, coords, xp=np):
-        old, new = self.old, self.new
-        nodal = old.nodal(state.x)
-        pos = coords + nodal[:, :2]
-        new_coords = self.move.nodal(pos, xp) + self.coords_offset
-        cat = xp.concatenate
-        rest = self.move.nodal(nodal[:, 2:], xp)  # pressure, temperature
-        lam, slip = self.contact.apply(old.node_multipliers(state.x), state.slip_mm, xp)
-        facets = xp.zeros(new.n_facets)
-        x = cat([cat([xp.zeros((new.n_nodes, 2)), rest], axis=1).ravel(), lam.ravel(), facets])
-        rate = self.move.nodal(old.nodal(state.x_rate), xp)
-        x_rate = cat([rate.ravel(), xp.zeros(2 * new.n_contact), facets])
-        eye = xp.broadcast_to(xp.eye(3), (new.n_elements, 4, 3, 3))
-        mat = jax.tree_util.tree_map(lambda v: self.move.gauss(v, xp), state.gauss.mat)
-        status = self.contact.status.astype(state.contact_status.dtype)
-        damage = self.move.gauss(state.damage, xp)
-        return replace(state, x=x, gauss=replace(state.gauss, F=eye, mat=mat), x_rate=x_rate,
-                       slip_mm=slip, contact_status=xp.asarray(status),
-                       damage=damage), new_coords  # fmt: skip
 
 
 def eqps_integral(scene, pos: np.ndarray, eqps: np.ndarray) -> float:
@@ -394,18 +344,6 @@ def eqps_integral(scene, pos: np.ndarray, eqps: np.ndarray) -> float:
     (mm^3 axisymmetric, mm^2 plane strain), by the 2 x 2 Gauss rule."""
     axi = scene.model.formulation.axisymmetric
     return float(np.sum(gauss_weights(pos, scene.mesh.elements, axi) * np.asarray(eqps)))
-
-
-def contact_areas(pos: np.ndarray, facets: np.ndarray, axisymmetric: bool, counted) -> np.ndarray:
-    """NumPy :func:`jaxform.contact.tributary_areas` (no compile per new mesh)."""
-    a, b = pos[facets[:, 0]], pos[facets[:, 1]]
-    length = np.linalg.norm(b - a, axis=1) * counted
-    if axisymmetric:
-        wa = 2.0 * np.pi * length * (2.0 * a[:, 0] + b[:, 0]) / 6.0
-        wb = 2.0 * np.pi * length * (a[:, 0] + 2.0 * b[:, 0]) / 6.0
-    else:
-        wa = wb = 0.5 * length
-    return np.bincount(facets[:, 0], wa, len(pos)) + np.bincount(facets[:, 1], wb, len(pos))
 
 
 @dataclass(frozen=True)
@@ -442,17 +380,16 @@ def remesh(scene, state, settings: RemeshConfig) -> Remeshed:
     new_state, _ = transfer.apply(host, coords)
     new_state = jax.tree_util.tree_map(jnp.asarray, new_state)
     axi = scene.model.formulation.axisymmetric
-    v0 = float(np.sum(polygon_measure(pos[elements], axi)))
-    v1 = float(np.sum(polygon_measure(mesh.coords[mesh.elements], axi)))
+    q0, q1, volume_change = mesh_change(pos, elements, mesh.coords, mesh.elements, axi)
     report = RemeshReport(
         time_s=t,
         nodes_before=lay.n_nodes,
         nodes_after=mesh.n_nodes,
         elements_before=len(elements),
         elements_after=mesh.n_elements,
-        quality_before=float(min_quality(pos, elements)),
-        quality_after=float(min_quality(mesh.coords, mesh.elements)),
-        volume_change=v1 / v0 - 1.0,
+        quality_before=q0,
+        quality_after=q1,
+        volume_change=volume_change,
         eqps_integral_before=eqps_integral(scene, pos, host.gauss.mat.eqps),
         eqps_integral_after=eqps_integral(new_scene, mesh.coords, new_state.gauss.mat.eqps),
         seconds=time.perf_counter() - start,

@@ -205,7 +205,8 @@ def _indices(mesh: meshing.Mesh, n_fields: int, contact_sets: tuple[str, ...], c
     """(Layout, Indices) of the mesh: Dirichlet dofs from the named sets
     (:data:`FIXED_COMPONENTS`), the reaction dofs, the contact candidates and facets (with
     a corner-contact multiplier each where ``corner``); with ``temperature`` one more
-    nodal field (the last) and the edges that exchange heat."""
+    nodal field (the last) and the edges that exchange heat.  No sparsity pattern yet:
+    the model's terms give it (:meth:`jaxform.assembly.Model.with_pattern`)."""
     sets = mesh.node_sets
     n_fields = n_fields + temperature  # the temperature is the last nodal field
     fixed = [sets[s] * n_fields + k for s, comps in FIXED_COMPONENTS.items() if s in sets
@@ -485,6 +486,7 @@ def scene_on_mesh(scene: Scene, mesh: meshing.Mesh) -> Scene:
         model.layout.n_facets > 0,
         temperature=model.layout.temperature,
     )
+    model, idx = replace(model, layout=layout).with_pattern(idx)
     so = scene.settings.solver
     linear = choose_backend(so.linear, layout.n_dofs)
     idx = replace(idx, lu_symbolic=linear.analyze(idx.rows, idx.cols, layout.n_dofs))
@@ -492,7 +494,7 @@ def scene_on_mesh(scene: Scene, mesh: meshing.Mesh) -> Scene:
     return replace(
         scene,
         mesh=mesh,
-        model=replace(model, layout=layout),
+        model=model,
         idx=idx,
         linear=linear,
         newton=newton,
@@ -541,6 +543,7 @@ def build_scene(cfg: dict | Config, mesh: meshing.Mesh | None = None) -> Scene:
     )
     law = law.for_points(4 * layout.n_elements)  # its local solve for the mesh's size
     model = Model(form, law, layout, ContactLaw())
+    model, idx = model.with_pattern(idx)
     c = _contact_scale(mesh, float(law.shear_modulus(params)), axi)
     remesh = None
     if cfg.remesh.on:

@@ -27,6 +27,7 @@ from jax.errors import JaxRuntimeError
 
 from jaxform import program_store
 from jaxform.capacity import padded
+from jaxform.fields import OUTPUT_FIELDS
 from jaxform.forming_outputs import damage_history
 from jaxform.postprocess import HEAT_COLUMNS, extra_history, laps
 from jaxform.precision import require_x64
@@ -174,7 +175,7 @@ HISTORY_KEYS = (
     "rezoned",
     "remeshed",
 )
-FIELD_KEYS = ("x", "stress", "s", "eqps", "slip_mm", "contact_status", "damage")
+FIELD_KEYS = tuple(OUTPUT_FIELDS)  # the per-step fields indexed over the mesh
 PROGRESS_KEYS = ("time_s", "stroke_mm", "force_N", "iterations", "cutbacks", "dt_s")
 
 

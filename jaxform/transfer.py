@@ -19,13 +19,21 @@ Both parts are set up once from the geometry (host NumPy) and then applied to th
 by NumPy or by traced JAX (argument ``xp``): a fixed, piecewise-linear map of the values
 (linear where no limiter acts), which a gradient run differentiates
 (:mod:`jaxform.gradients`).
+
+:class:`StateMap` maps a whole simulation state with it, field by field as each field
+declares what it is indexed over (:mod:`jaxform.fields`): the one map of a remesh, of a
+rezoning (same topology, no contact map) and of a trim (:mod:`jaxform.process`).
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass, replace
+
+import jax
 import numpy as np
 
 from jaxform import element as el
+from jaxform.fields import FieldMap, map_state
 
 _A, _B = el._CORNERS[:, 0], el._CORNERS[:, 1]
 
@@ -232,3 +240,78 @@ class Transfer:
         nodal = self.recovery.apply(values, xp)
         out = xp.einsum("pa,pa...->p...", self.gauss_w, nodal[self.gauss_ids])
         return out.reshape((self.n_new_elements, 4) + values.shape[2:])
+
+
+@dataclass(frozen=True, eq=False)
+class StateMap:
+    """One remesh (or rezoning) as a fixed map from the old mesh's state to the new mesh's,
+    set up once from the forward run's state (the located points, the recovery patches,
+    the contact weights) and applied to NumPy values (the forward run) or traced JAX
+    values (a gradient run, :mod:`jaxform.gradients`, which differentiates through it).
+
+    :meth:`apply` ``(state, coords)`` -> ``(state, coords)``: the new reference coordinates
+    are the old deformed positions (coords + u) interpolated at the new nodes (plus the
+    fixed offset that makes them the new mesh's nodes exactly at the forward run's state:
+    nodes a rounding outside the old mesh).  Each state field is mapped as its kind
+    declares (:mod:`jaxform.fields`): the unknowns with u = 0 (the deformed configuration
+    is the new reference) and the other nodal fields (pressure, temperature) and the
+    predictor's nodal rates interpolated; the Gauss state by :class:`Transfer` (patch
+    recovery, then interpolation) with F = I, the other element fields (damage
+    integrals) likewise; the candidates' multipliers, slip and status by ``contact``
+    (:class:`jaxform.remesh.ContactMap`; None: a map whose topology does not change, a
+    rezoning, keeps the candidates' and facets' values as they are); time, friction
+    work, heat and die wear carry over."""
+
+    old: object  # jaxform.assembly.Layout
+    new: object
+    move: Transfer
+    coords_offset: np.ndarray  # (n_new, 2) mm
+    contact: object = None  # jaxform.remesh.ContactMap
+
+    def apply(self, state, coords, xp=np):
+        pos = coords + self.old.nodal(state.x)[:, :2]
+        new_coords = self.move.nodal(pos, xp) + self.coords_offset
+        return map_state(state, _Moved(self, state, xp)), new_coords
+
+
+class _Moved(FieldMap):
+    """The fields of ``state`` mapped by a :class:`StateMap` (``xp``: NumPy or JAX)."""
+
+    def __init__(self, smap: StateMap, state, xp):
+        self.m, self.xp = smap, xp
+        self.old_multipliers = smap.old.node_multipliers(state.x)
+        self.old_slip = state.slip_mm
+
+    def _contact(self):
+        return self.m.contact.apply(self.old_multipliers, self.old_slip, self.xp)
+
+    def unknowns(self, x):
+        m, xp = self.m, self.xp
+        nodal, lam, facets = m.old.split(x)
+        rest = m.move.nodal(nodal[:, 2:], xp)  # pressure, temperature
+        new_nodal = xp.concatenate([xp.zeros((m.new.n_nodes, 2)), rest], axis=1)
+        if m.contact is not None:
+            lam, facets = self._contact()[0], xp.zeros(m.new.n_facets)
+        return m.new.join(new_nodal, lam, facets, xp)
+
+    def rates(self, x_rate):
+        m, xp = self.m, self.xp
+        nodal, lam, facets = m.old.split(x_rate)
+        if m.contact is not None:
+            lam, facets = xp.zeros((m.new.n_contact, 2)), xp.zeros(m.new.n_facets)
+        return m.new.join(m.move.nodal(nodal, xp), lam, facets, xp)
+
+    def element(self, value):
+        return self.m.move.gauss(value, self.xp)
+
+    def gauss(self, value):
+        eye = self.xp.broadcast_to(self.xp.eye(3), (self.m.new.n_elements, 4, 3, 3))
+        return replace(value, F=eye, mat=jax.tree_util.tree_map(self.element, value.mat))
+
+    def candidate(self, value):
+        return value if self.m.contact is None else self._contact()[1]
+
+    def status(self, value):
+        if self.m.contact is None:
+            return value
+        return self.xp.asarray(self.m.contact.status.astype(value.dtype))
