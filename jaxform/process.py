@@ -3,7 +3,11 @@
     Config --process_config.operations--> (Operation, ...) --run_process--> ProcessResult
 
 Each operation starts from the state the one before it left (:class:`PartState`: the
-scene, i.e. the mesh with its sets and reference coordinates, and every state field):
+scene, i.e. the mesh with its sets and reference coordinates, and every state field, the
+temperature among the unknowns).  :func:`run_operation` is the seam: a part in, a
+:class:`jaxform.simulation.Result` out whose :attr:`~jaxform.simulation.Result.part` the
+next operation takes (a forming or heated operation's run starts from its part,
+``simulate(scene, progress, start=part)``):
 
 * **forming**: the operation's scene is built on the part's current mesh, the deformed
   positions its reference (:func:`jaxform.scenes.build_scene` with ``mesh``); the state
@@ -383,8 +387,9 @@ RUNNERS = {"forming": _forming, "dwell": _in_air, "reheat": _in_air, "trim": _tr
 
 def run_operation(op: Operation, part: PartState | None, initial: Mesh, progress, simulate_fn):
     """One operation from the part ``part`` (None: the first forming operation, on the
-    workpiece's own mesh): (its Result, the map that brought the part in, trimmed
-    volume).  Raises ConfigError, SimulationError (with the operation's result)."""
+    workpiece's own mesh): (its Result, whose ``part`` is the part it leaves; the map that
+    brought the part in; the trimmed volume).  Raises ConfigError, SimulationError (with
+    the operation's result)."""
     return RUNNERS[op.kind](op, part, initial, progress, simulate_fn)
 
 

@@ -15,8 +15,8 @@ them) that
   run cannot adapt on every step.
 
 :data:`TRIGGERS` are all of them, each with its bit of the outputs' ``pause_cause``
-(:func:`causes` names them).  A costly one (a die corner's depth, a fold) is compiled into
-a scene's steps only where the scene sets it (:func:`scene_triggers`).  The geometric
+(:func:`causes` names them).  The costly ones (a die corner's depth, a fold) are compiled
+into a scene's steps only where the scene sets one (:func:`scene_triggers`).  The geometric
 measures:
 
 * :func:`corner_depth_ratio`: how deep a convex die corner reaches into a free-surface
@@ -235,9 +235,11 @@ TRIGGERS = (QualityBelow(), EverySteps(), EveryStroke(), CornerDepth(), FoldBelo
 
 def scene_triggers(scene) -> tuple[Trigger, ...]:
     """The triggers compiled into the scene's steps: every cheap one (a threshold of 0
-    leaves it off, and scenes that differ in their thresholds share a program) and each
-    costly one the scene sets."""
-    return tuple(t for t in TRIGGERS if not t.costly or t.configured(scene) > 0.0)
+    leaves it off, and scenes that differ in their thresholds share a program) and the
+    costly ones where the scene sets any of them (all of them, so that the scenes that
+    measure the boundary's shape share one program too)."""
+    costly = any(t.costly and t.configured(scene) > 0.0 for t in TRIGGERS)
+    return tuple(t for t in TRIGGERS if costly or not t.costly)
 
 
 @dataclass(frozen=True)

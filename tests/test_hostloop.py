@@ -64,14 +64,15 @@ def test_newton_variants_answer_what_the_callers_ask():
 
 def test_triggers_of_a_scene_and_the_shared_step_program():
     """Every cheap trigger is compiled into every scene's steps (a threshold of 0 leaves
-    it off), a costly one only where the scene sets it; the bits and names of
+    it off), the costly ones only where the scene sets one; the bits and names of
     ``pause_cause`` stay.  Scenes that differ only in thresholds share one stepper (one
     program); a differentiable stepper has no trigger and full Newton."""
     cheap = (QualityBelow(), EverySteps(), EveryStroke(), PressCapacity())
     plain = _scene()
     assert scene_triggers(plain) == cheap
     corner = _scene("remesh.corner_depth_ratio=0.2")
-    assert scene_triggers(corner) == cheap[:3] + (CornerDepth(), PressCapacity())
+    assert scene_triggers(corner) == cheap[:3] + (CornerDepth(), FoldBelow(), PressCapacity())
+    assert stepper_of(corner) == stepper_of(_scene("remesh.fold_angle_deg=20"))
     assert len({t.bit for t in TRIGGERS}) == len(TRIGGERS)
     assert causes(QUALITY | FOLD) == "quality+fold" and causes(CORNER) == "die corner"
     a, b = _scene("remesh.quality_below=0.3"), _scene("remesh.quality_below=0.2")
