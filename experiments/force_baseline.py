@@ -51,7 +51,9 @@ def main(argv=None) -> int:
     ap.add_argument("--only", nargs="*", default=None, help="config file names")
     a = ap.parse_args(argv)
     out = Path(a.dir)
-    names = a.only or sorted(p.name for p in (ROOT / "configs").glob("*.toml") if p.name not in SKIP)
+    names = a.only or sorted(
+        p.name for p in (ROOT / "configs").glob("*.toml") if p.name not in SKIP
+    )
     bad = 0
     for name, cols in _histories(names):
         path = out / (name.removesuffix(".toml") + ".npz")

@@ -107,6 +107,7 @@ _KINDS = {
     "float | None": "float",
     "int": "int",
     "str": "str",
+    "str | None": "str",
     "bool": "bool",
     "tuple[float, ...]": "floats",
     "tuple[str, ...]": "strs",
@@ -623,14 +624,18 @@ class SideDieConfig:
     )
 
 
+FRICTION_MODELS = ("none", "coulomb", "shear", "sticking")
+# the coefficient key of each friction model that has one
+FRICTION_COEFFICIENT = {"coulomb": "mu", "shear": "m"}
+
+
 @section("friction")
 @dataclass(frozen=True, kw_only=True)
 class FrictionConfig:
-    """[friction]: the friction law at the die."""
+    """[friction]: the friction law at the dies (each die's own [<die>.friction] table
+    may replace any of its keys)."""
 
-    model: str = key(
-        "none", choices=("none", "coulomb", "shear", "sticking"), doc="die-workpiece friction law"
-    )
+    model: str = key("none", choices=FRICTION_MODELS, doc="die-workpiece friction law")
     mu: float = key(0.0, low=0.0, high=10.0, doc="Coulomb coefficient (friction.model = coulomb)")
     m: float = key(
         0.0,
@@ -638,6 +643,30 @@ class FrictionConfig:
         high=1.0,
         doc="shear friction factor, tau = m sigma_eq/sqrt(3) (friction.model = shear)",
     )
+
+
+# the die sections that may hold their own friction law, a [<die>.friction] sub-table
+FRICTION_DIES = ("die", "bottom_die", "side_die")
+
+
+@dataclass(frozen=True, kw_only=True)
+class DieFrictionConfig:
+    """[die.friction], [bottom_die.friction], [side_die.friction]: that die's own friction
+    law; a key left out takes [friction]'s (:func:`die_friction`)."""
+
+    model: str | None = key(
+        choices=FRICTION_MODELS, doc="this die's friction law (default: friction.model)"
+    )
+    mu: float | None = key(
+        low=0.0, high=10.0, doc="this die's Coulomb coefficient (default: friction.mu)"
+    )
+    m: float | None = key(low=0.0, high=1.0, doc="this die's shear factor (default: friction.m)")
+
+
+for _die in FRICTION_DIES:
+    section(f"{_die}.friction")(DieFrictionConfig)
+# keys with no default that take [friction]'s value where left out
+_INHERITED = {(f"{d}.friction", k) for d in FRICTION_DIES for k in ("model", "mu", "m")}
 
 
 @section("wear")
@@ -1076,6 +1105,10 @@ class Config:
     bottom_die: BottomDieConfig | None = None
     side_die: SideDieConfig | None = None
     friction: FrictionConfig | None = None
+    # the dies' own friction tables ([die.friction] etc.; None outside a die scene)
+    die_friction: DieFrictionConfig | None = None
+    bottom_die_friction: DieFrictionConfig | None = None
+    side_die_friction: DieFrictionConfig | None = None
     wear: WearConfig | None = None
     thermal: ThermalConfig
     time: TimeConfig
@@ -1094,8 +1127,56 @@ class Config:
         return {
             name: {f.name: _thaw(getattr(sec, f.name)) for f in dataclasses.fields(sec)}
             for name in SECTIONS
-            if (sec := getattr(self, name)) is not None
+            if (sec := getattr(self, _attribute(name))) is not None
         }
+
+    def friction_key(self, die: str, coefficient: str) -> str:
+        """The config key that sets ``coefficient`` (mu or m) of die section ``die``."""
+        return friction_source(self.to_dict(), die, coefficient)
+
+    def friction_of(self, die: str) -> FrictionConfig:
+        """The friction law of die section ``die`` (of FRICTION_DIES): its own table's
+        keys over [friction]'s (:func:`die_friction`)."""
+        return FrictionConfig(**die_friction(self.to_dict(), die))
+
+
+def _attribute(section_name: str) -> str:
+    """The :class:`Config` attribute of a section ('die.friction' -> 'die_friction')."""
+    return section_name.replace(".", "_")
+
+
+def die_friction(cfg: dict, die: str) -> dict:
+    """The friction keys (model, mu, m) of die section ``die`` in a validated document:
+    each from its [<die>.friction] table where given there, else from [friction]."""
+    own = cfg.get(f"{die}.friction") or {}
+    return {k: v if own.get(k) is None else own[k] for k, v in cfg["friction"].items()}
+
+
+def friction_source(cfg: dict, die: str, coefficient: str) -> str:
+    """The config key that sets ``coefficient`` (mu or m) of die section ``die``."""
+    own = cfg.get(f"{die}.friction") or {}
+    return f"{die}.friction.{coefficient}" if own.get(coefficient) is not None else (
+        f"friction.{coefficient}")  # fmt: skip
+
+
+def friction_keys(cfg: dict) -> set[str]:
+    """The config keys that set a coefficient of some die's friction law in a validated
+    die scene (e.g. {'friction.m'}, {'friction.mu', 'side_die.friction.m'})."""
+    out = set()
+    for die in friction_dies(cfg):
+        coefficient = FRICTION_COEFFICIENT.get(die_friction(cfg, die)["model"])
+        if coefficient:
+            out.add(friction_source(cfg, die, coefficient))
+    return out
+
+
+def friction_dies(cfg: dict) -> tuple[str, ...]:
+    """The die sections of a validated die scene that build a die: the top die, the
+    bottom die of a full-height workpiece, a side die with a profile."""
+    piece = next((cfg[w] for w in ("billet", "ring") if w in cfg), {})
+    full = piece.get("full_height", False)
+    side = bool(cfg.get("side_die", {}).get("profile_mm"))
+    return ("die",) + (("bottom_die",) if full else ()) + (("side_die",) if side else ())
 
 
 def _freeze(value: Any) -> Any:
@@ -1110,7 +1191,7 @@ def typed(cfg: dict) -> Config:
     """The :class:`Config` of a document from :func:`load_config` (validated already)."""
     return Config(
         **{
-            name: SECTIONS[name](**{k: _freeze(v) for k, v in table.items()})
+            _attribute(name): SECTIONS[name](**{k: _freeze(v) for k, v in table.items()})
             for name, table in cfg.items()
         }
     )
@@ -1138,6 +1219,7 @@ def _workpiece(raw: dict) -> str:
 
 def _applies(section: str, kind: str) -> bool:
     """Whether a section belongs in a scene with workpiece ``kind``."""
+    section = section.split(".")[0]  # a die's friction table goes with its die
     if section in WORKPIECES:
         return section == kind
     if section in _DIE_SECTIONS:
@@ -1154,7 +1236,7 @@ def _parse_override(text: str) -> tuple[str, str, Any]:
     if "=" not in text:
         raise ConfigError(f"malformed override {text!r}: expected section.key=value")
     dotted, raw = (s.strip() for s in text.split("=", 1))
-    section, dot, key = dotted.partition(".")
+    section, dot, key = dotted.rpartition(".")  # die.friction.m: section die.friction
     if not dot or not section or not key or "." in key:
         raise ConfigError(
             f"malformed override {text!r}: the key must be section.key, "
@@ -1332,11 +1414,34 @@ def _cross_checks(raw: dict, out: dict) -> None:
         raise ConfigError(f"mesh.file = {out['mesh']['file']!r}: no such file")
     if "billet" in out or "ring" in out:
         _die_set_checks(raw, out)
+    _friction_checks(raw, out)
+
+
+def _friction_checks(raw: dict, out: dict) -> None:
+    """A law with a coefficient has it given (in the die's own table or in [friction]);
+    a die's own table belongs to a die the scene has."""
+    need = FRICTION_COEFFICIENT
     fr = out["friction"]
-    if fr["model"] == "coulomb" and "mu" not in raw.get("friction", {}):
-        raise ConfigError("friction.model = 'coulomb' needs friction.mu (float in [0, 10])")
-    if fr["model"] == "shear" and "m" not in raw.get("friction", {}):
-        raise ConfigError("friction.model = 'shear' needs friction.m (float in [0, 1])")
+    if fr["model"] in need and need[fr["model"]] not in raw.get("friction", {}):
+        k = need[fr["model"]]
+        f = SCHEMA["friction"][k]
+        raise ConfigError(f"friction.model = {fr['model']!r} needs friction.{k} ({f.kind} in "
+                          f"{f.allowed()})")  # fmt: skip
+    dies = friction_dies(out)
+    for die in FRICTION_DIES:
+        own = {k: v for k, v in raw.get(f"{die}.friction", {}).items() if v is not None}
+        if own and die not in dies:
+            raise ConfigError(
+                f"{die}.friction.{sorted(own)[0]}: the scene has no {die} (a bottom die needs "
+                "full_height = true, a side die side_die.profile_mm)"
+            )
+        model = die_friction(out, die)["model"]
+        k = need.get(model)
+        if own and k and k not in own and k not in raw.get("friction", {}):
+            raise ConfigError(
+                f"{die}.friction.model = {model!r} needs {die}.friction.{k} or friction.{k} "
+                f"(float in {SCHEMA['friction'][k].allowed()})"
+            )
 
 
 def _press_checks(out: dict) -> None:
@@ -1580,6 +1685,7 @@ def load_config(path_or_dict: str | PathLike | dict, overrides: Iterable[str] = 
     # a multi-stage process is read by jaxform.process_config.load_document; here its
     # base sections are checked first, then it is refused (a command of one scene)
     process = raw.pop("process", None)
+    _lift_friction_tables(raw)
     for text in overrides:
         section, key, value = _parse_override(text)
         sec = raw.setdefault(section, {})
@@ -1614,9 +1720,10 @@ def load_config(path_or_dict: str | PathLike | dict, overrides: Iterable[str] = 
         out[section] = {}
         for key, f in fields.items():
             name = f"{section}.{key}"
-            if key in given and not (given[key] is None and (section, key) in _CONDITIONAL):
+            optional = (section, key) in _CONDITIONAL | _INHERITED
+            if key in given and not (given[key] is None and optional):
                 out[section][key] = _check(name, f, given[key])
-            elif f.default is None and (section, key) not in _CONDITIONAL:
+            elif f.default is None and not optional:
                 raise ConfigError(
                     f"missing required key {name} ({f.kind} in {f.allowed()}): {f.doc}"
                 )
@@ -1631,6 +1738,20 @@ def load_config(path_or_dict: str | PathLike | dict, overrides: Iterable[str] = 
             "(design and taylor-test take a config of one forming operation)"
         )
     return out
+
+
+def _lift_friction_tables(raw: dict) -> None:
+    """Move each TOML sub-table [die.friction] (raw["die"]["friction"]) to the section
+    "die.friction" of the document (as [bottom_die.friction], [side_die.friction])."""
+    for die in FRICTION_DIES:
+        table = raw.get(die)
+        if isinstance(table, dict) and "friction" in table:
+            sub = table.pop("friction")
+            if not isinstance(sub, dict):
+                raise ConfigError(
+                    f"{die}.friction: must be a table of keys (model, mu, m), not {sub!r}"
+                )
+            raw.setdefault(f"{die}.friction", {}).update(sub)
 
 
 # the quality trigger a closed die remeshes on when its config sets no trigger of its own
@@ -1712,8 +1833,14 @@ def read_document(path: str | PathLike) -> dict:
 
 
 def dump_config(cfg: dict, path: str | PathLike) -> None:
-    """Write a (resolved) config as TOML (keys whose value is unset are left out)."""
+    """Write a (resolved) config as TOML (keys whose value is unset are left out; a die's
+    friction table as its sub-table [die.friction], where it sets a key)."""
     clean = {s: {k: v for k, v in t.items() if v is not None} for s, t in cfg.items()}
+    for name in [s for s in clean if "." in s]:
+        table = clean.pop(name)
+        if table:
+            die = name.split(".")[0]
+            clean[die] = {**clean.get(die, {}), "friction": table}
     Path(path).write_bytes(tomli_w.dumps(clean).encode())
 
 
@@ -1722,7 +1849,9 @@ def describe_schema() -> str:
     rows = ["| key | type | default | allowed | meaning |", "|---|---|---|---|---|"]
     for section, fields in SCHEMA.items():
         for key, f in fields.items():
-            if f.default is None:
+            if (section, key) in _INHERITED:
+                default = "[friction]'s"
+            elif f.default is None:
                 default = "required"
             elif f.kind == "bool":
                 default = str(f.default).lower()
@@ -1853,10 +1982,11 @@ def _check_groups(cfg: dict, groups: list[str], where: str) -> None:
             )
         if "membrane" in cfg and g in ("friction", "speed", "die"):
             raise ConfigError(f"{shown}: {g!r} needs a die; a [membrane] scene has none")
-    if "friction" in groups and cfg["friction"]["model"] not in ("coulomb", "shear"):
+    models = [die_friction(cfg, d)["model"] for d in friction_dies(cfg)] if "die" in cfg else []
+    if "friction" in groups and not set(FRICTION_COEFFICIENT) & set(models):
         raise ConfigError(
-            f"{shown}: 'friction' needs friction.model = 'coulomb' or 'shear', "
-            f"not {cfg['friction']['model']!r}"
+            f"{shown}: 'friction' needs friction.model = 'coulomb' or 'shear', not "
+            f"{cfg['friction']['model']!r} (or a die's own [<die>.friction] model)"
         )
     th = cfg["thermal"]
     if "thermal" in groups and (th["model"] != "coupled" or th["htc_die_W_m2K"] <= 0.0):

@@ -16,13 +16,20 @@ the node against the die, mm) and the trial z = lambda_t - c s:
     inactive node:            C_t = lambda_t                    (no contact, no friction)
     active, |z| <= b (stick): C_t = c s                         (no slip)
     active, |z| >  b (slip):  C_t = lambda_t - b z / |z|        (|lambda_t| = b, opposing slip)
-with the friction bound b of the law (the radial return of thesis Sec. 5.4 in force form):
-    ``none``      b = 0 (C_t = lambda_t everywhere: frictionless);
-    ``coulomb``   b = mu max(0, lambda_n - c g)  (= mu lambda_n at convergence);
-    ``shear``     b = m (sigma_eq / sqrt 3) A    (constant friction factor; sigma_eq the
-                  nodal flow stress and A the node's contact area, both taken at the start
-                  of the step: lagged by one step, see :func:`shear_bounds`);
-    ``sticking``  b = infinity (an active node never slips).
+with the friction bound b of the law of the die that holds the node (each
+:class:`jaxform.dies.RigidDie` owns one; a :class:`jaxform.dies.DieSet` selects the law of
+its nearest die, :func:`pick_law`), the radial return of thesis Sec. 5.4 in force form:
+    :class:`Frictionless`  C_t = lambda_t everywhere (no tangential force);
+    :class:`Coulomb`       b = mu max(0, lambda_n - c g)  (= mu lambda_n at convergence);
+    :class:`Shear`         b = m (sigma_eq / sqrt 3) A    (constant friction factor; sigma_eq
+                           the nodal flow stress and A the node's contact area, both taken
+                           at the start of the step: lagged by one step);
+    :class:`Sticking`      an active node never slips (C_t = c s; no infinite bound enters
+                           the arithmetic, so the reverse pass stays NaN-free).
+A law's bound reads a :class:`FrictionSite` (the trial normal force, the lagged flow stress
+and contact area, the temperature): a law that depends on the contact pressure or the
+temperature is one new :class:`BoundedFriction` class with its own ``bound``.  Coefficients
+are the law's fields (traced leaves: differentiable); the law's kind is its class.
 
 Candidates whose tangential motion a Dirichlet condition fixes (nodes on the axis of an
 axisymmetric section, where the die tangent is radial; nodes on the mid-plane against a
@@ -40,11 +47,11 @@ normal multiplier against the die's convex arcs (:func:`facet_terms`), frictionl
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
 
-FRICTION_MODELS = ("none", "coulomb", "shear", "sticking")
 OPEN, STICK, SLIP = 0, 1, 2
 
 
@@ -55,27 +62,165 @@ class ContactStep:
 
     x_old: jax.Array  # (n_c, 2) positions of the candidate nodes at t_n (mm)
     t_old: jax.Array  # t_n (s)
-    shear_bound: jax.Array  # (n_c,) m sigma_eq/sqrt(3) A at t_n (N); 0 unless 'shear'
     fixed: jax.Array  # (n_c, 2) bool: the candidate's u_r, u_z are prescribed (Dirichlet)
+    # what a friction law may read at t_n (lagged), per candidate; zeros where no law of the
+    # scene's dies reads it (:func:`jaxform.stepping.contact_step`)
+    sigma_eq: jax.Array  # (n_c,) nodal flow stress (MPa)
+    area: jax.Array  # (n_c,) contact area of the facets in contact (mm^2)
+    temperature_K: jax.Array  # (n_c,) nodal temperature (K; NaN in an isothermal run)
+
+
+@jax.tree_util.register_dataclass
+@dataclass(frozen=True)
+class FrictionSite:
+    """What the contact conditions know at a candidate when a law bounds its tangential
+    force: the trial normal force lambda_n - c g (N; > 0 where the node is active, the
+    normal force at convergence), and at t_n the nodal flow stress sigma_eq (MPa), the
+    node's contact area A (mm^2) and its temperature (K)."""
+
+    trial_n: jax.Array
+    sigma_eq: jax.Array
+    area: jax.Array
+    temperature_K: jax.Array
+
+    @property
+    def shear_base(self):
+        """sigma_eq / sqrt(3) A (N): the shear flow force of the node's contact area."""
+        return self.sigma_eq / jnp.sqrt(3.0) * self.area
+
+    @property
+    def pressure(self):
+        """The trial contact pressure max(0, lambda_n - c g) / A (MPa; 0 where A = 0)."""
+        safe = jnp.where(self.area > 0.0, self.area, 1.0)
+        return jnp.where(self.area > 0.0, jnp.maximum(0.0, self.trial_n) / safe, 0.0)
+
+
+class FrictionLaw:
+    """A die-workpiece friction law: the tangential condition of an active candidate.
+
+    Subclasses are frozen PyTrees whose fields are the law's coefficients (traced,
+    differentiable); ``coefficient_range`` gives each coefficient's allowed interval (the
+    design group's bounds).  ``uses_flow_stress`` / ``uses_temperature``: the step start
+    must supply sigma_eq and A / the temperature (:class:`ContactStep`)."""
+
+    coefficient_range: ClassVar[dict[str, tuple[float, float]]] = {}
+    uses_flow_stress: ClassVar[bool] = False
+    uses_temperature: ClassVar[bool] = False
+
+    def tangential(self, p: dict, site: FrictionSite, c):
+        """(C_t, whether a node in contact counts as sticking) from the candidate's parts
+        ``p`` (:meth:`ContactLaw._parts`) and site."""
+        raise NotImplementedError
+
+
+@jax.tree_util.register_dataclass
+@dataclass(frozen=True)
+class Frictionless(FrictionLaw):
+    """No tangential force: C_t = lambda_t; a node in contact slips."""
+
+    def tangential(self, p, site, c):
+        return p["lam_t"], jnp.asarray(False)
+
+
+@jax.tree_util.register_dataclass
+@dataclass(frozen=True)
+class Sticking(FrictionLaw):
+    """An active node never slips: C_t = c s (where no Dirichlet condition fixes the
+    tangential motion), without an infinite bound in the arithmetic (NaN-free VJP)."""
+
+    def tangential(self, p, site, c):
+        c_t = jnp.where(p["active"], c * p["slip"], p["lam_t"])
+        return jnp.where(p["frictionless"], p["lam_t"], c_t), jnp.asarray(True)
+
+
+class BoundedFriction(FrictionLaw):
+    """A law with a finite bound b on |lambda_t| (:meth:`bound`, N): stick where the trial
+    |z| <= b (C_t = c s), else slip (C_t = lambda_t - b z / |z|)."""
+
+    def bound(self, site: FrictionSite):
+        raise NotImplementedError
+
+    def tangential(self, p, site, c):
+        bound = self.bound(site)
+        stick = p["az"] <= bound
+        safe = jnp.where(stick, 1.0, p["az"])
+        slip_eq = p["lam_t"] - bound * p["z"] / safe
+        c_t = jnp.where(p["active"], jnp.where(stick, c * p["slip"], slip_eq), p["lam_t"])
+        # where a Dirichlet condition fixes the tangential motion, friction has nothing to act on
+        c_t = jnp.where(p["frictionless"], p["lam_t"], c_t)
+        return c_t, stick | p["frictionless"]  # a fixed node cannot slip
+
+
+@jax.tree_util.register_dataclass
+@dataclass(frozen=True)
+class Coulomb(BoundedFriction):
+    """b = mu max(0, lambda_n - c g) (mu: Coulomb coefficient, -)."""
+
+    mu: jax.Array
+    coefficient_range: ClassVar[dict[str, tuple[float, float]]] = {"mu": (0.0, 10.0)}
+
+    def bound(self, site):
+        return self.mu * jnp.maximum(0.0, site.trial_n)
+
+
+@jax.tree_util.register_dataclass
+@dataclass(frozen=True)
+class Shear(BoundedFriction):
+    """b = m sigma_eq / sqrt(3) A, lagged by one step (m: shear friction factor, -)."""
+
+    m: jax.Array
+    coefficient_range: ClassVar[dict[str, tuple[float, float]]] = {"m": (0.0, 1.0)}
+    uses_flow_stress: ClassVar[bool] = True
+
+    def bound(self, site):
+        return self.m * site.sigma_eq / jnp.sqrt(3.0) * site.area
+
+
+@jax.tree_util.register_dataclass
+@dataclass(frozen=True)
+class FrictionChoice(FrictionLaw):
+    """The law of die ``which`` among the different laws of a die set: each law's
+    condition evaluated, the chosen one's taken."""
+
+    laws: tuple
+    which: jax.Array
+
+    def tangential(self, p, site, c):
+        parts = [law.tangential(p, site, c) for law in self.laws]
+        c_t = jnp.stack([q[0] for q in parts])[self.which]
+        sticks = jnp.stack([jnp.broadcast_to(q[1], ()) for q in parts])[self.which]
+        return c_t, sticks
+
+
+def pick_law(laws, which):
+    """The friction law of die ``which`` (traced index) of ``laws`` (one per die): laws of
+    one class give one law with the chosen die's coefficients; laws of different classes a
+    :class:`FrictionChoice`."""
+    laws = tuple(laws)
+    if len(laws) == 1:
+        return laws[0]
+    if len({jax.tree_util.tree_structure(law) for law in laws}) == 1:
+        return jax.tree_util.tree_map(lambda *v: jnp.stack(v)[which], *laws)
+    return FrictionChoice(laws, which)
+
+
+def flatten_laws(laws):
+    """The distinct law classes under ``laws`` (opening a :class:`FrictionChoice`)."""
+    out = []
+    for law in laws:
+        out.extend(flatten_laws(law.laws) if isinstance(law, FrictionChoice) else [law])
+    return out
 
 
 @dataclass(frozen=True)
 class ContactLaw:
-    """Strategy: the friction model (static); coefficients live in the die pytree (a
-    :class:`jaxform.dies.RigidDie`, or a :class:`jaxform.dies.DieSet` whose nearest die
-    holds the node)."""
-
-    friction: str = "none"
-
-    def __post_init__(self):
-        if self.friction not in FRICTION_MODELS:
-            raise ValueError(
-                f"friction.model = {self.friction!r}: must be one of {', '.join(FRICTION_MODELS)}"
-            )
+    """Strategy: the node-to-die contact conditions; the friction law of each die lives in
+    the die pytree (a :class:`jaxform.dies.RigidDie`, or a :class:`jaxform.dies.DieSet`
+    whose nearest die holds the node)."""
 
     def _parts(self, die, x, lam, t, c, step: ContactStep, k):
-        """The quantities both the residual and the status read for candidate k."""
-        friction = self.friction
+        """The quantities both the residual and the status read for candidate k, and the
+        friction law of the die that holds it."""
         f = die.frame(x, t, step.t_old)  # the nearest die's surface, motion and friction
         g, n, tan = f.g, f.n, f.tan
         slip = jnp.dot(x - step.x_old[k] - f.move, tan)
@@ -83,63 +228,31 @@ class ContactLaw:
         trial_n = lam_n - c * g
         active = trial_n > 0.0
         z = lam_t - c * slip
-        if friction == "coulomb":
-            bound = f.mu * jnp.maximum(0.0, trial_n)
-        elif friction == "shear":
-            bound = step.shear_bound[k]
-        elif friction == "sticking":
-            bound = jnp.asarray(jnp.inf)  # only compared, never multiplied
-        else:
-            bound = 0.0
         az = jnp.abs(z)
-        stick = az <= bound
         # the tangential motion is prescribed: u_r held (a node on the axis), or u_z held
         # (on the mid-plane) against a die surface that runs more up than across (a mandrel)
         fixed = step.fixed[k]
         frictionless = fixed[0] | (fixed[1] & (jnp.abs(tan[1]) > jnp.abs(tan[0])))
-        return dict(
-            g=g,
-            n=n,
-            tan=tan,
-            slip=slip,
-            lam_n=lam_n,
-            lam_t=lam_t,
-            trial_n=trial_n,
-            active=active,
-            z=z,
-            az=az,
-            bound=bound,
-            stick=stick,
-            frictionless=frictionless,
-        )
+        site = FrictionSite(trial_n=trial_n, sigma_eq=step.sigma_eq[k], area=step.area[k],
+                            temperature_K=step.temperature_K[k])  # fmt: skip
+        p = dict(g=g, n=n, tan=tan, slip=slip, lam_n=lam_n, lam_t=lam_t, trial_n=trial_n,
+                 active=active, z=z, az=az, frictionless=frictionless)  # fmt: skip
+        return p, f.friction, site
 
     def pair_terms(self, die, x, lam, t, c, step: ContactStep, k):
         """Candidate k at position x with multipliers lam = (lambda_n, lambda_t):
         (force residual on the node (2,), complementarity residuals (2,))."""
-        p = self._parts(die, x, lam, t, c, step, k)
+        p, law, site = self._parts(die, x, lam, t, c, step, k)
         r_u = -(p["lam_n"] * p["n"] + p["lam_t"] * p["tan"])
         c_n = p["lam_n"] - jnp.maximum(0.0, p["trial_n"])
-        if self.friction == "none":
-            c_t = p["lam_t"]
-            return r_u, jnp.stack([c_n, c_t])
-        elif self.friction == "sticking":  # no infinite bound in the arithmetic (NaN-free VJP)
-            c_t = jnp.where(p["active"], c * p["slip"], p["lam_t"])
-        else:
-            safe = jnp.where(p["stick"], 1.0, p["az"])
-            slip_eq = p["lam_t"] - p["bound"] * p["z"] / safe
-            c_t = jnp.where(p["active"], jnp.where(p["stick"], c * p["slip"], slip_eq), p["lam_t"])
-        # where a Dirichlet condition fixes the tangential motion, friction has nothing to act on
-        c_t = jnp.where(p["frictionless"], p["lam_t"], c_t)
+        c_t, _ = law.tangential(p, site, c)
         return r_u, jnp.stack([c_n, c_t])
 
     def pair_status(self, die, x, lam, t, c, step: ContactStep, k):
         """(status OPEN/STICK/SLIP, normal n, tangent t, slip increment) at convergence."""
-        p = self._parts(die, x, lam, t, c, step, k)
+        p, law, site = self._parts(die, x, lam, t, c, step, k)
         in_contact = p["lam_n"] > 0.0
-        if self.friction == "none":
-            sticks = jnp.asarray(False)
-        else:
-            sticks = p["stick"] | p["frictionless"]  # a fixed node cannot slip
+        _, sticks = law.tangential(p, site, c)
         status = jnp.where(in_contact, jnp.where(sticks, STICK, SLIP), OPEN)
         return status, p["n"], p["tan"], p["slip"]
 
@@ -203,8 +316,3 @@ def facets_in_contact(touching, facets):
     0.0: the facets whose area carries the contact tractions (``counted`` of
     :func:`tributary_areas`)."""
     return (touching[facets[:, 0]] & touching[facets[:, 1]]).astype(float)
-
-
-def shear_bounds(m_factor, sigma_eq_nodes, areas):
-    """b = m sigma_eq / sqrt(3) A per candidate (N)."""
-    return m_factor * sigma_eq_nodes / jnp.sqrt(3.0) * areas

@@ -35,8 +35,9 @@ q pointing to the workpiece.  The profile is C1, so g and n are continuous along
 is differentiable near it (away from the centres of concave arcs, a radius away from the
 die).  The unit tangent is the normal turned by +90 deg (for a top die walked outward: +r).
 
-Friction coefficients live with the die (``mu``: Coulomb coefficient, ``m``: shear
-friction factor) so they are arguments of the compiled step and can be differentiated.
+Each die owns its friction law (:mod:`jaxform.contact`: Frictionless, Coulomb(mu),
+Shear(m), Sticking), whose coefficients are arguments of the compiled step and can be
+differentiated; a die set gives a node the law of the die that holds it.
 """
 
 from __future__ import annotations
@@ -47,6 +48,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxform.contact import FrictionLaw, Frictionless, pick_law
 from jaxform.tables import interp_table
 
 
@@ -56,8 +58,7 @@ class RigidDie:
     points: jax.Array  # (k, 2) profile at t = 0 (mm); workpiece on the right of the walk
     path_time_s: jax.Array  # (m,) increasing times (s), first 0
     path_travel_mm: jax.Array  # (m,) downward travel at those times (mm), first 0
-    mu: jax.Array  # Coulomb friction coefficient (-)
-    m: jax.Array  # shear friction factor (-), tau = m sigma_eq / sqrt(3)
+    friction: FrictionLaw  # the die-workpiece friction law (its coefficients traced)
     corner_radius: jax.Array  # radius R of the arcs that round the vertices (mm), > 0
     # the rounded profile of `points` at t = 0 (:func:`rounded_profile`), computed once per
     # step by :meth:`prepared` (a step's gaps are evaluated at many sites of its program,
@@ -120,7 +121,7 @@ class RigidDie:
         """What contact reads at a node at x and time t (:class:`DieFrame`)."""
         g, n, tan = self.gap(x, t)
         move = self.offset(t) - self.offset(t_old)
-        return DieFrame(g=g, n=n, tan=tan, move=move, mu=self.mu, m=self.m,
+        return DieFrame(g=g, n=n, tan=tan, move=move, friction=self.friction,
                         which=jnp.zeros((), jnp.int32))  # fmt: skip
 
     def facet_frame(self, xa, xb, t):
@@ -136,20 +137,24 @@ class RigidDie:
         """The die with ``fn`` applied (as for the top die of a :class:`DieSet`)."""
         return fn(self)
 
+    def with_members(self, dies) -> RigidDie:
+        """The die ``dies[0]`` (as a :class:`DieSet` with its dies replaced)."""
+        return dies[0]
+
 
 @jax.tree_util.register_dataclass
 @dataclass(frozen=True)
 class DieFrame:
     """The die surface a workpiece node faces: the nearest die's gap g (mm), its normal n
     and tangent (2,), the die's displacement over the step (2,) (mm: the slip is measured
-    against it), its friction coefficients mu and m, and which die it is (index)."""
+    against it), its friction law (:func:`jaxform.contact.pick_law`), and which die it
+    is (index)."""
 
     g: jax.Array
     n: jax.Array
     tan: jax.Array
     move: jax.Array
-    mu: jax.Array
-    m: jax.Array
+    friction: FrictionLaw
     which: jax.Array
 
 
@@ -160,7 +165,7 @@ class DieSet:
     own profile, path and friction, behind the one-die interface contact uses.
 
     A workpiece node faces the die with the least gap (:meth:`frame`): its normal, its
-    tangent, its motion over the step for the slip, and its friction coefficients.  Every
+    tangent, its motion over the step for the slip, and its friction law.  Every
     node is a candidate against every die, so a node may leave one die and meet another
     (material flowing from the bottom die into the top die's flash land).  The choice is
     piecewise constant, so derivatives hold away from the switch (where two dies are
@@ -214,8 +219,8 @@ class DieSet:
         frames = [d.frame(x, t, t_old) for d in self.dies]
         k = jnp.argmin(jnp.stack([f.g for f in frames])).astype(jnp.int32)
         pick = {name: self._pick([getattr(f, name) for f in frames], k)
-                for name in ("g", "n", "tan", "move", "mu", "m")}  # fmt: skip
-        return DieFrame(**pick, which=k)
+                for name in ("g", "n", "tan", "move")}  # fmt: skip
+        return DieFrame(**pick, friction=pick_law([d.friction for d in self.dies], k), which=k)
 
     def gap(self, x, t):
         """(g, n, tangent) of the nearest die at time t."""
@@ -246,6 +251,10 @@ class DieSet:
     def replace_top(self, fn) -> DieSet:
         """The set with ``fn`` applied to the top die (the design group ``die``)."""
         return replace(self, dies=(fn(self.dies[0]), *self.dies[1:]))
+
+    def with_members(self, dies) -> DieSet:
+        """The set with its dies replaced by ``dies`` (one per die, in order)."""
+        return replace(self, dies=tuple(dies))
 
 
 def _right_normals(t):
@@ -581,19 +590,19 @@ def make_die(
     points,
     times,
     travel,
-    mu: float = 0.0,
-    m: float = 0.0,
+    friction: FrictionLaw | None = None,
     corner_radius: float = 0.2,
     motion=None,
 ) -> RigidDie:
+    """A rigid die from its profile and path table (``friction``: its law, default
+    frictionless)."""
     if not corner_radius > 0.0:
         raise DieError(f"corner radius {corner_radius!r} mm: must be > 0")
     return RigidDie(
         points=jnp.asarray(points, dtype=float),
         path_time_s=jnp.asarray(times, dtype=float),
         path_travel_mm=jnp.asarray(travel, dtype=float),
-        mu=jnp.asarray(float(mu)),
-        m=jnp.asarray(float(m)),
+        friction=Frictionless() if friction is None else friction,
         corner_radius=jnp.asarray(float(corner_radius)),
         motion=motion,
     )

@@ -41,7 +41,8 @@ class FlangedHub:
     gutter_depth: float
     corner_radius: float
     excess: float
-    friction: str  # "shear" or "coulomb"
+    friction: str  # the [friction] table's model
+    coefficient_key: str  # the key of its coefficient in that table (mu or m)
     coefficient: float
 
     @property
@@ -69,6 +70,7 @@ def draw(seed: int) -> FlangedHub:
     billet_radius = u(4.0, 6.0)
     part_radius = billet_radius * u(1.25, 1.6)
     coulomb = bool(rng.random() < 0.4)
+    law = ("coulomb", "mu", (0.1, 0.3)) if coulomb else ("shear", "m", (0.1, 0.4))
     return FlangedHub(
         seed=seed,
         billet_radius=round(billet_radius, 3),
@@ -82,8 +84,9 @@ def draw(seed: int) -> FlangedHub:
         gutter_depth=round(u(1.0, 2.0), 3),
         corner_radius=round(u(0.2, 0.5), 3),
         excess=round(u(0.05, 0.15), 3),
-        friction="coulomb" if coulomb else "shear",
-        coefficient=round(u(0.1, 0.3) if coulomb else u(0.1, 0.4), 3),
+        friction=law[0],
+        coefficient_key=law[1],
+        coefficient=round(u(*law[2]), 3),
     )
 
 
@@ -107,8 +110,7 @@ def profile(f: FlangedHub) -> list[list[float]]:
 def flanged_hub(seed: int) -> dict:
     """The config document of forging ``seed`` (:func:`draw`), library defaults elsewhere."""
     f = draw(seed)
-    friction = {"model": f.friction}
-    friction["mu" if f.friction == "coulomb" else "m"] = f.coefficient
+    friction = {"model": f.friction, f.coefficient_key: f.coefficient}
     return {
         "billet": {"diameter_mm": 2.0 * f.billet_radius, "height_mm": 2.0 * f.billet_half_height},
         "mesh": {"nr": 10, "nz": 10, "element": "q1p0"},

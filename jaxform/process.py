@@ -263,7 +263,9 @@ def air_scene(op: Operation, mesh: Mesh) -> Scene:
     top = float(mesh.coords[:, 1].max())
     z = top + CLEAR_FRACTION * float(np.ptp(mesh.coords[:, 1]))
     t_end = op.keys.time_s
-    die = make_die([[0.0, z], [1.0, z]], [0.0, t_end], [0.0, 0.0], corner_radius=0.2)
+    # the scene's friction law kept (never in contact): the forming steps' program serves
+    friction = scene.inputs.die.members[0].friction
+    die = make_die([[0.0, z], [1.0, z]], [0.0, t_end], [0.0, 0.0], friction, corner_radius=0.2)
     return replace(scene, inputs=replace(scene.inputs, die=die), t_end=t_end)
 
 

@@ -23,8 +23,8 @@ import numpy as np
 
 from jaxform import mesh as meshing
 from jaxform.assembly import Indices, Model, build_indices
-from jaxform.config import Config, DieConfig, RemeshConfig, typed
-from jaxform.contact import ContactLaw
+from jaxform.config import Config, DieConfig, FrictionConfig, RemeshConfig, typed
+from jaxform.contact import ContactLaw, Coulomb, FrictionLaw, Frictionless, Shear, Sticking
 from jaxform.dies import (
     DieError,
     DieSet,
@@ -315,7 +315,6 @@ def _die_or_load(cfg: Config, piece: Workpiece, mesh: meshing.Mesh):
     if dwell > 0.0:  # the dies wait while the billet cools in air
         paths = [(np.r_[0.0, times + dwell], np.r_[0.0, travel]) for times, travel in paths]
         t_end = t_end + dwell
-    fr = cfg.friction
     radii = {"top": cfg.die.corner_radius_mm}
     if cfg.bottom_die is not None:
         radii["bottom"] = cfg.bottom_die.corner_radius_mm
@@ -326,8 +325,7 @@ def _die_or_load(cfg: Config, piece: Workpiece, mesh: meshing.Mesh):
             p,
             times,
             travel,
-            mu=fr.mu,
-            m=fr.m,
+            friction=friction_law(cfg.friction_of(DIE_SECTIONS[name])),
             corner_radius=radii[name],
             motion=motion if name == "top" else None,
         )
@@ -336,6 +334,22 @@ def _die_or_load(cfg: Config, piece: Workpiece, mesh: meshing.Mesh):
     if len(dies) == 1:
         return dies[0], None, t_end, press
     return DieSet(dies, tuple(names)), None, t_end, press
+
+
+# the config section of each die of a scene (its friction table is [<section>.friction])
+DIE_SECTIONS = {"top": "die", "bottom": "bottom_die", "side": "side_die"}
+# the friction law of each friction.model (the config's names end here)
+FRICTION_LAWS = {
+    "none": lambda fr: Frictionless(),
+    "coulomb": lambda fr: Coulomb(mu=jnp.asarray(float(fr.mu))),
+    "shear": lambda fr: Shear(m=jnp.asarray(float(fr.m))),
+    "sticking": lambda fr: Sticking(),
+}
+
+
+def friction_law(fr: FrictionConfig) -> FrictionLaw:
+    """The friction law object of a (resolved) friction table."""
+    return FRICTION_LAWS[fr.model](fr)
 
 
 def _speed_press(cfg: Config, height_mm: float, share: float):
@@ -549,9 +563,8 @@ def build_scene(cfg: dict | Config, mesh: meshing.Mesh | None = None) -> Scene:
     layout, idx = _indices(
         mesh, form.n_fields, piece.contact_sets(mesh), corner, temperature=thermal is not None
     )
-    fr = cfg.friction
     law = law.for_points(4 * layout.n_elements)  # its local solve for the mesh's size
-    model = Model(form, law, layout, ContactLaw(fr.model if fr is not None else "none"))
+    model = Model(form, law, layout, ContactLaw())
     c = _contact_scale(mesh, float(law.shear_modulus(params)), axi)
     remesh = None
     if cfg.remesh.on:

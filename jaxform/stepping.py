@@ -33,8 +33,8 @@ from jaxform.contact import (
     ContactStep,
     facet_normal,
     facets_in_contact,
+    flatten_laws,
     nodal_average,
-    shear_bounds,
     tributary_areas,
 )
 from jaxform.damage import increment as damage_increment
@@ -106,22 +106,31 @@ def _tree_where(c, a, b):
 
 
 def contact_step(model: Model, state: SimState, inp: Inputs, idx: Indices) -> ContactStep:
-    """The contact conditions' constants for a step starting from ``state``."""
+    """The contact conditions' constants for a step starting from ``state``: what the dies'
+    friction laws read at t_n (the nodal flow stress and contact area where a law uses
+    them, :attr:`jaxform.contact.FrictionLaw.uses_flow_stress`; the nodal temperature where
+    one uses it), the same for every die (each law applies its own coefficient)."""
     pos = model.nodal_positions(state.x, inp.coords, idx)[idx.contact_nodes]
-    if model.contact.friction == "shear":
+    laws = flatten_laws(d.friction for d in inp.die.members) if inp.die is not None else []
+    zero = jnp.zeros(model.layout.n_contact, dtype=pos.dtype)
+    sigma_eq, areas, temperature = zero, zero, zero
+    if any(law.uses_flow_stress for law in laws):
         sig = state.gauss.mat.stress
         eq_gp, _ = jnp.vectorize(lambda t: safe_norm_eq(deviator(t)), signature="(3,3)->(),()")(sig)
         eq_el = eq_gp.mean(axis=1)
-        eq_nodes = nodal_average(eq_el, idx.elements, model.layout.n_nodes)[idx.contact_nodes]
+        sigma_eq = nodal_average(eq_el, idx.elements, model.layout.n_nodes)[idx.contact_nodes]
         # friction acts on the facets in contact only: counting a free facet below an edge
         # node (the bore or the bulge) let the edge carry up to twice m k
         frames = jax.vmap(lambda p: inp.die.frame(p, state.t, state.t))(pos)
         counted = facets_in_contact(frames.g <= TOUCH_GAP_MM, idx.contact_facets)
         areas = tributary_areas(pos, idx.contact_facets, model.formulation.axisymmetric, counted)
-        bound = shear_bounds(frames.m, eq_nodes, areas)  # m of the die each node faces
-    else:
-        bound = jnp.zeros(model.layout.n_contact, dtype=pos.dtype)
-    return ContactStep(x_old=pos, t_old=state.t, shear_bound=bound, fixed=idx.contact_fixed)
+    if any(law.uses_temperature for law in laws):
+        temperature = zero + jnp.nan  # isothermal: no temperature field
+        if model.layout.temperature:
+            temps = model.layout.temperatures(state.x, inp.thermal.billet_temperature_K)
+            temperature = temps[idx.contact_nodes]
+    return ContactStep(x_old=pos, t_old=state.t, fixed=idx.contact_fixed, sigma_eq=sigma_eq,
+                       area=areas, temperature_K=temperature)  # fmt: skip
 
 
 def element_heat_data(model: Model, state: SimState, inp: Inputs, idx: Indices, t_new):

@@ -43,7 +43,7 @@ def scene():
 def _run(u):
     sc = scene()
     inp = sc.inputs
-    die = inp.die.replace_each(lambda d: replace(d, mu=u[0]))
+    die = inp.die.replace_each(lambda d: replace(d, friction=replace(d.friction, mu=u[0])))
     params = replace(inp.params, s0_MPa=inp.params.s0_MPa * u[1])
     traj = trajectory(sc, replace(inp, die=die, params=params))
     values = jnp.stack([o(traj, inp) for o in OBJECTIVES])

@@ -32,7 +32,7 @@ import jaxform
 from jaxform.config import ConfigError, load_config
 from jaxform.damage import CRITERIA, integrands, largest_principal
 from jaxform.driver import write_outputs
-from jaxform.flowlines import flow_lines, straightness
+from jaxform.flowlines import flow_lines, largest_turn, self_folds, straightness
 from jaxform.materialpoint import Ram, uniaxial_compression
 from jaxform.postprocess import positions
 from jaxform.scenes import build_scene
@@ -118,7 +118,8 @@ def test_material_point_tension_and_compression():
 def test_homogeneous_upsetting_damage_wear_and_flow_lines_through_remeshes():
     """The frictionless run remeshed twice: compression everywhere (C-L max <= 1e-12, Ayada =
     -eqps/3 to 1e-9 rel.), the wear profile equals the closed form (1e-8 rel.), the flow
-    lines are straight (1e-9 mm) and scale with the billet (1e-9 mm)."""
+    lines are straight (1e-9 mm) and scale with the billet (1e-9 mm); the surface line (side
+    and top) keeps its square corner, the only turn of any line: 90 deg (1e-9), no fold."""
     res = seed_remeshed()
     h = res.history
     assert list(np.nonzero(h["remeshed"])[0]) == [5, 10]
@@ -146,13 +147,17 @@ def test_homogeneous_upsetting_damage_wear_and_flow_lines_through_remeshes():
         pos = positions(res.scene_at(k), res.fields["x"][k])
         lam = pos.max(axis=0) / np.array([2.5, 3.75])
         assert np.max(np.abs(lines.points[k] - start * lam)) <= 1e-9
+        assert abs(largest_turn(lines, 0.5, k) - 90.0) <= 1e-9
+    assert list(lines.family).count(2) == 1 and not self_folds(lines, 0.5)
 
 
 def test_barrelled_upsetting_damage_is_largest_at_the_free_equator():
     """Coulomb 0.3, 30 %, 4 x 4: C-L and Brozzo max > 1e-3, the C-L max at a
     Gauss point of an element on the free side (bulge) near the mid-plane (z <= 0.25 x the
     current half height); C-L never decreases (an integral of f >= 0, carried through the
-    remesh to the transfer's accuracy: 1e-9 slack)."""
+    remesh to the transfer's accuracy: 1e-9 slack).  The flow lines bend into the barrel
+    but none folds onto itself (no lap: every line turns by less than 150 deg within a
+    spacing; measured 59 deg)."""
     res = barrelled()
     h = res.history
     pos = positions(res.final_scene, res.fields["x"][-1])
@@ -165,6 +170,8 @@ def test_barrelled_upsetting_damage_is_largest_at_the_free_equator():
     assert np.isin(sc.mesh.elements[e], sc.mesh.node_sets["side"]).any()  # on the free side
     assert where[0] >= 0.75 * r_max and where[1] <= 0.25 * half, (where, r_max, half)
     assert not res.remeshes and np.all(np.diff(h["damage_cl_max"]) >= -1e-15)
+    lines = flow_lines(res, 0.5)
+    assert not self_folds(lines, 0.5)
 
 
 def test_node_wear_exponents():

@@ -48,6 +48,7 @@ def test_generated_dies_vary():
     billet radii over 4-6 mm."""
     fs = [draw(s) for s in SEEDS]
     assert {f.friction for f in fs} == {"shear", "coulomb"}
+    assert {(f.friction, f.coefficient_key) for f in fs} == {("shear", "m"), ("coulomb", "mu")}
     assert {f.gutter for f in fs} == {True, False}
     radii = [f.billet_radius for f in fs]
     assert 4.0 <= min(radii) < 4.3 and 5.7 < max(radii) <= 6.0

@@ -18,6 +18,7 @@ import pytest
 
 import jaxform
 from jaxform.config import ConfigError, check_gradient_run, load_config
+from jaxform.contact import Frictionless
 from jaxform.dies import RigidDie
 from jaxform.geometry import min_quality, polygon_measure
 from jaxform.mesh import billet_quarter, boundary_polygon, polygon_quads
@@ -179,8 +180,7 @@ def test_trigger_measures_of_known_geometry():
         points=jnp.array([[0.0, 1.0], [2.0, 1.0], [2.0, 3.0]]),
         path_time_s=jnp.array([0.0, 1.0]),
         path_travel_mm=jnp.array([0.0, 0.1]),
-        mu=jnp.asarray(0.0),
-        m=jnp.asarray(0.0),
+        friction=Frictionless(),
         corner_radius=jnp.asarray(0.2),
     )
     idx = SimpleNamespace(contact_nodes=jnp.arange(2), contact_facets=jnp.array([[0, 1]]))

@@ -13,7 +13,8 @@ Groups compose left to right (:func:`apply_all`).  The design pytree is a dict
 
 * :class:`MaterialParams`  ``u_i = log(p_i / p0_i)`` of chosen parameters (positive,
   scale-free): e.g. Anand's s0, h0, s_hat for identification.
-* :class:`Friction`        the friction coefficient itself (mu or m).
+* :class:`Friction`        the friction coefficients themselves (mu or m), one per die
+  whose law has one.
 * :class:`RamSpeed`        ``u = log(v / v0)``: the die path table's times and the step
   schedule are divided by v/v0 (same strokes, reached sooner or later).
 * :class:`PreformCosine`   the billet's lateral profile r(z) = R0 c (1 + sum_k a_k
@@ -74,24 +75,42 @@ class MaterialParams:
 
 
 @dataclass(frozen=True)
-class Friction:
-    key: str  # 'mu' (Coulomb) or 'm' (shear factor)
+class FrictionCoefficient:
+    """One friction design variable: the coefficient ``field`` (mu, m) of the law of die
+    ``die`` (its index in the scene's dies, named ``die_name``), from ``value0`` within
+    [0, ``high``]; ``key`` is the config key that sets it (friction.m, die.friction.m)."""
+
+    die: int
+    die_name: str
+    field: str
     value0: float
-    high: float  # 10 for mu, 1 for m
+    high: float
+    key: str
+
+
+@dataclass(frozen=True)
+class Friction:
+    """The friction coefficients themselves, one variable per die whose law has one."""
+
+    variables: tuple[FrictionCoefficient, ...]
     name: str = "friction"
 
     def initial(self):
-        return jnp.asarray([self.value0])
+        return jnp.asarray([v.value0 for v in self.variables])
 
     def bounds(self):
-        return jnp.zeros(1), jnp.full(1, self.high)
+        return jnp.zeros(len(self.variables)), jnp.asarray([v.high for v in self.variables])
 
     def apply(self, u, inputs, times):
-        die = inputs.die.replace_each(lambda d: replace(d, **{self.key: u[0]}))  # every die
-        return replace(inputs, die=die), times
+        dies = list(inputs.die.members)
+        for i, v in enumerate(self.variables):
+            d = dies[v.die]
+            dies[v.die] = replace(d, friction=replace(d.friction, **{v.field: u[i]}))
+        return replace(inputs, die=inputs.die.with_members(dies)), times
 
     def physical(self, u):
-        return {f"friction_{self.key}": float(u[0])}
+        return {f"friction_{v.die_name}_{v.field}": float(u[i])
+                for i, v in enumerate(self.variables)}  # fmt: skip
 
 
 @dataclass(frozen=True)

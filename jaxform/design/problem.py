@@ -14,6 +14,7 @@ Both functions are compiled once per problem; a step that fails raises
 from __future__ import annotations
 
 import csv
+import dataclasses
 from dataclasses import dataclass, replace
 from functools import cached_property, partial
 
@@ -28,7 +29,7 @@ from jaxform.design import parametrize as par
 from jaxform.errors import ConfigError
 from jaxform.gradients import check, release, remeshed_schedule, trajectory
 from jaxform.postprocess import nodal_volumes
-from jaxform.scenes import Scene
+from jaxform.scenes import DIE_SECTIONS, Scene
 from jaxform.workpieces import DIE_GROUPS
 from jaxform.xla_options import jit
 
@@ -136,10 +137,25 @@ def available_groups(scene: Scene) -> tuple[str, ...]:
     """
     check_design_scene(scene)
     ok = {
-        "friction": scene.settings.friction.model in ("coulomb", "shear"),
+        "friction": bool(friction_variables(scene)),
         "thermal": scene.inputs.thermal is not None,
     }
     return tuple(g for g in scene.workpiece.design_groups() if ok.get(g, True))
+
+
+def friction_variables(scene: Scene) -> tuple[par.FrictionCoefficient, ...]:
+    """One design variable per coefficient of each die's friction law (the law's fields),
+    in the order of the dies."""
+    die = scene.inputs.die
+    out = []
+    for i, (d, name) in enumerate(zip(die.members, die.names)):
+        law = d.friction
+        for f in dataclasses.fields(law):
+            out.append(par.FrictionCoefficient(
+                die=i, die_name=name, field=f.name, value0=float(getattr(law, f.name)),
+                high=law.coefficient_range[f.name][1],
+                key=scene.settings.friction_key(DIE_SECTIONS[name], f.name)))  # fmt: skip
+    return tuple(out)
 
 
 def build_group(scene: Scene, name: str):
@@ -159,14 +175,14 @@ def build_group(scene: Scene, name: str):
             bound_log=float(np.log(d.bound_factor)),
         )
     if name == "friction":
-        model = cfg.friction.model
-        if model not in ("coulomb", "shear"):
+        variables = friction_variables(scene)
+        if not variables:
             raise ConfigError(
-                f"design.variables has 'friction' but friction.model = {model!r}: "
-                f"needs 'coulomb' or 'shear'"
+                "design.variables has 'friction' but no die's friction law has a coefficient: "
+                "needs friction.model (or a die's own [<die>.friction] model) = 'coulomb' or "
+                "'shear'"
             )
-        key = "mu" if model == "coulomb" else "m"
-        return par.Friction(key, float(getattr(cfg.friction, key)), 10.0 if key == "mu" else 1.0)
+        return par.Friction(variables)
     if name == "speed":
         speed = cfg.die.speed_mm_s or float("nan")
         return par.RamSpeed(speed, bound_log=float(np.log(d.bound_factor)))

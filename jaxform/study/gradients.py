@@ -85,14 +85,14 @@ def _problem(config, base: tuple[str, ...], keys: tuple[str, ...], response):
 def design_point(problem, values: dict[str, float]) -> tuple[dict, dict[str, float]]:
     """(the design of the sample's values, d variable / d key per input key).
 
-    friction: the coefficient itself; speed: u = log(v / v0); thermal: temperatures
+    friction: the coefficients themselves (a die's not among the inputs keeps its
+    configured value); speed: u = log(v / v0); thermal: temperatures
     u = (T - T0) / 100 K, the die conductance u = log(h / h0), Taylor-Quinney itself."""
     design, scale = dict(problem.start), {}
     for g in problem.groups:
-        if g.name == "friction":
-            key = f"friction.{g.key}"
-            design["friction"] = jnp.asarray([values[key]])
-            scale[key] = 1.0
+        if g.name == "friction":  # a key may set several dies' coefficients (friction.m)
+            design["friction"] = jnp.asarray([values.get(v.key, v.value0) for v in g.variables])
+            scale.update({v.key: 1.0 for v in g.variables if v.key in values})
         elif g.name == "speed":
             v = values["die.speed_mm_s"]
             design["speed"] = jnp.asarray([np.log(v / g.speed0_mm_s)])
@@ -119,8 +119,10 @@ def physical_gradient(problem, grad: dict, scale: dict[str, float]) -> dict[str,
     out = {}
     for g in problem.groups:
         gv = np.asarray(grad[g.name])
-        if g.name == "friction":
-            out[f"friction.{g.key}"] = float(gv[0])
+        if g.name == "friction":  # the chain rule over the dies one key sets
+            for i, v in enumerate(g.variables):
+                if v.key in scale:
+                    out[v.key] = out.get(v.key, 0.0) + float(gv[i])
         elif g.name == "speed":
             out["die.speed_mm_s"] = float(gv[0])
         elif g.name == "thermal":

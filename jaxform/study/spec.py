@@ -15,7 +15,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from jaxform.config import SCHEMA, load_config
+from jaxform.config import (
+    FRICTION_COEFFICIENT,
+    FRICTION_DIES,
+    SCHEMA,
+    die_friction,
+    friction_dies,
+    friction_keys,
+    load_config,
+)
 from jaxform.errors import ConfigError
 from jaxform.study import plans
 
@@ -24,9 +32,10 @@ REDUCERS = ("end", "max", "min")
 # the shorthand responses and the history column (at the end) or count they stand for
 SHORTHANDS = {"fill": "die_fill", "flash": "flash_volume_mm3"}
 # the inputs with exact gradients: the design group that holds each
+# the friction coefficients: [friction]'s and each die's own table's
+_FRICTION_SECTIONS = ("friction", *(f"{d}.friction" for d in FRICTION_DIES))
 GRADIENT_KEYS = {
-    "friction.m": "friction",
-    "friction.mu": "friction",
+    **{f"{sec}.{k}": "friction" for sec in _FRICTION_SECTIONS for k in ("m", "mu")},
     "die.speed_mm_s": "speed",
     "thermal.billet_temperature_K": "thermal",
     "thermal.die_temperature_K": "thermal",
@@ -36,7 +45,7 @@ GRADIENT_KEYS = {
 # the history columns the differentiable run carries (temperatures: hottest, coldest node)
 GRADIENT_COLUMNS = ("force_N", "stroke_mm", "friction_work_Nmm", "time_s",
                     "max_temperature_K", "min_temperature_K")  # fmt: skip
-_INPUT = re.compile(r"^\s*([A-Za-z_]\w*)\.([A-Za-z_]\w*)\s*=\s*([a-z]+)\s*\((.*)\)\s*$")
+_INPUT = re.compile(r"^\s*([A-Za-z_][\w.]*)\.([A-Za-z_]\w*)\s*=\s*([a-z]+)\s*\((.*)\)\s*$")
 
 
 @dataclass(frozen=True)
@@ -229,13 +238,17 @@ def _check_differentiable(doc: dict, inputs, responses, what: str) -> None:
             f"{what}: the scene remeshes ([remesh] triggers on): remeshing scenes run "
             f"one sample per task (study.gradients = false, study.batch = 0)"
         )
-    model = doc["friction"]["model"] if "friction" in doc else "none"
-    wants = {"friction.m": "shear", "friction.mu": "coulomb"}
+    used = friction_keys(doc) if "die" in doc else set()
     for i in inputs:
-        if i.key in wants and model != wants[i.key]:
-            raise ConfigError(
-                f"{what}: {i.key} needs friction.model = {wants[i.key]!r} (it is {model!r})"
-            )
+        if GRADIENT_KEYS[i.key] == "friction" and i.key not in used:
+            section, _, coefficient = i.key.rpartition(".")
+            want = next(m for m, c in FRICTION_COEFFICIENT.items() if c == coefficient)
+            die = section.removesuffix(".friction")
+            if die != "friction" and die not in friction_dies(doc):
+                raise ConfigError(f"{what}: {i.key}: the scene has no {die}")
+            model = (doc["friction"]["model"] if die == "friction" or "die" not in doc
+                     else die_friction(doc, die)["model"])  # fmt: skip
+            raise ConfigError(f"{what}: {i.key} needs {section}.model = {want!r} (it is {model!r})")
     check_gradient_run(doc, list(dict.fromkeys(GRADIENT_KEYS[i.key] for i in inputs)),
                        what.split(" ")[0])  # fmt: skip
 
@@ -264,7 +277,7 @@ def _check_samples(study: Study, doc: dict) -> None:
     """Every sample's value in its key's range, and every sample's config valid (cross-key
     rules, step counts): refused before anything runs."""
     for j, inp in enumerate(study.inputs):
-        section, name = inp.key.split(".")
+        section, name = inp.key.rsplit(".", 1)
         field = SCHEMA[section][name]
         bad = [v for v in study.values[:, j] if not _within(field, v)]
         if bad:
