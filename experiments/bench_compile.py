@@ -42,16 +42,13 @@ def program(kind: str, overrides: list[str]):
 
     scene = build_scene(load_config(ROOT / "configs/upsetting_seed.toml", NO_OUTPUT + overrides))
     if kind == "chunk":
-        from jaxform.simulation import init, stepper_of
-        from jaxform.stepping import run_chunk
+        from jaxform.simulation import init
+        from jaxform.stepping import run_chunk, stepper_of
 
         stepper = stepper_of(scene)
         state, control = init(scene)
-        fac = (
-            scene.linear.empty_factorization(scene.model.layout.n_dofs, state.x.dtype)
-            if scene.newton.method == "modified"
-            else None
-        )
+        n = scene.model.layout.n_dofs
+        fac = scene.newton.variant.factorization(scene.linear, n, state.x.dtype)
 
         def fn(s, c, i, x, f):
             return run_chunk(stepper, s, c, i, x, scene.chunk, f)

@@ -159,7 +159,7 @@ def full(n: int, newton: str, config: str, depths: list[int], sets: list[str]) -
         its = h["newton_iterations"][1:]
         print(
             f"{config} {n}x{n}: {scene.model.layout.n_dofs} unknowns, {len(its)} steps, "
-            f"{scene.newton.method} Newton, anderson_depth {d}, "
+            f"{type(scene.newton.variant).__name__}, anderson_depth {d}, "
             f"{h['factorizations'][1:].sum():.0f} factorizations, "
             f"{its.sum():.0f} iterations ({its.mean():.2f}/step), "
             f"{h['cutbacks'][1:].sum():.0f} cutbacks, {h['remeshed'][1:].sum():.0f} remeshes: "

@@ -47,7 +47,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxform.gradients import exact_newton
 from jaxform.presses import EnergyPress, capacity_message, first_over_capacity
 from jaxform.scenes import Inputs, Scene
 from jaxform.status import CAUSES, OK
@@ -59,6 +58,7 @@ from jaxform.stepping import (
     initial_state,
     solve_step,
     step_outputs,
+    stepper_of,
 )
 from jaxform.xla_options import jit
 
@@ -171,8 +171,7 @@ def blow_run(scene: Scene, inputs: Inputs | None = None, press: EnergyPress | No
     the fields."""
     inputs = scene.inputs if inputs is None else inputs
     press = scene.press if press is None else press
-    stepper = Stepper(scene.model, scene.linear, exact_newton(scene.newton), 0,
-                      symmetric_z=scene.symmetric_z)  # fmt: skip
+    stepper = stepper_of(scene, differentiable=True)
     factor = 2.0 if scene.symmetric_z else 1.0
     first_mm = FIRST_STROKE * scene.workpiece.reference_height_mm
     # the capacity and the name are the host's: runs that differ in them share a program

@@ -41,7 +41,7 @@ from jaxform import mesh as meshing
 from jaxform.assembly import Layout, build_indices
 from jaxform.fields import OUTPUT_FIELDS, FieldMap, map_state
 from jaxform.linear import choose_backend
-from jaxform.solver import choose_method
+from jaxform.solver import newton_variant
 
 GROWTH = 1.25  # ratio of successive capacities
 SMALLEST_NODES = 64
@@ -310,7 +310,9 @@ def _padded(scene, bucket: Bucket) -> Padded:
     so = scene.settings.solver
     linear = choose_backend(so.linear, layout.n_dofs)
     pidx = replace(pidx, lu_symbolic=linear.analyze(pidx.rows, pidx.cols, n_dofs))
-    newton = replace(scene.newton, method=choose_method(so.newton, linear, n_dofs))
+    newton = replace(
+        scene.newton, variant=newton_variant(so.newton, linear, n_dofs, so.anderson_depth)
+    )
     pscene = replace(
         scene,
         mesh=ghost_mesh,

@@ -56,7 +56,6 @@ from jaxform.formulations import GaussState
 from jaxform.linear import Factorization
 from jaxform.remesh import StateMap
 from jaxform.scenes import Inputs, Scene
-from jaxform.solver import NewtonSettings
 from jaxform.status import CAUSES, OK
 from jaxform.stepping import (
     SimState,
@@ -65,6 +64,7 @@ from jaxform.stepping import (
     die_force,
     initial_state,
     solve_step,
+    stepper_of,
 )
 from jaxform.xla_options import jit
 
@@ -245,8 +245,7 @@ def trajectory(
             "still in use; run batches without it (as jaxform.batch does)"
         )
     state0 = initial_state(scene.model, inputs)
-    stepper = Stepper(scene.model, scene.linear, exact_newton(scene.newton), 0,
-                      symmetric_z=scene.symmetric_z)  # fmt: skip
+    stepper = stepper_of(scene, differentiable=True)
     return _trajectory(
         stepper,
         inputs,
@@ -280,14 +279,6 @@ def release(scene: Scene, traj: Trajectory) -> Trajectory:
     if traj.factorizations is not None:
         scene.linear.release_now(jax.device_get(traj.factorizations))
     return replace(traj, factorizations=None)
-
-
-def exact_newton(settings: NewtonSettings) -> NewtonSettings:
-    """A differentiable run solves each step by full Newton even where the scene asks for
-    modified Newton (``solver.newton = 'modified'``): the factorization it keeps is a
-    handle that would have to live across the vmapped scan, and the gradient is the same
-    (the reverse pass always solves with the exact Jacobian of the converged step)."""
-    return settings if settings.method == "newton" else replace(settings, method="newton")
 
 
 def schedule(scene: Scene, inputs: Inputs | None = None) -> np.ndarray:
@@ -385,8 +376,7 @@ def _remeshed_trajectory(scene: Scene, inputs: Inputs, times, plan: RemeshPlan) 
     parts, first = [], 0
     for seg in plan.segments:
         sc = seg.padded.scene
-        stepper = Stepper(sc.model, sc.linear, exact_newton(sc.newton), 0,
-                          symmetric_z=sc.symmetric_z)  # fmt: skip
+        stepper = stepper_of(sc, differentiable=True)
         state, coords, run_coords, run_state = _enter_mesh(seg, state, coords)
         part = _segment(stepper, sc.idx, replace(inputs, coords=run_coords),
                         times[first : first + seg.n_steps], run_state)  # fmt: skip

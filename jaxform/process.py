@@ -3,7 +3,11 @@
     Config --process_config.operations--> (Operation, ...) --run_process--> ProcessResult
 
 Each operation starts from the state the one before it left (:class:`PartState`: the
-scene, i.e. the mesh with its sets and reference coordinates, and every state field):
+scene, i.e. the mesh with its sets and reference coordinates, and every state field, the
+temperature among the unknowns).  :func:`run_operation` is the seam: a part in, a
+:class:`jaxform.simulation.Result` out whose :attr:`~jaxform.simulation.Result.part` the
+next operation takes (a forming or heated operation's run starts from its part,
+``simulate(scene, progress, start=part)``):
 
 * **forming**: the operation's scene is built on the part's current mesh, the deformed
   positions its reference (:func:`jaxform.scenes.build_scene` with ``mesh``); the state
@@ -45,7 +49,7 @@ from jaxform.mesh import Mesh, MeshError, boundary_polygon, element_areas, polyg
 from jaxform.process_config import Operation
 from jaxform.remesh import ContactMap, StateMap, simplify
 from jaxform.scenes import Scene, bottom_die_profile, build_scene, die_profile, scene_on_mesh
-from jaxform.simulation import Result, SimulationError, simulate, state_result
+from jaxform.simulation import PartState, Result, SimulationError, simulate, state_result
 from jaxform.transfer import Transfer
 from jaxform.workpieces import workpiece_of
 
@@ -90,14 +94,6 @@ class OperationRefused(ConfigError):
     def __init__(self, message: str, result):
         super().__init__(message)
         self.result = result
-
-
-@dataclass
-class PartState:
-    """The part between operations: the scene it was last on and its state there."""
-
-    scene: Scene
-    state: object
 
 
 @dataclass
@@ -214,8 +210,8 @@ def forming_scene(op: Operation, mesh: Mesh, initial: Mesh) -> Scene:
         raise ConfigError(f"{op.label}: {err} (the incoming part)") from None
 
 
-def _carried(part: PartState, make_scene) -> tuple[Scene, object, Carry]:
-    """(new scene, carried state, map): the part's deformed mesh as the new scene's
+def _carried(part: PartState, make_scene) -> tuple[PartState, Carry]:
+    """(the part on the new scene, map): the part's deformed mesh as the new scene's
     reference (``make_scene(mesh)``), the state through :class:`Carry`."""
     scene = part.scene
     pos = positions_of(part)
@@ -227,7 +223,7 @@ def _carried(part: PartState, make_scene) -> tuple[Scene, object, Carry]:
     # die wear is the new operation's dies' own: it starts at 0 at their stations
     wear = new_scene.inputs.wear
     state = replace(state, wear_mm=np.zeros((0, 0) if wear is None else wear.stations.shape[:2]))
-    return new_scene, jax.tree_util.tree_map(jnp.asarray, state), carry
+    return PartState(new_scene, jax.tree_util.tree_map(jnp.asarray, state)), carry
 
 
 def _air_config(op: Operation) -> Config:
@@ -362,19 +358,18 @@ def _forming(op: Operation, part: PartState | None, initial: Mesh, progress, sim
     if part is None:  # the first blow, on the workpiece's own mesh
         scene = forming_scene(op, initial, initial)
         return simulate_fn(scene, progress), None, 0.0
-    scene, state, carry = _carried(part, lambda m: forming_scene(op, m, initial))
-    return simulate_fn(scene, progress, state), carry, 0.0
+    carried, carry = _carried(part, lambda m: forming_scene(op, m, initial))
+    return simulate_fn(carried.scene, progress, carried), carry, 0.0
 
 
 def _in_air(op: Operation, part: PartState, initial: Mesh, progress, simulate_fn):
     """A dwell, or a reheat in a furnace (or to a set temperature)."""
     if getattr(op.keys, "set_temperature_K", None) is not None:
         return state_result(part.scene, _set_temperature(part, op)), None, 0.0
+    carried, carry = _carried(part, lambda m: air_scene(op, m))
     if op.config.thermal.model != "coupled":  # the dies are off, the clock moves on
-        scene, state, carry = _carried(part, lambda m: air_scene(op, m))
-        return state_result(scene, _clock(state, op.keys.time_s)), carry, 0.0
-    scene, state, carry = _carried(part, lambda m: air_scene(op, m))
-    return simulate_fn(scene, progress, state), carry, 0.0
+        return state_result(carried.scene, _clock(carried.state, op.keys.time_s)), carry, 0.0
+    return simulate_fn(carried.scene, progress, carried), carry, 0.0
 
 
 def _trim(op: Operation, part: PartState, initial: Mesh, progress, simulate_fn):
@@ -394,8 +389,9 @@ RUNNERS = {"forming": _forming, "dwell": _in_air, "reheat": _in_air, "trim": _tr
 
 def run_operation(op: Operation, part: PartState | None, initial: Mesh, progress, simulate_fn):
     """One operation from the part ``part`` (None: the first forming operation, on the
-    workpiece's own mesh): (its Result, the map that brought the part in, trimmed
-    volume).  Raises ConfigError, SimulationError (with the operation's result)."""
+    workpiece's own mesh): (its Result, whose ``part`` is the part it leaves; the map that
+    brought the part in; the trimmed volume).  Raises ConfigError, SimulationError (with
+    the operation's result)."""
     return RUNNERS[op.kind](op, part, initial, progress, simulate_fn)
 
 
@@ -476,7 +472,7 @@ def run_process(ops, initial: Mesh, progress=None, simulate_fn=simulate) -> Proc
             raise SimulationError(message, _result(runs, message) if runs else None) from None
         runs.append(OperationRun(op, result, clock, transfer, removed))
         clock += float(result.history["time_s"][-1])
-        part = PartState(result.final_scene, result.final_state)
+        part = result.part
     return _result(runs)
 
 

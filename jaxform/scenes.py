@@ -51,7 +51,7 @@ from jaxform.presses import (
     SpeedPress,
     crank_start_angle,
 )
-from jaxform.solver import NewtonSettings, choose_method
+from jaxform.solver import NewtonSettings, newton_variant
 from jaxform.wear import WearInputs, die_stations
 from jaxform.workpieces import Workpiece, workpiece_of
 
@@ -474,10 +474,13 @@ def _closing_paths(cfg: Config, target_mm: float):
 
 
 def scene_on_mesh(scene: Scene, mesh: meshing.Mesh) -> Scene:
-    """The scene on a new mesh of its workpiece (a remesh, :mod:`jaxform.remesh`): the
-    mesh's coordinates become the reference (``inputs.coords``), its sets give the
-    Dirichlet conditions, contact candidates and heat-exchanging edges as in
-    :func:`build_scene`, with the pattern analysed anew; the rest of the scene stays."""
+    """The scene on a new mesh of its workpiece (a remesh, :mod:`jaxform.remesh`; a trim,
+    :mod:`jaxform.process`): the mesh's coordinates become the reference
+    (``inputs.coords``), its sets give the Dirichlet conditions, contact candidates and
+    heat-exchanging edges as in :func:`build_scene`, the linear solver and Newton variant
+    are chosen for its size; the rest of the scene stays.  The pattern's symbolic analysis
+    is left to what steps it (:func:`analyzed`; a remeshed run steps the scene padded to
+    its capacity bucket, :func:`jaxform.capacity.padded`, which analyses that pattern)."""
     model = scene.model
     layout, idx = _indices(
         mesh,
@@ -489,8 +492,9 @@ def scene_on_mesh(scene: Scene, mesh: meshing.Mesh) -> Scene:
     model, idx = replace(model, layout=layout).with_pattern(idx)
     so = scene.settings.solver
     linear = choose_backend(so.linear, layout.n_dofs)
-    idx = replace(idx, lu_symbolic=linear.analyze(idx.rows, idx.cols, layout.n_dofs))
-    newton = replace(scene.newton, method=choose_method(so.newton, linear, layout.n_dofs))
+    newton = replace(
+        scene.newton, variant=newton_variant(so.newton, linear, layout.n_dofs, so.anderson_depth)
+    )
     return replace(
         scene,
         mesh=mesh,
@@ -501,6 +505,16 @@ def scene_on_mesh(scene: Scene, mesh: meshing.Mesh) -> Scene:
         inputs=replace(scene.inputs, coords=jnp.asarray(mesh.coords)),
         grid=None,
     )
+
+
+def analyzed(scene: Scene) -> Scene:
+    """The scene with its pattern's symbolic analysis (KLU's; None for the other linear
+    solvers), done once per pattern outside jit: the scene itself where it has one."""
+    if scene.idx.lu_symbolic is not None:
+        return scene
+    idx = scene.idx
+    symbolic = scene.linear.analyze(idx.rows, idx.cols, scene.model.layout.n_dofs)
+    return scene if symbolic is None else replace(scene, idx=replace(idx, lu_symbolic=symbolic))
 
 
 def build_scene(cfg: dict | Config, mesh: meshing.Mesh | None = None) -> Scene:
@@ -558,7 +572,7 @@ def build_scene(cfg: dict | Config, mesh: meshing.Mesh | None = None) -> Scene:
         )
     linear = choose_backend(so.linear, layout.n_dofs)
     try:
-        method = choose_method(so.newton, linear, layout.n_dofs)
+        variant = newton_variant(so.newton, linear, layout.n_dofs, so.anderson_depth)
     except ValueError as err:
         raise ConfigError(str(err)) from None
     # a symbolic analysis once per pattern, outside jit (KLU's; None for the others)
@@ -574,8 +588,7 @@ def build_scene(cfg: dict | Config, mesh: meshing.Mesh | None = None) -> Scene:
             max_iterations=so.max_newton_iterations,
             rtol=so.rtol,
             line_search=so.line_search,
-            method=method,
-            anderson_depth=so.anderson_depth,
+            variant=variant,
         ),
         inputs=Inputs(
             coords=jax.device_put(np.asarray(mesh.coords, dtype=float)),

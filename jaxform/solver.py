@@ -9,7 +9,7 @@ actually carried.
 
 Failures are status codes (see jaxform.formulations): the caller cuts the step back.
 
-:func:`modified_newton` (``NewtonSettings.method = 'modified'``) keeps one factorization
+:func:`modified_newton` (:class:`ModifiedNewton`) keeps one factorization
 across iterations and load steps and refreshes it (assembly + factorization + an exact
 Newton step) when a step with it contracts ||R|| by less than 2x (that step is rejected)
 or by less than 10x (that step is kept).  On large sparse systems the triangular solves
@@ -47,8 +47,9 @@ inside a while loop.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import partial
+from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -56,47 +57,50 @@ import numpy as np
 
 from jaxform.status import NEWTON_NOT_CONVERGED, OK
 
-METHODS = ("newton", "modified")
 STALE_PER_ITERATION = 3  # modified Newton: iterations with a kept factorization allowed
 # per iteration with a new one, on top of it
 MODIFIED_MIN_UNKNOWNS = 5_000  # 'auto' picks modified Newton on the sparse backend from here
 
 
-def choose_method(name: str, linear, n_unknowns: int) -> str:
-    """The Newton method for ``solver.newton = name`` with the chosen linear solver
-    (:class:`jaxform.linear.LinearSolver`): 'modified' needs one that keeps a
-    factorization; 'auto' picks it from MODIFIED_MIN_UNKNOWNS unknowns where the solver
-    says it pays (klujax)."""
-    if name == "auto":
-        big = n_unknowns >= MODIFIED_MIN_UNKNOWNS
-        return "modified" if big and linear.modified_when_large else "newton"
-    if name == "modified" and not linear.keeps_factorization:
-        raise ValueError(
-            f"solver.newton = 'modified' keeps a factorization, which the "
-            f"'{linear.backend}' linear backend cannot: use solver.linear = 'dense' or "
-            f"'sparse' (klujax, CPU), or solver.newton = 'newton'"
-        )
-    if name not in METHODS:
-        raise ValueError(f"solver.newton = {name!r}: must be one of auto, newton, modified")
-    return name
+@dataclass(frozen=True)
+class FullNewton:
+    """Newton's method with a new Jacobian and factorization every iteration
+    (:func:`newton`).  Keeps no factorization from one step to the next."""
+
+    keeps_factorization: ClassVar[bool] = False
+
+    def total_iterations(self, max_iterations: int) -> int:
+        """Iterations of any kind a solve may take."""
+        return max_iterations
+
+    def jacobians(self, iterations, fac_before, fac_after):
+        """Iterations of a solve with a new Jacobian: all of them."""
+        return iterations
+
+    def factorization(self, linear, n: int, dtype):
+        """The factorization a run starts with and carries across steps: none."""
+        return None
+
+    def solve(self, fns: NewtonFunctions, x0, settings: NewtonSettings, x_fallback=None,
+              kept: Kept | None = None):  # fmt: skip
+        """:func:`newton` (factoring through ``kept`` where given)."""
+        residual, jacobian = fns.residual, fns.residual_and_jacobian
+        return newton(residual, jacobian, fns.linear_solve, x0, settings, x_fallback, kept)
 
 
 @dataclass(frozen=True)
-class NewtonSettings:
-    """``method``: 'newton' (a new Jacobian every iteration) or 'modified' (a factorization
-    kept across iterations and load steps, refreshed when it stops contracting: see
-    :func:`modified_newton`; ``accept_ratio`` and ``refresh_ratio`` are its thresholds).
-    ``max_iterations`` bounds the Newton iterations with a new Jacobian; modified Newton
-    may add up to ``STALE_PER_ITERATION`` times as many with a kept one (which go on
-    while they contract).  ``anderson_depth``: modified Newton mixes each step with a kept
-    factorization with up to that many earlier ones (Anderson acceleration, see
-    :func:`_anderson_step`; 0: plain steps)."""
+class ModifiedNewton:
+    """Modified Newton (:func:`modified_newton`): a factorization kept across iterations and
+    load steps, refreshed when it stops contracting.  ``accept_ratio``: a step with the kept
+    factorization is taken when it contracts ||R|| to at most this; ``refresh_ratio``: one
+    that contracts less refreshes the next iteration (None: :attr:`refresh_below`);
+    ``anderson_depth``: each step with a kept factorization is mixed with up to that many
+    earlier ones (Anderson acceleration, :func:`_anderson_step`; 0: plain steps).  A solve
+    may take up to ``STALE_PER_ITERATION`` iterations with a kept factorization per
+    iteration with a new one, on top of it."""
 
-    max_iterations: int = 25
-    rtol: float = 1e-10
-    line_search: bool = True
-    max_backtracks: int = 10
-    method: str = "newton"
+    keeps_factorization: ClassVar[bool] = True
+
     accept_ratio: float = 0.5
     refresh_ratio: float | None = None
     anderson_depth: int = 0
@@ -111,10 +115,91 @@ class NewtonSettings:
             return self.refresh_ratio
         return 0.3 if self.anderson_depth > 0 else 0.1
 
+    def total_iterations(self, max_iterations: int) -> int:
+        """Iterations of any kind a solve may take: ``max_iterations`` with a new Jacobian
+        and up to ``STALE_PER_ITERATION`` times as many with a kept one."""
+        return max_iterations * (1 + STALE_PER_ITERATION)
+
+    def jacobians(self, iterations, fac_before, fac_after):
+        """Iterations of a solve with a new Jacobian: the factorizations it made (the
+        count its kept factorization carries)."""
+        return fac_after.count - fac_before.count
+
+    def factorization(self, linear, n: int, dtype):
+        """The factorization a run starts with and carries across steps: an empty one of
+        ``linear`` (the first iteration factors)."""
+        return linear.empty_factorization(n, dtype)
+
+    def solve(self, fns: NewtonFunctions, x0, settings: NewtonSettings, x_fallback=None,
+              kept: Kept | None = None):  # fmt: skip
+        """:func:`modified_newton` from the factorization ``kept``."""
+        residual, jacobian = fns.residual, fns.residual_and_jacobian
+        return modified_newton(residual, jacobian, kept, x0, settings, x_fallback)
+
+
+NewtonVariant = FullNewton | ModifiedNewton
+# the variants by their name in the config (solver.newton; 'auto' picks one by size)
+VARIANTS = {"newton": FullNewton, "modified": ModifiedNewton}
+
+
+def newton_variant(name: str, linear, n_unknowns: int, anderson_depth: int = 0) -> NewtonVariant:
+    """The Newton variant for ``solver.newton = name`` with the chosen linear solver
+    (:class:`jaxform.linear.LinearSolver`) on ``n_unknowns`` unknowns: 'auto' picks modified
+    Newton from MODIFIED_MIN_UNKNOWNS unknowns where the solver says it pays (klujax),
+    full Newton below; modified Newton needs a solver that keeps a factorization.
+    ``anderson_depth``: modified Newton's (``solver.anderson_depth``)."""
+    if name == "auto":
+        big = n_unknowns >= MODIFIED_MIN_UNKNOWNS
+        name = "modified" if big and linear.modified_when_large else "newton"
+    if name not in VARIANTS:
+        raise ValueError(f"solver.newton = {name!r}: must be one of auto, newton, modified")
+    variant = VARIANTS[name]
+    if variant.keeps_factorization and not linear.keeps_factorization:
+        raise ValueError(
+            f"solver.newton = '{name}' keeps a factorization, which the "
+            f"'{linear.backend}' linear backend cannot: use solver.linear = 'dense' or "
+            f"'sparse' (klujax, CPU), or solver.newton = 'newton'"
+        )
+    if variant.keeps_factorization:
+        return ModifiedNewton(anderson_depth=anderson_depth)
+    return variant()
+
+
+@dataclass(frozen=True)
+class NewtonSettings:
+    """The Newton solve of a step: ``variant`` (:class:`FullNewton`, a new Jacobian every
+    iteration; :class:`ModifiedNewton`, a factorization kept across iterations and load
+    steps), ``max_iterations`` bounds the iterations with a new Jacobian (the variant says
+    how many a solve may take in all), ``rtol`` the convergence test, ``line_search`` with
+    up to ``max_backtracks`` halvings."""
+
+    max_iterations: int = 25
+    rtol: float = 1e-10
+    line_search: bool = True
+    max_backtracks: int = 10
+    variant: NewtonVariant = FullNewton()
+
     @property
     def max_total_iterations(self) -> int:
         """Iterations of any kind a solve may take (the history's length minus one)."""
-        return self.max_iterations * (1 + STALE_PER_ITERATION * (self.method == "modified"))
+        return self.variant.total_iterations(self.max_iterations)
+
+    def exact(self) -> NewtonSettings:
+        """These settings with full Newton (a differentiable run: the factorization modified
+        Newton keeps is a handle that would have to live across a vmapped scan, and the
+        gradient is the same, the reverse pass solving with the exact Jacobian)."""
+        return replace(self, variant=FullNewton())
+
+
+@dataclass(frozen=True)
+class NewtonFunctions:
+    """What a Newton solve evaluates: residual(x) -> (R, aux, code, scale);
+    residual_and_jacobian(x) -> (R, vals, aux, code, scale); linear_solve(vals, b) -> the
+    solution of J y = b (None where every solve goes through a kept factorization)."""
+
+    residual: Callable
+    residual_and_jacobian: Callable
+    linear_solve: Callable | None = None
 
 
 def _start(residual, x0, x_fallback):
@@ -285,14 +370,14 @@ def modified_newton(
     counts) and the next iteration refreshes: assembles the Jacobian at x, factors it
     (``kept.factor(vals, old) -> fac``, which frees the old one) and takes an exact Newton step
     with the backtracking line search of :func:`newton`.  An accepted step that contracted
-    by less than ``settings.refresh_below`` also refreshes the next iteration.  With
+    by less than ``settingv.refresh_below`` also refreshes the next iteration.  With
     ``anderson_depth`` > 0 the steps with a kept factorization are Anderson-accelerated
     (:func:`_anderson_step`; a refresh starts its memory afresh, and a rejected mixed step
     is retried plainly with the same factorization instead of refreshing).  Convergence and
     failure codes as in :func:`newton`; the converged x is the same root to ``rtol`` (the
     factorization only changes the path).  Returns (x, aux, iterations, code, history, fac).
     """
-    s = settings
+    s, v = settings, settings.variant
     factor, solve_factored, fac0 = kept.factor, kept.solve_factored, kept.fac
     x0, r0, aux0, code0, scale0 = _start(residual, x0, x_fallback)
     count0 = fac0.count
@@ -326,7 +411,7 @@ def modified_newton(
         dx = jax.lax.cond(
             fac.valid, lambda: solve_factored(fac, -r), lambda: jnp.full_like(r, jnp.nan)
         )  # never solve with no factors
-        if s.anderson_depth > 0:  # a refreshed step is Newton's, and starts the memory
+        if v.anderson_depth > 0:  # a refreshed step is Newton's, and starts the memory
             mem = dict(c["aa"], n=jnp.where(fresh, -1, c["aa"]["n"]))  # n < 0: empty
             dx, mem = _anderson_step(mem, x, dx)
         finite = jnp.isfinite(dx).all()
@@ -348,7 +433,7 @@ def modified_newton(
         ratio = rtn / rnorm
         # a stale step that does not contract (or leaves the valid states) is rejected;
         # a refreshed one is taken as in newton()
-        reject = (~fresh) & ((codet != OK) | ~finite | ~(ratio <= s.accept_ratio))
+        reject = (~fresh) & ((codet != OK) | ~finite | ~(ratio <= v.accept_ratio))
         take = ~reject & (code_j == OK)
         code = jnp.where(
             code_j != OK,
@@ -367,9 +452,9 @@ def modified_newton(
             conv=conv,
             hist=c["hist"].at[it].set(jnp.where(take, rtn / scalet, rnorm / scale)),
             fac=fac,
-            refresh=reject | (ratio > s.refresh_below),
+            refresh=reject | (ratio > v.refresh_below),
         )
-        if s.anderson_depth > 0:
+        if v.anderson_depth > 0:
             # a mixed step that is rejected is retried plainly, with the same factorization
             mixed = reject & (mem["n"] > 0)
             new["refresh"] = jnp.where(mixed, False, new["refresh"])
@@ -388,8 +473,8 @@ def modified_newton(
         fac=fac0,
         refresh=jnp.asarray(False),
     )
-    if s.anderson_depth > 0:
-        init["aa"] = _anderson_memory(s.anderson_depth, x0)
+    if v.anderson_depth > 0:
+        init["aa"] = _anderson_memory(v.anderson_depth, x0)
     out = jax.lax.while_loop(cond, body, init)
     code = jnp.where(
         out["conv"], OK, jnp.where(out["code"] == OK, NEWTON_NOT_CONVERGED, out["code"])
@@ -504,10 +589,10 @@ def solve_implicit(
     :class:`jaxform.linear.Factorization` (freeing ``old``), linear.solve_factored(fac, b,
     args, transpose) and linear.matvec(vals, y, args, transpose).
 
-    ``fac``: with ``problem.settings.method = 'modified'`` the factorization to start from; with
-    'newton', if given, each iteration factors and solves with the factors (freeing
-    ``fac`` at the first) and the last iteration's factorization is returned (see
-    :func:`newton`).  Either way the caller owns the one returned.
+    ``fac``: with :class:`ModifiedNewton` (``problem.settings.variant``) the factorization
+    to start from; with :class:`FullNewton`, if given, each iteration factors and solves
+    with the factors (freeing ``fac`` at the first) and the last iteration's factorization
+    is returned (see :func:`newton`).  Either way the caller owns the one returned.
     ``adjoint_fac``: a factorization of a Jacobian near this root, which the caller keeps
     alive through the reverse pass; where valid and this solve took no iteration (x0 was
     already the root it was factored near), the reverse pass solves by
@@ -516,7 +601,7 @@ def solve_implicit(
     Returns (x, aux, iterations, code, history, fac) like :func:`newton`.  The functions
     must be hashable and close over no traced value: everything traced goes through
     ``args``.  The reverse pass solves with the exact Jacobian at the converged x whichever
-    the method (refined to a componentwise backward error of a few ulps when it reuses a
+    the variant (refined to a componentwise backward error of a few ulps when it reuses a
     factorization).
     """
     fn, fn_jac, linear, settings = problem.fn, problem.fn_jac, problem.linear, problem.settings
@@ -527,24 +612,12 @@ def solve_implicit(
             lambda f, b: linear.solve_factored(f, b, args),
             fac,
         )
-    if settings.method == "modified":
-        return modified_newton(
-            lambda x: fn(x, args),
-            lambda x: fn_jac(x, args),
-            kept,
-            x0,
-            settings,
-            x_fallback=x_fallback,
-        )
-    return newton(
+    fns = NewtonFunctions(
         lambda x: fn(x, args),
         lambda x: fn_jac(x, args),
         lambda vals, b: linear(vals, b, args, False),
-        x0,
-        settings,
-        x_fallback=x_fallback,
-        kept=kept,
     )
+    return settings.variant.solve(fns, x0, settings, x_fallback, kept)
 
 
 def _solve_implicit_fwd(problem, x0, x_fallback, args, fac=None, adjoint_fac=None):

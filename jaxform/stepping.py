@@ -40,21 +40,13 @@ from jaxform.damage import increment as damage_increment
 from jaxform.damage import initial_damage
 from jaxform.fields import CANDIDATE, ELEMENT, GAUSS, RATES, SCALAR, STATUS, UNKNOWNS, over
 from jaxform.formulations import GaussState, initial_gauss_state
-from jaxform.geometry import min_quality, tributary_areas
+from jaxform.geometry import tributary_areas
 from jaxform.kinematics import deviator, safe_norm_eq
 from jaxform.linear import LinearSolver, matvec
 from jaxform.loads import external_forces, total_force
 from jaxform.solver import ImplicitProblem, NewtonSettings, solve_implicit
 from jaxform.status import OK
-from jaxform.triggers import (
-    CORNER,
-    FOLD,
-    QUALITY,
-    STEPS,
-    STROKE,
-    corner_depth_ratio,
-    fold_angle_deg,
-)
+from jaxform.triggers import AfterStep, Trigger, scene_triggers
 from jaxform.wear import node_wear, station_wear
 from jaxform.xla_options import jit
 
@@ -251,10 +243,10 @@ def solve_step(
     adjoint_fac=None,
 ) -> StepSolution:
     """One Newton solve from state (at t) to t_new, starting from x_guess (or state.x;
-    state.x also when the guess is not a valid state); ``fac``: the kept factorization for
-    ``stepper.newton.method = 'modified'``, or for 'newton' one that each iteration
-    replaces, the last returned; ``adjoint_fac``: a factorization near the root for the
-    reverse pass to reuse (see :func:`jaxform.solver.solve_implicit`).
+    state.x also when the guess is not a valid state); ``fac``: the factorization
+    :class:`jaxform.solver.ModifiedNewton` keeps, or for :class:`jaxform.solver.FullNewton`
+    one that each iteration replaces, the last returned; ``adjoint_fac``: a factorization
+    near the root for the reverse pass to reuse (see :func:`jaxform.solver.solve_implicit`).
 
     Differentiable (reverse mode) in ``state``, ``t_new`` and ``inp`` by the implicit
     function theorem (:func:`jaxform.solver.solve_implicit`)."""
@@ -344,7 +336,10 @@ class Stepper:
     """The static part of the compiled time stepping (hashable): what a chunk of steps
     solves and how the step size adapts.  A failed attempt halves the step, down to
     ``dt_max / 2**max_cutbacks``; after an easy step (no cutback, at most a fifth of the
-    iterations a solve may take) the next one grows by ``dt_growth`` up to ``dt_max``."""
+    iterations a solve may take) the next one grows by ``dt_growth`` up to ``dt_max``.
+    ``triggers``: what each step of a chunk measures and may pause on
+    (:mod:`jaxform.triggers`; their thresholds are :attr:`StepControl.thresholds`).
+    Built from a scene by :func:`stepper_of`."""
 
     model: Model
     linear: LinearSolver
@@ -352,14 +347,12 @@ class Stepper:
     max_cutbacks: int
     dt_growth: float = 1.5
     symmetric_z: bool = True
-    # measure the geometric remesh triggers (a die corner's depth, a fold) after each step:
-    # only a scene that remeshes on them pays for them (jaxform.triggers)
-    shape_triggers: bool = False
+    triggers: tuple[Trigger, ...] = ()
 
     def next_step(self, h_used, jacobians, cutbacks, dt_max):
         """The size of the next step after one of size h_used that took ``jacobians``
         Newton iterations with a new Jacobian (all of them for full Newton; for modified
-        Newton its refreshes, so that both methods grow the step on the same effort)."""
+        Newton its refreshes, so that both variants grow the step on the same effort)."""
         # no shrinking ahead on many iterations: halving after a hard but converged step
         # made the 20 x 20 q1p0 friction scene fail at 54.8 % (72-82 steps, 12-37
         # cutbacks) where the full step completes it (57 steps, no cutback)
@@ -369,32 +362,37 @@ class Stepper:
         return jnp.where(easy, grown, h_used)
 
 
+def stepper_of(scene, differentiable: bool = False) -> Stepper:
+    """The one builder of a scene's :class:`Stepper` (``scene``: a
+    :class:`jaxform.scenes.Scene`).  The host loop's adapts its steps and carries the
+    scene's triggers (:func:`jaxform.triggers.scene_triggers`); a ``differentiable`` run's
+    (:mod:`jaxform.gradients`, :mod:`jaxform.blows`) takes fixed steps by full Newton
+    (:meth:`jaxform.solver.NewtonSettings.exact`) with no trigger, and so shares its
+    program with every scene of the same model whatever its step control."""
+    if differentiable:
+        return Stepper(scene.model, scene.linear, scene.newton.exact(), 0,
+                       symmetric_z=scene.symmetric_z)  # fmt: skip
+    return Stepper(scene.model, scene.linear, scene.newton, scene.max_cutbacks,
+                   scene.dt_growth, scene.symmetric_z, scene_triggers(scene))  # fmt: skip
+
+
 @jax.tree_util.register_dataclass
 @dataclass(frozen=True)
 class StepControl:
     """The traced part of the time stepping: the step size to try next, the largest
-    step (``time.dt_s``), the end time, and the triggers that pause a chunk for the host
-    to rezone or remesh (each 0: never; :mod:`jaxform.triggers`): a worst corner quality,
-    a number of steps, a stroke, a die corner's depth in a facet, a fold angle."""
+    step (``time.dt_s``), the end time, and the thresholds of the stepper's triggers that
+    pause a chunk for the host (in the order of ``Stepper.triggers``; each 0: never;
+    :mod:`jaxform.triggers`)."""
 
     h: jax.Array  # s
     dt_max: jax.Array  # s
     t_end: jax.Array  # s
-    rezone_quality: jax.Array
-    # a chunk pauses after this many of its converged steps (0: never; remeshing every
-    # remesh.every_steps steps)
-    pause_steps: jax.Array = 0
-    pause_stroke_mm: jax.Array = 0.0  # after the step that reaches this stroke (mm)
-    corner_depth_ratio: jax.Array = 0.0  # a die corner deeper in a facet than this x length
-    fold_angle_deg: jax.Array = 0.0  # a free-surface fold narrower than this (deg)
+    thresholds: tuple = ()
 
 
 def _jacobians(stepper: Stepper, sol: StepSolution, fac_before):
-    """Newton iterations of ``sol`` with a new Jacobian: modified Newton's factorizations
-    (the count its kept factorization carries), full Newton's iterations."""
-    if stepper.newton.method == "modified":
-        return sol.fac.count - fac_before.count
-    return sol.iterations
+    """Newton iterations of ``sol`` with a new Jacobian (as the Newton variant counts them)."""
+    return stepper.newton.variant.jacobians(sol.iterations, fac_before, sol.fac)
 
 
 def attempt_step(
@@ -404,7 +402,7 @@ def attempt_step(
     end exactly at t_end), halved on failure until it converges or reaches the smallest
     step.  Returns (state, info dict, fac): info has the step size taken (h_used),
     iterations and cutbacks of all attempts, the status code, and the Newton history of
-    the last attempt; ``fac`` the factorization modified Newton keeps (None for 'newton')."""
+    the last attempt; ``fac`` the factorization modified Newton keeps (None for full Newton)."""
     settings = stepper.newton
     n_hist = settings.max_total_iterations + 1
     h_min = control.dt_max * 0.5**stepper.max_cutbacks
@@ -548,13 +546,13 @@ def run_chunk(
 ):
     """lax.scan over n steps, each one converged step of adaptive size
     (:func:`attempt_step`); steps after the end, after a failure, or after a step that
-    fired a trigger of ``control`` (a corner quality below ``control.rezone_quality``, the
-    chunk's ``control.pause_steps``-th step, ...; :class:`StepControl`: the caller
-    rezones or remeshes and goes on; output ``pause_cause`` names them,
-    :mod:`jaxform.triggers`) leave the state unchanged and are marked inactive.  ``fac``: the
-    factorization modified Newton keeps (None for 'newton'), carried through and returned
-    with (state, control for the next chunk, outputs): the caller owns it and frees the
-    last one."""
+    fired a trigger of the stepper at its threshold in ``control`` (a corner quality below
+    it, the chunk's n-th step, the press capacity, ...: the caller rezones or remeshes and
+    goes on, or stops; output ``pause_cause`` names them, :mod:`jaxform.triggers`, and each
+    trigger's measure is the output of its column) leave the state unchanged and are marked
+    inactive.  ``fac``: the factorization modified Newton keeps (None for full Newton),
+    carried through and returned with (state, control for the next chunk, outputs): the
+    caller owns it and frees the last one."""
     model = stepper.model
 
     def step(carry, _):
@@ -582,34 +580,22 @@ def run_chunk(
 
         new, info, fac_new = jax.lax.cond(run, do, skip, st, fac)
         failed = failed | (info["code"] != OK)
-        pos = model.nodal_positions(new.x, inp.coords, idx)
-        quality = min_quality(pos, idx.elements)
         count = count + run.astype(count.dtype)
         out = step_outputs(model, new, inp, idx, stepper.symmetric_z)
-        depth, fold = jnp.zeros_like(quality), jnp.full_like(quality, 180.0)
-        if stepper.shape_triggers:
-            if inp.die is not None:
-                depth = corner_depth_ratio(inp.die, pos, idx, new.t)
-            fold = fold_angle_deg(pos, idx, new.contact_status)
-        bits = (
-            jnp.where((ctl.rezone_quality > 0.0) & (quality < ctl.rezone_quality), QUALITY, 0)
-            + jnp.where((ctl.pause_steps > 0) & (count >= ctl.pause_steps), STEPS, 0)
-            + jnp.where(
-                (ctl.pause_stroke_mm > 0.0) & (out["stroke_mm"] >= ctl.pause_stroke_mm), STROKE, 0
-            )
-            + jnp.where(
-                (ctl.corner_depth_ratio > 0.0) & (depth > ctl.corner_depth_ratio), CORNER, 0
-            )
-            + jnp.where((ctl.fold_angle_deg > 0.0) & (fold < ctl.fold_angle_deg), FOLD, 0)
-        )
+        after = AfterStep(positions=model.nodal_positions(new.x, inp.coords, idx), idx=idx,
+                          die=inp.die, state=new, stroke_mm=out["stroke_mm"],
+                          force_N=out["force_N"], steps=count)  # fmt: skip
+        bits = jnp.asarray(0)
+        for trigger, threshold in zip(stepper.triggers, ctl.thresholds):
+            value = trigger.measure(after)
+            bits = bits + jnp.where(trigger.fires(value, threshold), trigger.bit, 0)
+            if trigger.column is not None:
+                out[trigger.column] = value
         fires = run & ~failed & (bits > 0)
         paused = paused | fires
         out.update(info)
         out["factorizations"] = info["iterations"] if fac is None else fac_new.count - fac.count
         out["active"] = run
-        out["mesh_quality"] = quality
-        out["corner_depth_ratio"] = depth
-        out["free_fold_deg"] = fold
         out["pause_cause"] = jnp.where(fires, bits, 0)
         out["paused"] = paused
         return (new, replace(ctl, h=info["h_next"]), failed, paused, fac_new, count), out

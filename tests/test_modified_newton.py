@@ -14,7 +14,15 @@ from test_upsetting import scene, seed_run
 from jaxform.config import ConfigError
 from jaxform.linear import KLU, DenseLU
 from jaxform.simulation import simulate
-from jaxform.solver import Kept, NewtonSettings, choose_method, modified_newton, newton
+from jaxform.solver import (
+    FullNewton,
+    Kept,
+    ModifiedNewton,
+    NewtonSettings,
+    modified_newton,
+    newton,
+    newton_variant,
+)
 from jaxform.status import OK
 
 N = 6
@@ -47,7 +55,7 @@ def test_modified_newton_finds_the_newton_root_with_fewer_factorizations(backend
         from jaxform.klu import symbolic as klu_symbolic
 
         symbolic = klu_symbolic(ROWS, COLS, N)
-    settings = NewtonSettings(rtol=1e-14, method="modified")
+    settings = NewtonSettings(rtol=1e-14, variant=ModifiedNewton())
 
     @jax.jit
     def solve(x0, fac):
@@ -111,7 +119,8 @@ def test_modified_newton_on_seed_scene_matches_full_newton():
     this scene), with more, cheaper iterations and at most a tenth of the factorizations."""
     sc, ref = seed_run()
     res = simulate(scene("solver.newton=modified"))
-    assert res.scene.newton.method == "modified" and res.scene.linear.backend == "sparse"
+    assert isinstance(res.scene.newton.variant, ModifiedNewton)
+    assert res.scene.linear.backend == "sparse"
     f, f_ref = res.history["force_N"][1:], ref.history["force_N"][1:]
     assert np.max(np.abs(f - f_ref) / np.abs(f_ref)) <= 1e-9
     u, u_ref = res.fields["x"][-1], ref.fields["x"][-1]
@@ -145,16 +154,17 @@ def test_backend_that_cannot_keep_a_factorization_is_refused():
     with pytest.raises(ConfigError, match="solver.newton = 'modified'.*jax-sparse"):
         scene("solver.linear=jax-sparse", "solver.newton=modified")
     with pytest.raises(ValueError, match="solver.newton = 'secant'"):
-        choose_method("secant", KLU(), 10)
+        newton_variant("secant", KLU(), 10)
 
 
 def test_auto_picks_modified_newton_for_large_sparse_systems():
     from jaxform.solver import MODIFIED_MIN_UNKNOWNS as M
 
-    assert choose_method("auto", KLU(), M) == "modified"
-    assert choose_method("auto", KLU(), M - 1) == "newton"
-    assert choose_method("auto", DenseLU(), 10 * M) == "newton"
-    assert choose_method("newton", KLU(), 10 * M) == "newton"
+    assert newton_variant("auto", KLU(), M, anderson_depth=2) == ModifiedNewton(anderson_depth=2)
+    assert newton_variant("auto", KLU(), M - 1) == FullNewton()
+    assert newton_variant("auto", DenseLU(), 10 * M) == FullNewton()
+    assert newton_variant("newton", KLU(), 10 * M) == FullNewton()
+    assert newton_variant("modified", DenseLU(), 10) == ModifiedNewton()
 
 
 def test_anderson_step_reaches_a_linear_root_like_gmres():
@@ -199,7 +209,7 @@ def test_modified_newton_with_anderson_finds_the_same_root_with_fewer_iterations
 
     def solve(depth):
         settings = NewtonSettings(
-            rtol=1e-14, method="modified", anderson_depth=depth, refresh_ratio=1.0
+            rtol=1e-14, variant=ModifiedNewton(anderson_depth=depth, refresh_ratio=1.0)
         )
         kept = Kept(
             lambda vals, old: lin.refactor(ROWS, COLS, vals, N, None, old),
@@ -219,9 +229,11 @@ def test_modified_newton_with_anderson_finds_the_same_root_with_fewer_iterations
 
 
 def test_anderson_depth_reaches_the_solver_from_the_config():
-    assert scene().newton.anderson_depth == 3 and scene().newton.refresh_below == 0.3
-    plain = scene("solver.anderson_depth=0").newton
+    mixed = scene("solver.newton=modified").newton.variant
+    assert mixed.anderson_depth == 3 and mixed.refresh_below == 0.3
+    plain = scene("solver.newton=modified", "solver.anderson_depth=0").newton.variant
     assert plain.anderson_depth == 0 and plain.refresh_below == 0.1
+    assert scene().newton.variant == FullNewton()  # 'auto' on a small scene: no depth
 
 
 def test_steps_grow_on_the_same_effort_for_both_methods():
@@ -232,8 +244,7 @@ def test_steps_grow_on_the_same_effort_for_both_methods():
     after 20 iterations and the closed-die scene, configs/closed_die.toml, failed at
     t = 44.14 s where full Newton completes it; it now completes in 101 steps.)"""
     from jaxform.linear import Factorization
-    from jaxform.simulation import stepper_of
-    from jaxform.stepping import StepSolution, _jacobians
+    from jaxform.stepping import StepSolution, _jacobians, stepper_of
 
     def fac(count):
         return Factorization(jnp.zeros(1, jnp.uint64), jnp.zeros(0, jnp.int32), True, count)

@@ -143,7 +143,8 @@ def test_press_capacity_stops_the_run_with_the_history_written(tmp_path):
     """Reference: the 3 x 3 seed scene to 10 % (tests/test_upsetting.py's scene; its
     force rises from 264 N at step 1 to 344 N at step 10): with press.capacity_N = 300
     the run stops at the first step whose force reaches 300 N (step 5, stroke 0.375 mm),
-    with the message naming the capacity, the stroke and the step, and history.csv
+    with the message naming the capacity, the stroke and the step, the final state that
+    step's (not the state at the end of its compiled chunk of 8 steps), and history.csv
     holding the rows up to that step; the pictures are written too (the animation with
     output.animation_frames = 4 frames of the 6 rows)."""
     with pytest.raises(SimulationError, match=r"press capacity 300 N reached at stroke "
@@ -156,6 +157,12 @@ def test_press_capacity_stops_the_run_with_the_history_written(tmp_path):
     assert h["stroke_mm"][-1] == pytest.approx(0.375, abs=1e-12)
     step = int(str(err.value).rsplit("step ", 1)[1])
     assert step == len(h["time_s"]) - 1
+    res = err.value.result
+    assert float(res.final_state.t) == h["time_s"][-1]
+    np.testing.assert_array_equal(np.asarray(res.final_state.x), res.fields["x"][-1])
+    np.testing.assert_array_equal(
+        np.asarray(res.final_state.gauss.mat.eqps), res.fields["eqps"][-1]
+    )
     rows = (tmp_path / "history.csv").read_text().strip().splitlines()
     assert len(rows) == 1 + len(h["time_s"])  # header + rows
     assert "press capacity 300 N" in (tmp_path / "FAILED.txt").read_text()

@@ -23,6 +23,7 @@ from jaxform.dies import RigidDie
 from jaxform.geometry import min_quality, polygon_measure
 from jaxform.mesh import billet_quarter, boundary_polygon, polygon_quads
 from jaxform.remesh import simplify
+from jaxform.solver import ModifiedNewton
 from jaxform.transfer import Transfer, gauss_points, gauss_to_nodes
 from jaxform.triggers import corner_depth_ratio, fold_angle_deg
 
@@ -256,7 +257,7 @@ def test_padding_to_a_bucket_is_inert_and_shared():
     plain, _, _ = step(a, state, control)
     big, _, _ = step(pa.scene, pa.state(state), control)
     back = pa.trim(big)
-    assert a.newton.method == pa.scene.newton.method == "modified"
+    assert a.newton.variant == pa.scene.newton.variant == ModifiedNewton(anderson_depth=3)
     x0, x1 = np.asarray(plain.x), np.asarray(back.x)
     assert np.max(np.abs(x1 - x0)) <= 1e-10 * np.max(np.abs(x0))
     lay = pa.scene.model.layout
@@ -397,8 +398,8 @@ def test_closed_die_with_flash_fills_and_forms_the_flash():
 
 
 def _corrupting_remesh(monkeypatch, how):
-    """jaxform.simulation.remesh, its new state changed by ``how`` (a failure to drive)."""
-    import jaxform.simulation as sim
+    """jaxform.adaptation.remesh, its new state changed by ``how`` (a failure to drive)."""
+    import jaxform.adaptation as sim
 
     real = sim.remesh
 

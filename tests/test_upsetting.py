@@ -299,9 +299,9 @@ def _singular_after(t_from: float, h_above: float, until: float = np.inf):
     t_from <= t < until with a step larger than h_above."""
     from jax.errors import JaxRuntimeError
 
-    from jaxform import simulation
+    from jaxform import chunks
 
-    real = simulation._run_chunk
+    real = chunks._run_chunk
 
     def fake(stepper, state, control, inp, idx, n, fac):
         t = float(state.t)
@@ -317,16 +317,16 @@ def test_singular_jacobian_cuts_back_like_any_failed_step(monkeypatch):
     t = 2 s) is retried with the step halved and converges at 0.25 s; the run goes on
     and ends at its end time.  With the step singular at every size the run stops after
     all cutbacks, naming the cause."""
-    from jaxform import simulation
+    from jaxform import chunks
 
     sc = scene("mesh.nr=3", "mesh.nz=3", "die.reduction=0.05", "solver.chunk_steps=1")
-    monkeypatch.setattr(simulation, "_run_chunk", _singular_after(2.0, 0.3, until=2.1))
+    monkeypatch.setattr(chunks, "_run_chunk", _singular_after(2.0, 0.3, until=2.1))
     h = simulate(sc).history
     k = int(np.argmin(np.abs(h["time_s"] - 2.25)))
     assert h["time_s"][k] == pytest.approx(2.25) and h["dt_s"][k] == pytest.approx(0.25)
     assert h["cutbacks"][k] == 2 and h["cutbacks"].sum() == 2
     assert h["time_s"][-1] == pytest.approx(sc.t_end, rel=1e-12)
-    monkeypatch.setattr(simulation, "_run_chunk", _singular_after(2.0, 0.0))
+    monkeypatch.setattr(chunks, "_run_chunk", _singular_after(2.0, 0.0))
     with pytest.raises(SimulationError, match="step 3 .*failed after 7 attempts.*singular") as e:
         simulate(sc)
     assert e.value.result.history["time_s"][-1] == pytest.approx(2.0)

@@ -1,0 +1,147 @@
+"""The host loop's strategies: Newton variants, triggers, adaptations (issue 37).
+
+References: the rules as the issue states them (a variant answers what the callers asked
+by comparing strings; a trigger that the new mesh still fires waits until it is 10 %
+worse; a remesh analyses the pattern it steps, once), and hand-computed thresholds.
+Nothing here compiles a step program.
+"""
+
+from dataclasses import replace
+from pathlib import Path
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxform.adaptation import NoAdaptation, Remeshing, Rezoning, adaptation_of
+from jaxform.config import load_config
+from jaxform.linear import DenseLU
+from jaxform.scenes import build_scene
+from jaxform.solver import FullNewton, ModifiedNewton, NewtonSettings
+from jaxform.stepping import initial_state, stepper_of
+from jaxform.triggers import (
+    CORNER,
+    FOLD,
+    QUALITY,
+    TRIGGERS,
+    Armed,
+    CornerDepth,
+    EverySteps,
+    EveryStroke,
+    FoldBelow,
+    PressCapacity,
+    QualityBelow,
+    causes,
+    scene_triggers,
+)
+
+ROOT = Path(__file__).resolve().parents[1]
+SEED = ROOT / "configs" / "upsetting_seed.toml"
+TINY = ["mesh.nr=3", "mesh.nz=3", "output.fields=false", "output.plots=false"]
+
+
+def _scene(*overrides):
+    return build_scene(load_config(SEED, TINY + list(overrides)))
+
+
+def test_newton_variants_answer_what_the_callers_ask():
+    """Full Newton keeps no factorization and counts every iteration as a new Jacobian;
+    modified Newton starts from an empty factorization, counts its refreshes, and may take
+    4x the iterations in all.  A differentiable run's settings are full Newton's."""
+    full, mod = FullNewton(), ModifiedNewton(anderson_depth=3)
+    lin = DenseLU()
+    assert not full.keeps_factorization and mod.keeps_factorization
+    assert full.factorization(lin, 4, jnp.float64) is None
+    fac = mod.factorization(lin, 4, jnp.float64)
+    assert not bool(fac.valid) and int(fac.count) == 0
+    assert full.total_iterations(25) == 25 and mod.total_iterations(25) == 100
+    assert full.jacobians(12, None, None) == 12
+    assert mod.jacobians(12, replace(fac, count=4), replace(fac, count=7)) == 3
+    s = NewtonSettings(variant=mod)
+    assert s.max_total_iterations == 100 and s.exact() == NewtonSettings()
+    assert hash(mod) == hash(ModifiedNewton(anderson_depth=3)) and mod != full
+
+
+def test_triggers_of_a_scene_and_the_shared_step_program():
+    """Every cheap trigger is compiled into every scene's steps (a threshold of 0 leaves
+    it off), the costly ones only where the scene sets one; the bits and names of
+    ``pause_cause`` stay.  Scenes that differ only in thresholds share one stepper (one
+    program); a differentiable stepper has no trigger and full Newton."""
+    cheap = (QualityBelow(), EverySteps(), EveryStroke(), PressCapacity())
+    plain = _scene()
+    assert scene_triggers(plain) == cheap
+    corner = _scene("remesh.corner_depth_ratio=0.2")
+    assert scene_triggers(corner) == cheap[:3] + (CornerDepth(), FoldBelow(), PressCapacity())
+    assert stepper_of(corner) == stepper_of(_scene("remesh.fold_angle_deg=20"))
+    assert len({t.bit for t in TRIGGERS}) == len(TRIGGERS)
+    assert causes(QUALITY | FOLD) == "quality+fold" and causes(CORNER) == "die corner"
+    a, b = _scene("remesh.quality_below=0.3"), _scene("remesh.quality_below=0.2")
+    assert stepper_of(a) == stepper_of(b) == stepper_of(plain)
+    assert stepper_of(a, differentiable=True).triggers == ()
+    assert stepper_of(_scene("solver.newton=modified"), True).newton.variant == FullNewton()
+
+
+def test_thresholds_arm_and_relax_after_an_adaptation():
+    """Reference: the hysteresis rules by hand.  At the start: the configured thresholds
+    (the stroke one a stroke from 0).  After a remesh on a row (stroke 2 mm) that fired
+    the quality, corner and fold triggers: the new mesh's quality 0.25 below 0.3 waits
+    for 0.9 x 0.25; the corner depth 0.3 for 1.1 x 0.3, the fold 20 deg for 0.9 x 20;
+    the stroke for 2 + 1.5 mm.  A new mesh above 0.3 keeps 0.3; an unfired trigger its own.
+    The steps trigger counts the steps since the last new mesh."""
+    sc = _scene(
+        "remesh.quality_below=0.3",
+        "remesh.corner_depth_ratio=0.2",
+        "remesh.fold_angle_deg=30",
+        "remesh.every_stroke_mm=1.5",
+        "remesh.every_steps=10",
+        "press.capacity_N=500",
+    )
+    armed = Armed.of(sc, scene_triggers(sc))
+    assert [type(t) for t in armed.triggers] == [QualityBelow, EverySteps, EveryStroke,
+                                                 CornerDepth, FoldBelow, PressCapacity]  # fmt: skip
+    start = [float(h) for h in armed.thresholds()]
+    assert start == [0.3, 10.0, 1.5, 0.2, 30.0, 500.0]
+    row = dict(stroke_mm=2.0, pause_cause=QUALITY | CORNER | FOLD, corner_depth_ratio=0.3,
+               free_fold_deg=20.0)  # fmt: skip
+    after = [float(h) for h in armed.thresholds(row, quality_after=0.25)]
+    assert after == pytest.approx([0.9 * 0.25, 10.0, 3.5, 1.1 * 0.3, 0.9 * 20.0, 500.0])
+    quiet = dict(row, pause_cause=0)
+    assert [float(h) for h in armed.thresholds(quiet, quality_after=0.5)] == pytest.approx(
+        [0.3, 10.0, 3.5, 0.2, 30.0, 500.0]
+    )
+    chunk = [float(h) for h in armed.for_chunk(armed.thresholds(), 4)]
+    assert chunk == [0.3, 6.0, 1.5, 0.2, 30.0, 500.0]
+    # rezoning: the quality trigger is mesh.rezone_quality; no [remesh] trigger is on
+    rz = _scene("mesh.rezone_quality=0.4")
+    assert [float(h) for h in Armed.of(rz, scene_triggers(rz)).thresholds()] == [0.4, 0, 0, 0]
+
+
+def test_each_scene_has_its_adaptation():
+    assert adaptation_of(_scene()) == NoAdaptation()
+    assert adaptation_of(_scene("mesh.rezone_quality=0.3")) == Rezoning()
+    assert isinstance(adaptation_of(_scene("remesh.every_steps=5")), Remeshing)
+
+
+def test_a_remesh_analyses_the_pattern_it_steps_once(monkeypatch):
+    """A remesh (on the sparse backend, KLU) analyses one pattern: the padded scene's,
+    which the steps run; the scene on the new mesh leaves its own pattern unanalysed."""
+    from jaxform import klu
+
+    calls = []
+    real = klu.symbolic
+
+    def counting(rows, cols, n):
+        calls.append(n)
+        return real(rows, cols, n)
+
+    sc = _scene("remesh.every_steps=5", "solver.linear=sparse")
+    remeshing = adaptation_of(sc)
+    mesh = remeshing.first_mesh(sc)
+    state = initial_state(sc.model, sc.inputs)
+    monkeypatch.setattr(klu, "symbolic", counting)
+    done = remeshing.adapt(mesh, state, dict(pause_cause=2, stroke_mm=0.0))
+    assert done.failure is None and done.new_mesh
+    assert calls == [done.mesh.stepped.model.layout.n_dofs]
+    assert done.mesh.scene.idx.lu_symbolic is None
+    assert done.mesh.stepped.idx.lu_symbolic is not None
+    assert np.asarray(done.mesh.scene.inputs.coords).shape[0] == done.report.nodes_after
