@@ -32,9 +32,9 @@ from jaxform.adaptation import Adapted, OnMesh, OwnedFactorization, adaptation_o
 from jaxform.chunks import converged_rows, failure_message, host_failure, run_on
 from jaxform.fields import OUTPUT_FIELDS
 from jaxform.forming_outputs import damage_history
+from jaxform.geometry import min_quality
 from jaxform.postprocess import HEAT_COLUMNS, extra_history, laps
 from jaxform.precision import require_x64
-from jaxform.geometry import min_quality
 from jaxform.scenes import Inputs, Scene, analyzed
 from jaxform.status import OK
 from jaxform.stepping import (
