@@ -37,8 +37,8 @@ _EXPORTS = {
     "step": "jaxform.simulation",
     "trajectory": "jaxform.gradients",
     "build_problem": "jaxform.design.problem",
-    "optimize": "jaxform.design.optimize",
-    "OptimizerSettings": "jaxform.design.optimize",
+    "optimize": "jaxform.design.optimizers",
+    "OptimizerSettings": "jaxform.design.optimizers",
     "taylor_test": "jaxform.design.taylor",
 }
 __all__ = [

@@ -97,3 +97,15 @@ def test_tutorial_runs_and_its_gradient_is_right(capsys):
     down = float(problem.value({"material": problem.start["material"] - step})[0])
     fd = (up - down) / (2 * h)
     assert grad[0] > 0 and abs(grad[0] - fd) <= 1e-5 * abs(fd), (grad[0], fd)
+
+
+def test_design_names_are_the_functions_whichever_module_loads_first():
+    """The lazy package exports (PEP 562) give the function ``optimize`` even after its
+    module was loaded by name (a submodule named like an export would shadow it)."""
+    import importlib
+
+    importlib.import_module("jaxform.design.optimizers")
+    from jaxform.design import OptimizerSettings, optimize, taylor_test
+
+    assert callable(optimize) and callable(taylor_test)
+    assert optimize.__name__ == "optimize" and OptimizerSettings.__name__ == "OptimizerSettings"

@@ -7,7 +7,7 @@
 Layers: :mod:`requirements` (what each group and objective needs of a scene; no JAX, the
 config layer reads it), :mod:`parametrize` (design variables -> run inputs),
 :mod:`objectives` (run -> scalar), :mod:`problem` (scene + groups + objective + schedule,
-compiled value and gradient), :mod:`optimize` (optax loops with bounds), :mod:`taylor`
+compiled value and gradient), :mod:`optimizers` (optax loops with bounds), :mod:`taylor`
 (gradient check).
 
 Importing the package imports none of them: each name below is loaded from its module on
@@ -18,9 +18,9 @@ import importlib as _importlib
 
 # exported name -> the module that defines it
 _EXPORTS = {
-    "DesignHistory": "jaxform.design.optimize",
-    "OptimizerSettings": "jaxform.design.optimize",
-    "optimize": "jaxform.design.optimize",
+    "DesignHistory": "jaxform.design.optimizers",
+    "OptimizerSettings": "jaxform.design.optimizers",
+    "optimize": "jaxform.design.optimizers",
     "DesignProblem": "jaxform.design.problem",
     "available_groups": "jaxform.design.problem",
     "build_problem": "jaxform.design.problem",
