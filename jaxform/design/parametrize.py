@@ -21,6 +21,9 @@ Groups compose left to right (:func:`apply_all`).  The design pytree is a dict
   cos(k pi z / H)), k = 1..n, every node moved radially in proportion, with c chosen so
   that the *discrete* volume of the mesh is that of the cylinder (constant volume).
 * :class:`DieProfile`      vertical offsets (mm) of chosen die profile points.
+* :class:`BilletAspect`    ``u = log(H / H0)``: the billet taller and thinner at fixed
+  volume (a process's first operation; its top die moved with the billet's top).
+* :class:`DwellTime`       ``u = log(t / t0)``: a dwell's (furnace's) time.
 * :class:`Thermal`         chosen thermal inputs of a coupled run: billet and die
   temperatures (u in 100 K from the configured ones), log of the die contact conductance,
   the Taylor-Quinney factor.
@@ -283,6 +286,66 @@ class DieProfile:
 
     def physical(self, u):
         return {f"die_dz{i}_mm": float(u[k]) for k, i in enumerate(self.points)}
+
+
+@dataclass(frozen=True)
+class BilletAspect:
+    """The billet's height against its diameter at fixed volume: u = log(H / H0), every
+    node's z times e^u about the mid-plane (or the bottom, z = 0), its r times e^(-u/2)
+    (axisymmetric; plane strain e^(-u)), so the volume stays exactly that of the mesh;
+    the top die moves with the billet's top (``top_mm``: its z at u = 0), so it starts
+    where it started and closes by the same stroke."""
+
+    top_mm: float
+    axisymmetric: bool = True
+    bound_log: float = float(np.log(1.25))
+    name: str = "billet"
+
+    def initial(self):
+        return _zeros(1)
+
+    def bounds(self):
+        return jnp.full(1, -self.bound_log), jnp.full(1, self.bound_log)
+
+    def apply(self, u, inputs, times):
+        tall = jnp.exp(u[0])
+        thin = jnp.exp(-0.5 * u[0]) if self.axisymmetric else 1.0 / tall
+        coords = jnp.asarray(inputs.coords) * jnp.stack([thin, tall])[None, :]
+        lift = (tall - 1.0) * self.top_mm
+
+        def move(d):
+            return replace(d, points=d.points.at[:, 1].add(lift))
+
+        return replace(inputs, coords=coords, die=inputs.die.replace_top(move)), times
+
+    def physical(self, u):
+        tall = float(np.exp(float(u[0])))
+        thin = tall ** (-0.5 if self.axisymmetric else -1.0)
+        return {"billet_height_factor": tall, "billet_diameter_factor": thin}
+
+
+@dataclass(frozen=True)
+class DwellTime:
+    """The time of a dwell (or a furnace) as u = log(t / t0): its step times and its
+    (still) die's path table scaled by e^u."""
+
+    time0_s: float
+    bound_log: float = float(np.log(2.0))
+    name: str = "dwell"
+
+    def initial(self):
+        return _zeros(1)
+
+    def bounds(self):
+        return jnp.full(1, -self.bound_log), jnp.full(1, self.bound_log)
+
+    def apply(self, u, inputs, times):
+        longer = jnp.exp(u[0])
+        die = inputs.die.replace_each(lambda d: replace(d, path_time_s=d.path_time_s * longer))
+        return replace(inputs, die=die), times * longer
+
+    def physical(self, u):
+        return {"dwell_time_s": float(self.time0_s * np.exp(float(u[0])))}
 
 
 def _zeros(n: int) -> jax.Array:

@@ -278,6 +278,12 @@ def _base_objective(scene: Scene):
                 "it needs a half-height scene with one die (no [bottom_die] or [side_die])"
             )
         return obj.UnfilledCavity(np.asarray(scene.mesh.elements), axi)
+    if name == "flash_volume":
+        halves = 2.0 if scene.symmetric_z else 1.0
+        radius = scene.settings.die.part_radius_mm
+        return obj.FlashVolume(np.asarray(scene.mesh.elements), radius, axi, halves)
+    if name == "mean_temperature":
+        return obj.MeanTemperature(np.asarray(scene.mesh.elements), scene.model.layout, axi)
     if name == "force_misfit":
         c = _read_columns(d.target_csv, ("stroke_mm", "force_N"))
         keep = c["stroke_mm"] > 0
