@@ -249,6 +249,14 @@ def _stepped(stage: Stage, inputs: Inputs, times, state, coords) -> Trajectory:
         state = _off_mesh(seg, part.final_state)
         parts.append(part)
         first += seg.n_steps
+    return _joined(stage, tuple(parts), state, coords)
+
+
+@partial(jax.jit, static_argnums=0)
+def _joined(stage: Stage, parts: tuple, state, coords) -> Trajectory:
+    """The operation's trajectory from its meshes' parts (row 0 of the first, then every
+    mesh's steps; contact status padded with -1 to the widest mesh): one program (and one
+    for its reverse), not dozens of eager concatenations that would each compile."""
 
     def rows(name):
         return jnp.concatenate(
@@ -262,6 +270,7 @@ def _stepped(stage: Stage, inputs: Inputs, times, state, coords) -> Trajectory:
         for p, s in zip(parts, stage.segments)
     ]  # fmt: skip
     one_mesh = len(parts) == 1 and stage.segments[0].padded is None
+    last = stage.segments[-1].scene.model.layout
     return Trajectory(
         time_s=rows("time_s"),
         stroke_mm=rows("stroke_mm"),
@@ -269,7 +278,7 @@ def _stepped(stage: Stage, inputs: Inputs, times, state, coords) -> Trajectory:
         friction_work_Nmm=rows("friction_work_Nmm"),
         x=state.x,
         gauss=state.gauss,
-        positions=_positions(stage.segments[-1], state.x, coords),
+        positions=coords + last.nodal(state.x)[:, :2],
         coords=coords,
         codes=jnp.concatenate([p.codes for p in parts]),
         iterations=jnp.concatenate([p.iterations for p in parts]),
@@ -277,11 +286,6 @@ def _stepped(stage: Stage, inputs: Inputs, times, state, coords) -> Trajectory:
         temperature_K=parts[0].temperature_K if one_mesh else None,
         final_state=state,
     )
-
-
-@partial(jax.jit, static_argnums=0)
-def _positions(seg: MeshSegment, x, coords):
-    return coords + seg.scene.model.layout.nodal(x)[:, :2]
 
 
 def process_trajectory(plan: ProcessPlan, inputs=None, times=None) -> ProcessTrajectory:

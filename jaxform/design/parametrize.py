@@ -143,10 +143,11 @@ THERMAL_VARIABLES = ("billet_temperature_K", "die_temperature_K", "htc_die_W_m2K
 
 @dataclass(frozen=True)
 class Thermal:
-    """Chosen thermal inputs (``names``, of :data:`THERMAL_VARIABLES`) from their
-    configured values ``start``: a temperature as u = (T - T_start) / 100 K (within
-    +-``temperature_max_K``), the die conductance as u = log(h / h_start) (within a factor
-    exp(bound_log)), the Taylor-Quinney factor as itself (in [0, 1])."""
+    """Chosen thermal inputs (``names``, of :data:`THERMAL_VARIABLES`; a process's dwell:
+    air_temperature_K, htc_air_W_m2K) from their configured values ``start``: a
+    temperature as u = (T - T_start) / 100 K (within +-``temperature_max_K``), a
+    conductance (htc_*) as u = log(h / h_start) (within a factor exp(bound_log)), the
+    Taylor-Quinney factor as itself (in [0, 1])."""
 
     names: tuple[str, ...]
     start: tuple[float, ...]
@@ -162,15 +163,16 @@ class Thermal:
 
     def bounds(self):
         t = self.temperature_max_K / self.KELVIN_PER_UNIT
-        box = {"htc_die_W_m2K": (-self.bound_log, self.bound_log), "taylor_quinney": (0.0, 1.0)}
-        lo, hi = zip(*(box.get(n, (-t, t)) for n in self.names))
+        log = (-self.bound_log, self.bound_log)
+        box = {"taylor_quinney": (0.0, 1.0)}
+        lo, hi = zip(*(log if n.startswith("htc_") else box.get(n, (-t, t)) for n in self.names))
         return jnp.asarray(lo), jnp.asarray(hi)
 
     def values(self, u):
         """{name: value in the config's units} at u."""
         out = {}
         for i, (n, v0) in enumerate(zip(self.names, self.start)):
-            if n == "htc_die_W_m2K":
+            if n.startswith("htc_"):  # a conductance: log-scaled
                 out[n] = v0 * jnp.exp(u[i])
             elif n == "taylor_quinney":
                 out[n] = u[i]

@@ -33,8 +33,10 @@ from jaxform.design.problem import build_group, friction_variables
 from jaxform.design.requirements import OPERATION_GROUPS, PROCESS_GROUPS, PROCESS_OBJECTIVES
 from jaxform.process_gradients import ProcessPlan, check_process, process_trajectory
 
-# the thermal inputs of one operation (the billet temperature is the process's)
+# the thermal inputs of one operation (the billet temperature is the process's): a
+# forming operation's dies, a dwell's or furnace's air
 OPERATION_THERMAL = ("die_temperature_K", "htc_die_W_m2K")
+AIR_THERMAL = ("air_temperature_K", "htc_air_W_m2K")
 
 
 @dataclass(frozen=True)
@@ -115,8 +117,8 @@ def build_process_group(plan: ProcessPlan, spec: str, default_operation: str = "
     if kind == "thermal":
         scene = stage.scene
         th = scene.settings.thermal
-        names = tuple(n for n in scene.settings.design.thermal_params if n in OPERATION_THERMAL)
-        names = names or OPERATION_THERMAL
+        own = OPERATION_THERMAL if forming else AIR_THERMAL
+        names = tuple(n for n in scene.settings.design.thermal_params if n in own) or own
         start = tuple(float(getattr(th, n)) for n in names)
         d = scene.settings.design
         return OnStages(par.Thermal(names, start, float(np.log(d.bound_factor))), (k,), op_name)
