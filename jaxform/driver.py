@@ -10,6 +10,7 @@ config (TOML path or dict) --load_typed--> Config (or a Process of several opera
 
 from __future__ import annotations
 
+import csv
 from collections.abc import Callable
 from pathlib import Path
 
@@ -363,6 +364,22 @@ def design_report(problem, hist) -> list[dict]:
     return rows
 
 
+def design_problem(config, overrides=(), forward_progress=None, single_program: bool = False):
+    """(typed config, design problem) of a config's [design] section: the one entry point
+    of ``jaxform design`` and experiments/design_comparison.py (``config`` and
+    ``overrides`` as :func:`run_design` takes them; ``forward_progress`` the forward run's
+    progress; ``single_program``: value() runs the gradient program, one compile)."""
+    from jaxform.design import build_problem
+
+    require_x64()
+    cfg = _scene_config(config, overrides)
+    enable_compilation_cache(cfg.solver.compilation_cache_dir)
+    problem = build_problem(
+        build_scene(cfg), progress=forward_progress, single_program=single_program
+    )
+    return cfg, problem
+
+
 def run_design(
     config, overrides=(), out_dir: str | Path = "out/design", progress=None, forward_progress=None
 ):
@@ -381,14 +398,12 @@ def run_design(
 
     Returns:
         (the design problem, its optimization history)."""
-    from jaxform.design import build_problem, optimize
+    from jaxform.design import optimize
     from jaxform.plot import design_objective, design_shapes
 
     require_x64()
-    cfg = _scene_config(config, overrides)
-    enable_compilation_cache(cfg.solver.compilation_cache_dir)
-    scene = build_scene(cfg)
-    problem = build_problem(scene, progress=forward_progress)
+    cfg, problem = design_problem(config, overrides, forward_progress)
+    scene = problem.scene
     d = cfg.design
     hist = optimize(problem, optimizer_settings(d), progress=progress)
     out = Path(out_dir)
@@ -397,7 +412,10 @@ def run_design(
     cols = hist.columns(problem)
     write_csv(out / "design_history.csv", cols)
     rows = design_report(problem, hist)
-    write_csv(out / "design_report.csv", {k: np.array([r[k] for r in rows]) for k in rows[0]})
+    with open(out / "design_report.csv", "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
     unit = getattr(problem.objective, "unit", "-")
     design_objective(hist.objective, out / "objective.png", f"{d.objective} ({d.optimizer})", unit,
                      simulations=hist.simulations)  # fmt: skip
