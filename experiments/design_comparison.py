@@ -80,7 +80,10 @@ def main(argv=None) -> int:
     _write(out / "design_comparison.csv", rows)
     _write(out / "design_comparison_best.csv", best_rows)
     unit = getattr(problem.objective, "unit", "-")
-    curves = {label: (np.asarray(h.simulations), h.best_so_far()) for label, (h, _) in runs.items()}
+    curves = {}
+    for label, (h, _) in runs.items():  # to the last run (a line search's rejected trials)
+        best = h.best_so_far()
+        curves[label] = (np.append(h.simulations, h.evaluations), np.append(best, best[-1]))
     design_comparison(curves, out / "design_comparison.png",
                       f"{Path(args.config).stem}: best objective vs simulations", unit)  # fmt: skip
     overall = min(float(h.objective[h.best]) for h, _ in runs.values())
