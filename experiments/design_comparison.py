@@ -52,6 +52,7 @@ def main(argv=None) -> int:
     ap.add_argument("--iterations", type=int, default=0, help="L-BFGS iterations")
     ap.add_argument("--budget", type=int, default=0, help="CMA-ES runs")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--only", default="", help="comma-separated labels to run (default all)")
     args = ap.parse_args(argv)
     jaxform.enable_x64()
     out = Path(args.out)
@@ -62,7 +63,10 @@ def main(argv=None) -> int:
     print(f"problem: {len(problem.times)} steps, variables {sizes}, objective "
           f"{cfg.design.objective} ({time.perf_counter() - t0:.1f} s)", flush=True)  # fmt: skip
     runs, rows, best_rows = {}, [], []
-    for label, settings in optimizers(cfg.design, args).items():
+    chosen = optimizers(cfg.design, args)
+    if args.only:
+        chosen = {k: v for k, v in chosen.items() if any(w in k for w in args.only.split(","))}
+    for label, settings in chosen.items():
         t1 = time.perf_counter()
 
         def progress(k, val, extra, design, label=label, t1=t1):

@@ -8,7 +8,9 @@ compiled gradient evaluation per trial design, and
 * L-BFGS: optax's two-loop recursion (``scale_by_lbfgs``) gives the direction, a
   backtracking (Armijo) line search on the projected path picks the step; the first
   step is limited to a quarter of the bound box so that a large gradient cannot throw
-  the design across it;
+  the design across it; a direction that does not descend (curvature pairs taken across
+  a kink of the objective: a contact switch) is replaced by -g, scaled so that its
+  largest component moves a quarter of its box, and the memory is cleared;
 * Adam: optax's ``adam`` with the configured step size;
 * a trial design whose run fails (:class:`GradientRunError`: a load step did not
   converge) is treated as a rejected step and the step is halved, so one bad trial
@@ -69,6 +71,7 @@ class DesignHistory:
     simulations: list[int] = field(default_factory=list)
     evaluations: int = 0
     rejected: int = 0
+    restarts: int = 0  # L-BFGS directions that were not descent directions (-g instead)
     stop_reason: str = ""
 
     @property
@@ -162,14 +165,22 @@ def gradient_loop(problem, settings: OptimizerSettings, design=None, progress=No
         updates, state_new = opt.update(g, state, u)
         if settings.method == "lbfgs":
             updates = jax.tree_util.tree_map(lambda d: -d, updates)
-            # first / any step: no component moves by more than a quarter of its box
+            slope = sum(float(jnp.vdot(gi, di)) for gi, di in zip(jax.tree_util.tree_leaves(g),
+                        jax.tree_util.tree_leaves(updates)))  # fmt: skip
+            restart = slope >= 0.0  # curvature pairs across a kink: not a descent direction
+            if restart:  # steepest descent, no memory
+                updates = jax.tree_util.tree_map(lambda d: -d, g)
+                state_new = opt.init(u)
+                hist.restarts += 1
+            # first / any step: no component moves by more than a quarter of its box (a
+            # restart: the largest moves by that much, the line search backtracks)
             ratio = max(
                 float(jnp.max(jnp.abs(d) / (0.25 * w)))
                 for d, w in zip(
                     jax.tree_util.tree_leaves(updates), jax.tree_util.tree_leaves(width)
                 )
             )
-            if ratio > 1.0:
+            if ratio > 1.0 or (restart and ratio > 0.0):
                 updates = jax.tree_util.tree_map(lambda d: d / ratio, updates)
         step, accepted = 1.0, False
         for _ in range(settings.max_backtracks + 1):

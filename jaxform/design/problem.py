@@ -59,7 +59,10 @@ class DesignProblem:
         compiled program's arguments (see :func:`jaxform.gradients.trajectory`)."""
         inputs, times = self.run_inputs(design)
         traj = trajectory(self.scene, inputs, times, reuse_factorizations, idx=idx, plan=self.plan)
-        return self.objective(traj, inputs) + par.penalty_of(self.groups, design), traj
+        value = self.objective(traj, inputs)
+        if any(hasattr(g, "penalty") for g in self.groups):  # the constraints' penalty
+            value = value + par.penalty_of(self.groups, design)
+        return value, traj
 
     def _compiled(self, fn, name: str):
         """One program for the whole run, except through remeshes: there each mesh's steps
