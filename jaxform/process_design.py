@@ -82,15 +82,15 @@ def run_process_design(process: Process, out_dir, progress=None, forward_progres
                        announce=None):  # fmt: skip
     """Optimize a process's [design] problem; write design_history.csv, objective.png
     and config.toml (the process as configured) to ``out_dir``."""
-    from jaxform.design import OptimizerSettings, optimize
+    from jaxform.design import optimize
+    from jaxform.driver import optimizer_settings
     from jaxform.plot import design_objective
 
     problem = process_problem(process, None, forward_progress, announce)
     d = process.operations[0].config.design
     if announce is not None:
         announce("  compiling the gradient programs and evaluating the start design")
-    hist = optimize(problem, OptimizerSettings(d.optimizer, d.iterations, d.learning_rate),
-                    progress=progress)  # fmt: skip
+    hist = optimize(problem, optimizer_settings(d), progress=progress)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     dump_config(process_document(process.document), out / "config.toml")

@@ -24,7 +24,7 @@ from cli_harness import assert_refused
 from fd_check import directional_derivatives
 
 from jaxform.design import taylor_test
-from jaxform.design.objectives import FlashVolume, measure_beyond, part_cavity_volume
+from jaxform.design.objectives import FlashVolume, part_cavity_volume, polygon_measure_beyond
 from jaxform.design.parametrize import BilletAspect, workpiece_volume
 from jaxform.design.process_problem import (
     WeightedSum,
@@ -138,7 +138,7 @@ def test_process_taylor_rates():
 
 
 def test_flash_volume_is_the_clipped_volume_and_smooth():
-    """measure_beyond equals the host's clipped-polygon volume (postprocess.material_beyond,
+    """polygon_measure_beyond equals the host's clipped-polygon volume (postprocess.material_beyond,
     Sutherland-Hodgman) on the second blow's deformed mesh to 1e-12 relative, axisymmetric
     and plane; its derivative in the nodal positions equals central differences (1e-6)."""
     _, result, plan = forward()
@@ -147,12 +147,12 @@ def test_flash_volume_is_the_clipped_volume_and_smooth():
     quads = pos[np.asarray(sc.mesh.elements)]
     for radius in (1.0, 2.2, 2.6):
         ref = material_beyond(sc, pos, radius)
-        got = float(jnp.sum(measure_beyond(quads, radius, True)))
+        got = float(jnp.sum(polygon_measure_beyond(quads, radius, True)))
         assert abs(got - ref) <= 1e-12 * ref, (radius, got, ref)
         plane = replace(sc, model=replace(sc.model, formulation=replace(
             sc.model.formulation, axisymmetric=False)))  # fmt: skip
         ref_p = material_beyond(plane, pos, radius)
-        got_p = float(jnp.sum(measure_beyond(quads, radius, False)))
+        got_p = float(jnp.sum(polygon_measure_beyond(quads, radius, False)))
         assert abs(got_p - ref_p) <= 1e-12 * ref_p
     flash = FlashVolume(np.asarray(sc.mesh.elements), 2.2, True)
     import jax

@@ -28,6 +28,17 @@ sets, targets) with ``__call__(traj, inputs) -> scalar`` (``inputs`` = the run's
   max D (N points) and tends to max D as p grows.
 * :class:`WearDepth`         the same smooth maximum of the Archard wear depth (mm) over
   every die's stations at the end of the run (:mod:`jaxform.wear`).
+* :class:`FlashVolume`      the material beyond a radius at the end (mm^3; both halves
+  of a half-height model): each element clipped to r >= radius, measured as a polygon
+  (:func:`measure_beyond`); continuous with continuous derivatives in the positions.
+* :class:`PressCapacity`    weight x (max(0, F_peak - capacity) / capacity)^2: a
+  penalty on the peak ram force above the press's capacity.
+* :class:`LapPenalty`       sum over the free-surface vertices of (max(0, 1 - a / a_lap))^2,
+  a the air-side wedge angle there at the end (the differentiable form of the first
+  kind of :func:`jaxform.postprocess.fold_angle`: 180 deg on a straight side, 0 when the
+  surface has folded onto itself).
+* :class:`WeightedSum`      sum of weights x terms (any of the above); ``values`` lists
+  each term's value for the report.
 * :class:`TemperatureLimit`  another objective plus a quadratic penalty on the hottest node
   above a limit: weight x sum over the rows of max(0, T_max - limit)^2 (an exterior penalty:
   the limit holds approximately, better as the weight grows).
@@ -192,6 +203,95 @@ class TemperatureLimit(_Identity):
         return self.inner(traj, inputs) + self.weight * jnp.sum(over**2)
 
 
+def measure_beyond(pos, elements, radius: float, axisymmetric: bool):
+    """(n_el,) measure (volume of revolution or area) of each element clipped to
+    r >= radius (traceable).  Each edge contributes its start vertex and, where it
+    crosses r = radius, the crossing; every vertex is then moved onto the line where it
+    lies inside r < radius.  Along the line the boundary integral of the measure depends
+    only on its end points, so the moved polygon has exactly the clipped element's
+    measure; the measure is continuous with continuous derivatives (a vertex that
+    crosses the line adds a sliver quadratic in its distance)."""
+    p = pos[jnp.asarray(elements)]  # (e, 4, 2)
+    q = jnp.roll(p, -1, axis=1)
+    a, b = p[..., 0] - radius, q[..., 0] - radius
+    cross = a * b < 0.0
+    t = jnp.where(cross, -a / jnp.where(cross, b - a, 1.0), 0.0)
+    x = p + t[..., None] * (q - p)
+    poly = jnp.stack([p, x], axis=2).reshape(p.shape[0], 8, 2)
+    poly = poly.at[..., 0].set(jnp.maximum(poly[..., 0], radius))
+    return polygon_measure(poly, axisymmetric)
+
+
+@dataclass(frozen=True, eq=False)
+class FlashVolume(_Identity):
+    """The material beyond ``radius_mm`` at the end of the run (mm^3 axisymmetric, mm^2
+    per mm plane strain), times ``halves`` (2 for a half-height model)."""
+
+    elements: np.ndarray
+    radius_mm: float
+    axisymmetric: bool
+    halves: float = 2.0
+    unit = "mm^3"
+
+    def __call__(self, traj, inputs):
+        m = measure_beyond(traj.positions, self.elements, self.radius_mm, self.axisymmetric)
+        return self.halves * jnp.sum(m)
+
+
+@dataclass(frozen=True, eq=False)
+class PressCapacity(_Identity):
+    """weight x (max(0, F_peak - capacity) / capacity)^2 (0 within the capacity)."""
+
+    capacity_N: float
+    weight: float = 1.0
+    unit = "-"
+
+    def __call__(self, traj, inputs):
+        over = jnp.maximum(jnp.max(traj.force_N) - self.capacity_N, 0.0) / self.capacity_N
+        return self.weight * over**2
+
+
+@dataclass(frozen=True, eq=False)
+class LapPenalty(_Identity):
+    """sum of (max(0, 1 - a_i / limit))^2 over the free-surface vertices ``nodes`` (the
+    boundary loop's, counter-clockwise, with ``prev`` and ``next`` their neighbours on
+    it): a_i the air-side angle (rad) between the two edges at the end of the run."""
+
+    prev: np.ndarray
+    nodes: np.ndarray
+    next: np.ndarray
+    limit_rad: float
+    unit = "-"
+
+    def angles(self, positions):
+        x = positions[jnp.asarray(self.nodes)]
+        e_in = x - positions[jnp.asarray(self.prev)]
+        e_out = positions[jnp.asarray(self.next)] - x
+        cross = e_in[:, 0] * e_out[:, 1] - e_in[:, 1] * e_out[:, 0]
+        return jnp.pi + jnp.arctan2(cross, jnp.sum(e_in * e_out, axis=1))
+
+    def __call__(self, traj, inputs):
+        a = self.angles(traj.positions)
+        return jnp.sum(jnp.maximum(1.0 - a / self.limit_rad, 0.0) ** 2)
+
+
+@dataclass(frozen=True, eq=False)
+class WeightedSum(_Identity):
+    """sum_i weights_i x terms_i(run); ``names`` label the terms in reports."""
+
+    names: tuple[str, ...]
+    terms: tuple
+    weights: tuple[float, ...]
+    unit = "-"
+
+    def values(self, traj, inputs) -> dict:
+        """{name: the term's value (its own unit)} (unweighted)."""
+        return {n: t(traj, inputs) for n, t in zip(self.names, self.terms)}
+
+    def __call__(self, traj, inputs):
+        return sum(w * t(traj, inputs) for w, t in zip(self.weights, self.terms))
+
+
 def _beyond_antiderivative(r, radius: float, axisymmetric: bool):
     """G with G' = f, f the integrand of the boundary integral of the material beyond
     ``radius`` (f = (r^2 - R^2) / 2 axisymmetric, r - R plane, both 0 for r < R)."""
@@ -222,34 +322,18 @@ def _edge_beyond(p, q, radius: float, axisymmetric: bool):
     return jnp.where(small, near, diff) * (q[..., 1] - p[..., 1])
 
 
-def measure_beyond(polygons, radius: float, axisymmetric: bool):
+def polygon_measure_beyond(polygons, radius: float, axisymmetric: bool):
     """Signed measure (volume of revolution, mm^3; plane strain, mm^2) of the parts of
     the polygons (..., m, 2) at r >= ``radius`` (positive for counter-clockwise ones):
     Green's theorem, int int_{r > R} r dA = oint f(r) dz with f = (r^2 - R^2)/2 beyond R
     and 0 before it (plane: f = r - R), each straight edge's integral in closed form.
-    Continuously differentiable in the vertices (f is continuous): a smooth, exact
-    flash volume, where clipping each polygon at R is only piecewise smooth."""
+    Continuously differentiable in the vertices (f is continuous); for any closed
+    polygon (the cavity of :func:`part_cavity_volume`), where :func:`measure_beyond` takes
+    a mesh's quadrilaterals."""
     p = jnp.asarray(polygons)
     q = jnp.roll(p, -1, axis=-2)
     total = jnp.sum(_edge_beyond(p, q, radius, axisymmetric), axis=-1)
     return 2.0 * jnp.pi * total if axisymmetric else total
-
-
-@dataclass(frozen=True, eq=False)
-class FlashVolume(_Identity):
-    """The material beyond ``radius`` at the end of the run (mm^3; plane strain mm^2 per
-    mm), both halves of a half-height model (``halves`` = 2): the history's
-    ``flash_volume_mm3``, smooth in the final positions (:func:`measure_beyond`)."""
-
-    elements: np.ndarray  # the final mesh's elements
-    radius: float
-    axisymmetric: bool
-    halves: float = 1.0
-    unit = "mm^3"
-
-    def __call__(self, traj, inputs):
-        quads = traj.positions[self.elements]
-        return self.halves * jnp.sum(measure_beyond(quads, self.radius, self.axisymmetric))
 
 
 def part_cavity_volume(points, travel, radius: float, axisymmetric: bool):
@@ -263,7 +347,7 @@ def part_cavity_volume(points, travel, radius: float, axisymmetric: bool):
     )
     poly = poly[::-1]  # counter-clockwise: axis, mid-plane, then back along the die
     whole = polygon_measure(poly, axisymmetric)
-    return whole - measure_beyond(poly, radius, axisymmetric)
+    return whole - polygon_measure_beyond(poly, radius, axisymmetric)
 
 
 @dataclass(frozen=True, eq=False)
@@ -281,7 +365,8 @@ class UnfilledPart(_Identity):
     def __call__(self, traj, inputs):
         quads = traj.positions[self.elements]
         axi = self.axisymmetric
-        inside = jnp.sum(polygon_measure(quads, axi) - measure_beyond(quads, self.radius, axi))
+        beyond = measure_beyond(traj.positions, self.elements, self.radius, axi)
+        inside = jnp.sum(polygon_measure(quads, axi) - beyond)
         die = inputs.die.members[0]
         cav = part_cavity_volume(die.points, die.travel(traj.time_s[-1]), self.radius, axi)
         return 1.0 - inside / cav

@@ -87,19 +87,19 @@ def build_process_group(plan: ProcessPlan, spec: str, default_operation: str = "
     without an operation acts on ``default_operation``, else the first forming one).
     Raises ValueError for an unknown operation or group, a group the operation cannot
     vary (a dwell's die, a forming operation's dwell time)."""
-    op_name, _, kind = spec.rpartition(".")
+    op_name, _, group = spec.rpartition(".")
     stages = plan.stages
     first = stages[0].scene
-    if not op_name and kind in PROCESS_GROUPS:
+    if not op_name and group in PROCESS_GROUPS:
         every = tuple(range(len(stages)))
-        if kind in ("preform", "nodes"):
-            return OnStages(build_group(first, kind), (0,))
-        if kind == "billet":
+        if group in ("preform", "nodes"):
+            return OnStages(build_group(first, group), (0,))
+        if group == "billet":
             top = float(np.max(np.asarray(first.inputs.coords)[:, 1]))
             axi = first.model.formulation.axisymmetric
             return OnStages(par.BilletAspect(top, axi), (0,))
-        return OnStages(build_group(first, kind), every)  # material, thermal
-    if kind not in OPERATION_GROUPS:
+        return OnStages(build_group(first, group), every)  # material, thermal
+    if group not in OPERATION_GROUPS:
         allowed = ", ".join([*PROCESS_GROUPS, *(f"<operation>.{g}" for g in OPERATION_GROUPS)])
         raise ValueError(f"design group {spec!r}: must be one of {allowed}")
     if not op_name:
@@ -107,14 +107,14 @@ def build_process_group(plan: ProcessPlan, spec: str, default_operation: str = "
     k = _stage_of(plan, op_name, spec)
     stage = stages[k]
     forming = stage.operation.forming
-    if kind == "dwell":
+    if group == "dwell":
         if forming or not stage.stepped:
             raise ValueError(
                 f"design group {spec!r}: {stage.operation.label} is no dwell or furnace "
                 "that takes steps (with coupled heat)"
             )
         return OnStages(par.DwellTime(float(stage.times[-1])), (k,), op_name)
-    if kind == "thermal":
+    if group == "thermal":
         scene = stage.scene
         th = scene.settings.thermal
         own = OPERATION_THERMAL if forming else AIR_THERMAL
@@ -124,9 +124,9 @@ def build_process_group(plan: ProcessPlan, spec: str, default_operation: str = "
         return OnStages(par.Thermal(names, start, float(np.log(d.bound_factor))), (k,), op_name)
     if not forming:
         raise ValueError(f"design group {spec!r}: {stage.operation.label} is no forming operation")
-    if kind == "friction":
+    if group == "friction":
         return OnStages(par.Friction(friction_variables(stage.scene)), (k,), op_name)
-    return OnStages(build_group(stage.scene, kind), (k,), op_name)  # die, speed
+    return OnStages(build_group(stage.scene, group), (k,), op_name)  # die, speed
 
 
 @dataclass(frozen=True, eq=False)
@@ -185,14 +185,17 @@ def process_objective(plan: ProcessPlan, name: str, operation: str = "") -> OnOp
             raise ValueError("objective 'mean_temperature' needs thermal.model = 'coupled'")
         return OnOperation(obj.MeanTemperature(elements, scene.model.layout, axi), k)
     if name in ("flash_volume", "die_fill"):
-        if not stage.operation.forming or die.part_radius_mm <= 0.0:
+        radius = die.part_radius_mm
+        if name == "flash_volume":
+            radius = stage.scene.settings.design.flash_radius_mm or radius
+        if not stage.operation.forming or radius <= 0.0:
             raise ValueError(
                 f"objective {name!r} reads die.part_radius_mm > 0 of a forming operation: "
                 f"{stage.operation.label} has none"
             )
         if name == "flash_volume":
             halves = 2.0 if scene.symmetric_z else 1.0
-            return OnOperation(obj.FlashVolume(elements, die.part_radius_mm, axi, halves), k)
+            return OnOperation(obj.FlashVolume(elements, radius, axi, halves), k)
         if not die.closed or len(stage.scene.inputs.die.members) > 1:
             raise ValueError(
                 f"objective 'die_fill' reads a closed top die of a half-height part: "
