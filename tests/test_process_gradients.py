@@ -310,3 +310,25 @@ def test_taylor_test_command_on_a_process(tmp_path, capsys):
     assert "forward run of process.operation[3] (second)" in out
     assert "second.die: h = " in out
     assert float(out.split("min_rate=")[1].split()[0]) >= 1.9
+
+
+def test_objectives_of_a_named_operation():
+    """A single-scene objective on one operation (OnOperation): the press-capacity
+    penalty of the second blow at half its peak force is weight x ((F - C) / C)^2 =
+    1 (1e-12); the lap penalty of the mesh it ends on is finite and >= 0; an unknown
+    objective or operation is refused."""
+    from jaxform.design import objectives as obj
+    from jaxform.design.process_problem import OnOperation
+
+    _, _, plan = forward()
+    ptraj = process_trajectory(plan)
+    peak = float(jnp.max(ptraj.operations[2].force_N))
+    cap = OnOperation(obj.PressCapacity(0.5 * peak, 1.0), 2)
+    assert abs(float(cap(ptraj, plan.inputs())) - 1.0) < 1e-12
+    lap = process_objective(plan, "lap", "second")
+    value = float(lap(ptraj, plan.inputs()))
+    assert np.isfinite(value) and value >= 0.0
+    with pytest.raises(ValueError, match="must be one of"):
+        process_objective(plan, "side_straightness")
+    with pytest.raises(ValueError, match="no operation named 'finisher'"):
+        process_objective(plan, "peak_force", "finisher")

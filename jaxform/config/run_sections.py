@@ -162,8 +162,8 @@ class DesignConfig:
         "force-stroke misfit against a target curve, variance of eqps, 1 - die fill, mean "
         "squared misfit of the mean temperature history against a target (K^2), a smooth "
         "maximum of output.damage_criterion's damage at the end (-) or of the die wear "
-        "depth (mm; needs wear.on) (design.smooth_max_p), the material beyond "
-        "die.part_radius_mm (mm^3, both halves), the mean temperature at the end (K)",
+        "depth (mm; needs wear.on) (design.smooth_max_p), the flash volume, press capacity "
+        "and lap penalties, a weighted sum, the mean temperature at the end (K)",
     )
     smooth_max_p: float = key(
         8.0,
@@ -206,7 +206,8 @@ class DesignConfig:
     objective_operation: str = key(
         "",
         doc="a process: the operation whose run design.objective reads (peak_force, "
-        "forging_work, flash_volume, die_fill, mean_temperature; '' = the last forming one)",
+        "forging_work, press_capacity, flash_volume, die_fill, lap, mean_temperature; '' = "
+        "the last forming one)",
     )
     material_params: tuple[str, ...] = key(
         [],

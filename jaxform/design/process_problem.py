@@ -29,7 +29,7 @@ import numpy as np
 
 from jaxform.design import objectives as obj
 from jaxform.design import parametrize as par
-from jaxform.design.problem import build_group, friction_variables
+from jaxform.design.problem import build_group, friction_variables, lap_penalty
 from jaxform.design.requirements import OPERATION_GROUPS, PROCESS_GROUPS, PROCESS_OBJECTIVES
 from jaxform.process_gradients import ProcessPlan, check_process, process_trajectory
 
@@ -162,9 +162,12 @@ def _final_elements(plan: ProcessPlan, k: int) -> np.ndarray:
 
 def process_objective(plan: ProcessPlan, name: str, operation: str = "") -> OnOperation:
     """The process objective ``name`` of the operation named ``operation`` ('' = the last
-    forming operation): ``peak_force`` (N), ``forging_work`` (N mm), ``flash_volume``
-    (mm^3 beyond its die's die.part_radius_mm, both halves), ``die_fill`` (1 - fill of
-    its closed die inside die.part_radius_mm), ``mean_temperature`` (K, at its end).
+    forming operation): ``peak_force`` (N), ``forging_work`` (N mm), ``press_capacity``
+    (penalty above design.press_capacity_N), ``flash_volume`` (mm^3 beyond
+    design.flash_radius_mm or its die's die.part_radius_mm, both halves), ``die_fill``
+    (1 - fill of its closed die inside die.part_radius_mm), ``lap`` (penalty on the air
+    wedges of the free surface of the mesh it ends on, design.lap_angle_deg),
+    ``mean_temperature`` (K, at its end).
     Raises ValueError for another name or an operation that lacks what it reads."""
     stages = plan.stages
     if operation:
@@ -180,6 +183,11 @@ def process_objective(plan: ProcessPlan, name: str, operation: str = "") -> OnOp
         return OnOperation(obj.PeakForce(), k)
     if name == "forging_work":
         return OnOperation(obj.ForgingWork(), k)
+    d = stage.scene.settings.design
+    if name == "press_capacity":
+        return OnOperation(obj.PressCapacity(d.press_capacity_N, d.capacity_penalty), k)
+    if name == "lap":  # the free surface of the mesh the operation ends on
+        return OnOperation(lap_penalty(scene, d.lap_angle_deg), k)
     if name == "mean_temperature":
         if not scene.model.layout.temperature:
             raise ValueError("objective 'mean_temperature' needs thermal.model = 'coupled'")

@@ -130,7 +130,8 @@ GROUPS: dict[str, GroupSpec] = {
 OPERATION_GROUPS = ("die", "friction", "speed", "thermal", "dwell")
 PROCESS_GROUPS = ("preform", "nodes", "billet", "material", "thermal")
 # the objectives of a process (of one operation's run: design.objective_operation)
-PROCESS_OBJECTIVES = ("peak_force", "forging_work", "flash_volume", "die_fill", "mean_temperature")
+PROCESS_OBJECTIVES = ("peak_force", "forging_work", "press_capacity", "flash_volume",
+                      "die_fill", "lap", "mean_temperature")  # fmt: skip
 
 
 # ----------------------------------------------------------------------------------
