@@ -89,6 +89,9 @@ class Indices:
     # (n_el, 4) 1.0 where element edge k exchanges heat (jaxform.heat.exposed_edges);
     # None without a temperature field
     exposed_edges: jax.Array | None = None
+    # (n_c,) the die of each candidate where candidates are (node, die) pairs
+    # (:class:`jaxform.contact.EachDie`); zeros where each faces its nearest die
+    contact_die: jax.Array | None = None
 
 
 @jax.tree_util.register_dataclass
@@ -195,31 +198,65 @@ def _device_int32(a) -> jax.Array:
     return jax.device_put(np.asarray(a, dtype=np.int32))
 
 
+@dataclass(frozen=True)
+class Candidates:
+    """The contact candidates of a mesh (host NumPy): ``nodes`` (n_c,) their nodes,
+    ``die`` (n_c,) the die each candidate faces where candidates are (node, die) pairs
+    (:class:`jaxform.contact.EachDie`; zeros: the nearest die), ``facets`` (n_f, 2) node
+    pairs of the free surface (for contact areas; the corner-contact facets, with their
+    own multiplier, are those of die 0) and ``facet_die`` (n_f,) the die of each facet's
+    candidates.  A node appears once per die it is paired with."""
+
+    nodes: np.ndarray
+    facets: np.ndarray
+    die: np.ndarray | None = None
+    facet_die: np.ndarray | None = None
+
+    @classmethod
+    def paired(cls, nodes, facets, copies: int = 1) -> Candidates:
+        """Every node and facet once per die (``copies`` dies), die after die."""
+        nodes = np.asarray(nodes, dtype=np.int64)
+        facets = np.asarray(facets, dtype=np.int64).reshape(-1, 2)
+        return cls(
+            nodes=np.tile(nodes, copies),
+            facets=np.tile(facets, (copies, 1)),
+            die=np.repeat(np.arange(copies), len(nodes)),
+            facet_die=np.repeat(np.arange(copies), len(facets)),
+        )
+
+    def dies(self) -> tuple[np.ndarray, np.ndarray]:
+        """(die of each candidate, die of each facet), zeros where not given."""
+        die = np.zeros(len(self.nodes), np.int64) if self.die is None else self.die
+        fdie = np.zeros(len(self.facets), np.int64) if self.facet_die is None else self.facet_die
+        return np.asarray(die, np.int64), np.asarray(fdie, np.int64)
+
+
 def build_indices(
     mesh,
     n_fields: int,
     fixed_dofs: np.ndarray,
-    contact_nodes: np.ndarray,
+    candidates: Candidates,
     reaction_dofs: np.ndarray | None = None,
-    contact_facets: np.ndarray | None = None,
     load_facets: np.ndarray | None = None,
     corner_contact: bool = False,
 ) -> tuple[Layout, Indices]:
     """(Layout, Indices) of a mesh's unknowns, without the sparsity pattern (that is the
-    terms', :meth:`Model.with_pattern`).  contact_facets: (n_f, 2) node pairs of the free
-    surface (for contact areas; with ``corner_contact`` each also gets a corner-contact
-    multiplier); load_facets: (n_lf, 2) node pairs of the boundary carrying a traction
-    load."""
+    terms', :meth:`Model.with_pattern`).  candidates: the contact candidates and the
+    free-surface facets (with ``corner_contact`` each facet of die 0 also gets a
+    corner-contact multiplier); load_facets: (n_lf, 2) node pairs of the boundary carrying
+    a traction load."""
     nf = n_fields
     n_nodes = mesh.n_nodes
     elements = np.asarray(mesh.elements, dtype=np.int64)
     edofs = (elements[:, :, None] * nf + np.arange(nf)[None, None, :]).reshape(len(elements), -1)
+    contact_nodes = np.asarray(candidates.nodes, dtype=np.int64)
+    die, facet_die = candidates.dies()
     n_c = len(contact_nodes)
     ndof_nodes = n_nodes * nf
     cdofs = contact_nodes[:, None] * nf + np.arange(2)[None, :]
     mdofs = ndof_nodes + np.arange(2 * n_c).reshape(n_c, 2)
-    walked = _oriented(elements, contact_facets)
-    corner = walked if corner_contact else np.zeros((0, 2), int)
+    walked = _oriented(elements, candidates.facets)
+    corner = walked[facet_die == 0] if corner_contact else np.zeros((0, 2), int)
     n_fc = len(corner)
     fdofs = (corner[:, :, None] * nf + np.arange(2)[None, None, :]).reshape(n_fc, 4)
     fmult = ndof_nodes + 2 * n_c + np.arange(n_fc)
@@ -232,7 +269,7 @@ def build_indices(
         contact_nodes=_device_int32(contact_nodes),
         contact_dofs=_device_int32(cdofs),
         mult_dofs=_device_int32(mdofs),
-        contact_facets=_device_int32(_local_facets(contact_nodes, walked)),
+        contact_facets=_device_int32(_local_facets(contact_nodes, die, walked, facet_die)),
         contact_fixed=jax.device_put(np.isin(cdofs[:, :2], np.asarray(fixed_dofs))),
         facet_dofs=_device_int32(fdofs),
         facet_mult=_device_int32(fmult),
@@ -247,6 +284,7 @@ def build_indices(
             if load_facets is None
             else np.asarray(load_facets, dtype=np.int64)
         ),
+        contact_die=_device_int32(die),
     )
     return layout, idx
 
@@ -261,12 +299,16 @@ def _oriented(elements: np.ndarray, facets) -> np.ndarray:
     return np.where(forward[:, None], facets, facets[:, ::-1]).reshape(-1, 2)
 
 
-def _local_facets(contact_nodes, facets) -> np.ndarray:
+def _local_facets(contact_nodes, die, facets, facet_die) -> np.ndarray:
+    """The facets (node pairs) as indices into the candidates: each end the candidate of
+    that node and of the facet's die."""
     if facets is None or len(facets) == 0:
         return np.zeros((0, 2), dtype=np.int64)
-    local = -np.ones(int(max(contact_nodes.max(), np.max(facets))) + 1, dtype=np.int64)
-    local[contact_nodes] = np.arange(len(contact_nodes))
-    out = local[np.asarray(facets, dtype=np.int64)]
+    n = int(max(contact_nodes.max(), np.max(facets))) + 1
+    n_die = int(max(die.max(), facet_die.max())) + 1
+    local = -np.ones(n_die * n, dtype=np.int64)
+    local[die * n + contact_nodes] = np.arange(len(contact_nodes))
+    out = local[facet_die[:, None] * n + np.asarray(facets, dtype=np.int64)]
     if np.any(out < 0):
         raise ValueError("contact facets must join contact candidate nodes")
     return out

@@ -68,6 +68,9 @@ class ContactStep:
     sigma_eq: jax.Array  # (n_c,) nodal flow stress (MPa)
     area: jax.Array  # (n_c,) contact area of the facets in contact (mm^2)
     temperature_K: jax.Array  # (n_c,) nodal temperature (K; NaN in an isothermal run)
+    # (n_c,) int: the die of each candidate where candidates are (node, die) pairs
+    # (:class:`EachDie`); zeros where each faces its nearest die (:class:`NearestDie`)
+    die: jax.Array | None = None
 
 
 @jax.tree_util.register_dataclass
@@ -213,15 +216,59 @@ def flatten_laws(laws):
 
 
 @dataclass(frozen=True)
+class NearestDie:
+    """Strategy: a candidate is a workpiece node, and it faces the die with the least gap
+    (:meth:`jaxform.dies.DieSet.frame`): one multiplier pair per node.  A node pressed into
+    the corner of two dies can carry only one of their forces."""
+
+    def copies(self, n_dies: int) -> int:
+        """How many candidates each contact node gives: one."""
+        return 1
+
+    def frame(self, die, x, t, t_old, which):
+        return die.frame(x, t, t_old)
+
+
+@dataclass(frozen=True)
+class EachDie:
+    """Strategy: a candidate is a (node, die) pair, every contact node against every die
+    of the set (:meth:`jaxform.dies.DieSet.member_frame`): one multiplier pair per node and
+    die, each with that die's friction law, so a node pressed into the corner of two dies
+    (a container wall and the punch or the bottom die) carries both dies' forces.  With
+    one die it is :class:`NearestDie`."""
+
+    def copies(self, n_dies: int) -> int:
+        """How many candidates each contact node gives: one per die."""
+        return n_dies
+
+    def frame(self, die, x, t, t_old, which):
+        return die.member_frame(x, t, t_old, which)
+
+
+def candidate_frames(pairing, die, pos, which, t, t_old):
+    """The :class:`jaxform.dies.DieFrame` of every candidate (vmapped) at positions pos
+    (n_c, 2), of die ``which`` (n_c,) where the candidates are pairs (``pairing``)."""
+    return jax.vmap(lambda p, k: pairing.frame(die, p, t, t_old, k))(pos, which)
+
+
+@dataclass(frozen=True)
 class ContactLaw:
     """Strategy: the node-to-die contact conditions; the friction law of each die lives in
     the die pytree (a :class:`jaxform.dies.RigidDie`, or a :class:`jaxform.dies.DieSet`
-    whose nearest die holds the node)."""
+    whose nearest die holds the node, or each die its own candidate: ``pairing``)."""
+
+    pairing: NearestDie | EachDie = NearestDie()
+
+    def frames(self, die, pos, which, t, t_old):
+        """Every candidate's die frame (:func:`candidate_frames`)."""
+        return candidate_frames(self.pairing, die, pos, which, t, t_old)
 
     def _parts(self, die, x, lam, t, c, step: ContactStep, k):
         """The quantities both the residual and the status read for candidate k, and the
         friction law of the die that holds it."""
-        f = die.frame(x, t, step.t_old)  # the nearest die's surface, motion and friction
+        # the surface, motion and friction of the nearest die or of the candidate's die
+        which = None if step.die is None else step.die[k]
+        f = self.pairing.frame(die, x, t, step.t_old, which)
         g, n, tan = f.g, f.n, f.tan
         slip = jnp.dot(x - step.x_old[k] - f.move, tan)
         lam_n, lam_t = lam[0], lam[1]
