@@ -2,7 +2,8 @@
 
 Unknown vector x = [nodal fields (n_nodes * n_fields) | contact multipliers (2 n_contact)
 | corner multipliers (n_facets)], node a's field k at a * n_fields + k (fields: u_r, u_z[,
-p]); candidate i's normal and tangential multipliers at n_nodes * n_fields + 2 i + (0, 1);
+p]); candidate i's normal and tangential multipliers at n_nodes * n_fields + 2 i + (0, 1)
+(a candidate is a contact node, or a (node, die) pair: :class:`Candidates`);
 facet f's corner-contact multiplier (:func:`jaxform.contact.facet_terms`) after those.
 
 The assembly is a tuple of terms (:attr:`Model.terms`): the element term (the
@@ -54,7 +55,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxform import element as el
-from jaxform.contact import TOUCH_GAP_MM, ContactLaw, ContactStep, facet_terms
+from jaxform.contact import TOUCH_GAP_MM, Candidates, ContactLaw, ContactStep, facet_terms
 from jaxform.formulations import Formulation, GaussState, PointGiven
 from jaxform.heat import ElementHeat, ThermalInputs, element_heat, plastic_work
 from jaxform.mesh import boundary_edges
@@ -196,39 +197,6 @@ def _device_int32(a) -> jax.Array:
     ``jax.device_put`` (``jnp.asarray`` of a host array compiles, or loads, a small copy
     program per shape and dtype; so does a conversion on the device)."""
     return jax.device_put(np.asarray(a, dtype=np.int32))
-
-
-@dataclass(frozen=True)
-class Candidates:
-    """The contact candidates of a mesh (host NumPy): ``nodes`` (n_c,) their nodes,
-    ``die`` (n_c,) the die each candidate faces where candidates are (node, die) pairs
-    (:class:`jaxform.contact.EachDie`; zeros: the nearest die), ``facets`` (n_f, 2) node
-    pairs of the free surface (for contact areas; the corner-contact facets, with their
-    own multiplier, are those of die 0) and ``facet_die`` (n_f,) the die of each facet's
-    candidates.  A node appears once per die it is paired with."""
-
-    nodes: np.ndarray
-    facets: np.ndarray
-    die: np.ndarray | None = None
-    facet_die: np.ndarray | None = None
-
-    @classmethod
-    def paired(cls, nodes, facets, copies: int = 1) -> Candidates:
-        """Every node and facet once per die (``copies`` dies), die after die."""
-        nodes = np.asarray(nodes, dtype=np.int64)
-        facets = np.asarray(facets, dtype=np.int64).reshape(-1, 2)
-        return cls(
-            nodes=np.tile(nodes, copies),
-            facets=np.tile(facets, (copies, 1)),
-            die=np.repeat(np.arange(copies), len(nodes)),
-            facet_die=np.repeat(np.arange(copies), len(facets)),
-        )
-
-    def dies(self) -> tuple[np.ndarray, np.ndarray]:
-        """(die of each candidate, die of each facet), zeros where not given."""
-        die = np.zeros(len(self.nodes), np.int64) if self.die is None else self.die
-        fdie = np.zeros(len(self.facets), np.int64) if self.facet_die is None else self.facet_die
-        return np.asarray(die, np.int64), np.asarray(fdie, np.int64)
 
 
 def build_indices(

@@ -38,7 +38,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxform import mesh as meshing
-from jaxform.assembly import Candidates, Layout, build_indices
+from jaxform.assembly import Layout, build_indices
+from jaxform.contact import Candidates
 from jaxform.fields import OUTPUT_FIELDS, FieldMap, map_state
 from jaxform.linear import choose_backend
 from jaxform.solver import newton_variant
@@ -192,6 +193,12 @@ class _Trim(FieldMap):
     status = candidate
 
 
+def _ghost_die(scene):
+    """The die the ghost candidates face (None: no die)."""
+    die = scene.inputs.die
+    return None if die is None else scene.model.contact.pairing.ghost_die(die)
+
+
 def _ghost_square(coords: np.ndarray, die=None, t_end: float = 0.0) -> np.ndarray:
     """A unit square far from the section (r > 0: a valid axisymmetric element),
     counter-clockwise, where ``die`` (if any) leaves it open all the run: far below the
@@ -265,7 +272,7 @@ def _padded(scene, bucket: Bucket) -> Padded:
         [
             np.asarray(scene.inputs.coords),
             np.repeat(
-                _ghost_square(mesh.coords, scene.inputs.die, scene.t_end), [1, 1, 1, len(g) - 3], 0
+                _ghost_square(mesh.coords, _ghost_die(scene), scene.t_end), [1, 1, 1, len(g) - 3], 0
             ),
         ]
     )

@@ -22,10 +22,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxform import mesh as meshing
-from jaxform.assembly import Candidates, Indices, Model, build_indices
+from jaxform.assembly import Indices, Model, build_indices
 from jaxform.config import Config, DieConfig, FrictionConfig, RemeshConfig, typed
 from jaxform.config.stroke import closing_time
 from jaxform.contact import (
+    Candidates,
     ContactLaw,
     Coulomb,
     EachDie,
@@ -215,8 +216,9 @@ def _indices(mesh: meshing.Mesh, n_fields: int, contact_sets: tuple[str, ...], c
     (:data:`FIXED_COMPONENTS`), the reaction dofs, the contact candidates and facets (with
     a corner-contact multiplier each where ``corner``), each contact node ``copies`` times
     (once per die where candidates are (node, die) pairs, :class:`EachDie`); with
-    ``temperature`` one more nodal field (the last) and the edges that exchange heat.  No sparsity pattern yet:
-    the model's terms give it (:meth:`jaxform.assembly.Model.with_pattern`)."""
+    ``temperature`` one more nodal field (the last) and the edges that exchange heat.  No
+    sparsity pattern yet: the model's terms give it
+    (:meth:`jaxform.assembly.Model.with_pattern`)."""
     sets = mesh.node_sets
     n_fields = n_fields + temperature  # the temperature is the last nodal field
     fixed = [sets[s] * n_fields + k for s, comps in FIXED_COMPONENTS.items() if s in sets
@@ -574,7 +576,8 @@ def build_scene(cfg: dict | Config, mesh: meshing.Mesh | None = None) -> Scene:
     thermal = thermal_inputs(cfg)
     contact = ContactLaw(PAIRINGS[cfg.die.contact_pairs]())
     layout, idx = _indices(mesh, form.n_fields, piece.contact_sets(mesh), corner,
-                           temperature=thermal is not None, copies=_copies(contact, die))  # fmt: skip
+                           temperature=thermal is not None,
+                           copies=_copies(contact, die))  # fmt: skip
     law = law.for_points(4 * layout.n_elements)  # its local solve for the mesh's size
     model = Model(form, law, layout, contact)
     model, idx = model.with_pattern(idx)

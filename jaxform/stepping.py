@@ -139,7 +139,9 @@ def contact_step(model: Model, state: SimState, inp: Inputs, idx: Indices) -> Co
             temps = model.layout.temperatures(state.x, inp.thermal.billet_temperature_K)
             temperature = temps[idx.contact_nodes]
     return ContactStep(x_old=pos, t_old=state.t, fixed=idx.contact_fixed, sigma_eq=sigma_eq,
-                       area=areas, temperature_K=temperature, die=idx.contact_die)  # fmt: skip
+                       area=areas, temperature_K=temperature, die=idx.contact_die,
+                       cornered=model.contact.pairing.cornered(inp.die, pos, idx, state.t,
+                                                               model.layout.n_nodes))  # fmt: skip
 
 
 def element_heat_data(model: Model, state: SimState, inp: Inputs, idx: Indices, t_new):
