@@ -403,7 +403,8 @@ def corner_gap(points, corner_radius, xa, xb, profile=None):
     # the soft minimum over the qualifying arcs only: taking the facet length of the
     # others as their g made the weights underflow to 0 (g = inf) where every qualifying
     # arc lies more than a facet length away
-    g_min = jnp.where(engaged, jnp.min(jnp.where(ok, g, jnp.inf)), length)
+    # (initial: a straight two-point die has no arc at all)
+    g_min = jnp.where(engaged, jnp.min(jnp.where(ok, g, jnp.inf), initial=jnp.inf), length)
     g_ok = jnp.where(ok, g, g_min)
     weights = jnp.where(ok, jnp.exp(-(g_ok - g_min) / scale), 0.0)
     soft = g_min - scale * jnp.log(jnp.where(engaged, jnp.sum(weights), 1.0))
