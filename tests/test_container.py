@@ -104,6 +104,7 @@ def test_corner_node_carries_both_dies_and_the_wall_force_is_the_closed_form():
     assert abs(_reaction(sc, res) - top_force) <= 1e-8 * top_force
 
 
+@pytest.mark.slow
 def test_wall_friction_balances_the_top_die():
     """With Coulomb 0.2 at the wall the wall holds the material back: the top die's force
     equals the mid-plane reaction plus the wall's vertical force (equilibrium, 1e-8 of the
