@@ -350,7 +350,13 @@ def _design(args) -> int:
     cfg = _load_checked(args, gradient=True)
     t0 = time.perf_counter()
 
+    sampling = cfg.design.optimizer in ("lhs_rsm", "cmaes")
+
     def progress(it, val, gnorm, design):
+        if sampling:  # per run: the runs used, its objective, the best so far
+            print(f"simulation {it:4d}: objective {val:.8g}  best {gnorm:.8g}  "
+                  f"({time.perf_counter() - t0:.1f} s)", flush=True)  # fmt: skip
+            return
         print(
             f"iteration {it:3d}: objective {val:.8g}  |projected grad| {gnorm:.3e}  "
             f"({time.perf_counter() - t0:.1f} s)",
@@ -368,15 +374,17 @@ def _design(args) -> int:
     if code:
         return code
     problem, hist = out
-    final = problem.physical(hist.designs[-1])
+    final = problem.physical(hist.designs[hist.best])
+    steps = "runs" if sampling else "iterations"
     print(
         f"done ({hist.stop_reason}): objective {hist.objective[0]:.6g} -> "
-        f"{hist.objective[-1]:.6g} in {len(hist.objective) - 1} iterations, "
-        f"{hist.evaluations} gradient evaluations, {hist.rejected} rejected trials, "
+        f"{hist.objective[hist.best]:.6g} in {len(hist.objective) - 1} {steps}, "
+        f"{hist.evaluations} simulations, {hist.rejected} rejected trials, "
         f"{time.perf_counter() - t0:.1f} s"
     )
     print("design: " + ", ".join(f"{k} = {v:.6g}" for k, v in final.items()))
-    print(f"outputs in {args.out}: design_history.csv, objective.png, shapes.png, config.toml")
+    print(f"outputs in {args.out}: design_history.csv, design_report.csv, objective.png, "
+          "shapes.png, config.toml")  # fmt: skip
     return 0
 
 

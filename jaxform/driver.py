@@ -10,6 +10,7 @@ config (TOML path or dict) --load_typed--> Config (or a Process of several opera
 
 from __future__ import annotations
 
+import csv
 from collections.abc import Callable
 from pathlib import Path
 
@@ -337,6 +338,48 @@ def _animation(path: Path, result: Result, labels) -> int:
                           "strain [-]", labels)  # fmt: skip
 
 
+def optimizer_settings(d):
+    """The optimizer of a [design] section (:class:`jaxform.config.DesignConfig`): the
+    optax loops (lbfgs, adam) or a sampling optimizer (lhs_rsm, cmaes)."""
+    from jaxform.design import CmaEs, LhsRsm, OptimizerSettings
+
+    if d.optimizer == "lhs_rsm":
+        return LhsRsm(d.samples_per_variable, d.rsm_rounds, d.max_simulations, d.seed)
+    if d.optimizer == "cmaes":
+        return CmaEs(d.population, d.cmaes_sigma, d.max_simulations, d.seed)
+    return OptimizerSettings(d.optimizer, d.iterations, d.learning_rate)
+
+
+def design_report(problem, hist) -> list[dict]:
+    """The start design's and the best design's objective, every term of a weighted sum,
+    the constraints' penalty and each constraint's value and margin: rows with quantity,
+    start, best (:meth:`jaxform.design.problem.DesignProblem.report`)."""
+    start, best = (problem.report(hist.designs[k]) for k in (0, hist.best))
+    rows = [dict(quantity=k, start=start[k], best=best[k]) for k in start if k != "constraints"]
+    for a, b in zip(start["constraints"], best["constraints"]):
+        name = f"{a['group']}.{a['constraint']}"
+        rows.append(dict(quantity=name, start=a["value"], best=b["value"]))
+        rows.append(dict(quantity=f"{name}.limit", start=a["limit"], best=b["limit"]))
+        rows.append(dict(quantity=f"{name}.margin", start=a["margin"], best=b["margin"]))
+    return rows
+
+
+def design_problem(config, overrides=(), forward_progress=None, single_program: bool = False):
+    """(typed config, design problem) of a config's [design] section: the one entry point
+    of ``jaxform design`` and experiments/design_comparison.py (``config`` and
+    ``overrides`` as :func:`run_design` takes them; ``forward_progress`` the forward run's
+    progress; ``single_program``: value() runs the gradient program, one compile)."""
+    from jaxform.design import build_problem
+
+    require_x64()
+    cfg = _scene_config(config, overrides)
+    enable_compilation_cache(cfg.solver.compilation_cache_dir)
+    problem = build_problem(
+        build_scene(cfg), progress=forward_progress, single_program=single_program
+    )
+    return cfg, problem
+
+
 def run_design(
     config, overrides=(), out_dir: str | Path = "out/design", progress=None, forward_progress=None
 ):
@@ -345,46 +388,53 @@ def run_design(
     Arguments:
         config: the path of a TOML scene or a nested dict, or its typed Config;
             overrides: ``section.key=value``.
-        out_dir: folder for design_history.csv, objective.png, shapes.png, config.toml.
+        out_dir: folder for design_history.csv, design_report.csv, objective.png,
+            shapes.png, config.toml.
         progress: called after each optimizer iteration (iteration, objective,
-            projected gradient norm, design).
+            projected gradient norm, design), by a sampling optimizer after each run (runs,
+            objective, best objective so far, design).
         forward_progress: the progress callback of the forward run that fixes the step
             schedule (:func:`jaxform.simulation.simulate`).
 
     Returns:
         (the design problem, its optimization history)."""
-    from jaxform.design import OptimizerSettings, build_problem, optimize
+    from jaxform.design import optimize
     from jaxform.plot import design_objective, design_shapes
 
     require_x64()
-    cfg = _scene_config(config, overrides)
-    enable_compilation_cache(cfg.solver.compilation_cache_dir)
-    scene = build_scene(cfg)
-    problem = build_problem(scene, progress=forward_progress)
+    cfg, problem = design_problem(config, overrides, forward_progress)
+    scene = problem.scene
     d = cfg.design
-    settings = OptimizerSettings(d.optimizer, d.iterations, d.learning_rate)
-    hist = optimize(problem, settings, progress=progress)
+    hist = optimize(problem, optimizer_settings(d), progress=progress)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     dump_config(cfg.to_dict(), out / "config.toml")
     cols = hist.columns(problem)
     write_csv(out / "design_history.csv", cols)
+    rows = design_report(problem, hist)
+    with open(out / "design_report.csv", "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
     unit = getattr(problem.objective, "unit", "-")
-    design_objective(hist.objective, out / "objective.png", f"{d.objective} ({d.optimizer})", unit)
+    design_objective(hist.objective, out / "objective.png", f"{d.objective} ({d.optimizer})", unit,
+                     simulations=hist.simulations)  # fmt: skip
     # the start shapes on the initial mesh, the end shapes on the run's last mesh
     first = np.asarray(scene.mesh.elements)
     last = (
         first if problem.plan is None else np.asarray(problem.plan.segments[-1].scene.mesh.elements)
     )
     shapes = {}
-    for name, design in (("initial design", hist.designs[0]), ("optimized", hist.designs[-1])):
+    ends = (("initial design", hist.designs[0]), ("optimized", hist.designs[hist.best]))
+    for name, design in ends:
         _, traj = problem.value(design)
         shapes[f"{name}, start"] = (np.asarray(problem.run_inputs(design)[0].coords), first)
         shapes[f"{name}, end"] = (np.asarray(traj.positions), last)
+    best = hist.objective[hist.best]
     design_shapes(
         shapes,
         out / "shapes.png",
-        f"shapes: {d.objective} {hist.objective[0]:.4g} -> {hist.objective[-1]:.4g} {unit}",
+        f"shapes: {d.objective} {hist.objective[0]:.4g} -> {best:.4g} {unit}",
     )
     return problem, hist
 

@@ -310,14 +310,34 @@ def calibration_chart(curves: dict, path: Path):
     )
 
 
-def design_objective(objective, path: Path, title: str, unit: str):
-    """Objective against optimizer iteration (log scale when it spans decades)."""
+def design_objective(objective, path: Path, title: str, unit: str, simulations=None):
+    """Objective against the runs used (``simulations``, each row's count) with the best
+    so far, or against optimizer iteration (log scale when it spans decades)."""
     fig, ax = _figure(figsize=(6, 4.2))
-    obj = np.asarray(objective)
-    ax.plot(np.arange(len(obj)), obj, "o-", label="objective")
-    if np.all(obj > 0) and obj.max() > 20 * obj.min():
+    obj = np.asarray(objective, dtype=float)
+    x = np.arange(len(obj)) if simulations is None else np.asarray(simulations)
+    ax.plot(x, obj, "o-" if simulations is None else "o", ms=3, label="objective")
+    if simulations is not None:
+        best = np.minimum.accumulate(np.where(np.isfinite(obj), obj, np.inf))
+        ax.step(x, best, "k-", where="post", label="best so far")
+    fin = obj[np.isfinite(obj)]
+    if len(fin) and np.all(fin > 0) and fin.max() > 20 * fin.min():
         ax.set_yscale("log")
-    return _finish_curve(fig, ax, path, title, "iteration", f"objective [{unit}]")
+    xlabel = "iteration" if simulations is None else "simulations"
+    return _finish_curve(fig, ax, path, title, xlabel, f"objective [{unit}]")
+
+
+def design_comparison(curves: dict, path: Path, title: str, unit: str):
+    """Best objective so far against simulations used, one line per optimizer:
+    ``curves`` maps a label to (simulations, best objective so far)."""
+    fig, ax = _figure(figsize=(6.4, 4.4))
+    for label, (sims, best) in curves.items():
+        ax.step(np.asarray(sims), np.asarray(best, dtype=float), where="post", label=label)
+    vals = np.concatenate([np.asarray(b, dtype=float) for _, b in curves.values()])
+    vals = vals[np.isfinite(vals)]
+    if len(vals) and np.all(vals > 0) and vals.max() > 20 * vals.min():
+        ax.set_yscale("log")
+    return _finish_curve(fig, ax, path, title, "simulations", f"best objective [{unit}]")
 
 
 def _outline(coords, elements):

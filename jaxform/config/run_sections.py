@@ -240,12 +240,105 @@ class DesignConfig:
         "force_misfit (CSV with stroke_mm, force_N) or shape_target (CSV with "
         "node, r_mm, z_mm)",
     )
+    die_spline_controls: int = key(
+        0,
+        low=0,
+        high=40,
+        doc="free control heights of the 'die_spline' group: a clamped cubic B-spline of the "
+        "top die's heights z(r) between design.die_spline_r0_mm and r1_mm, sampled onto the "
+        "die's profile points there (0: no spline; with fixed ends at least 2, else 4)",
+    )
+    die_spline_r0_mm: float = key(0.0, low=0.0, doc="inner radius of the die_spline range (mm)")
+    die_spline_r1_mm: float = key(
+        0.0, low=0.0, doc="outer radius of the die_spline range (mm; 0: the die's largest radius)"
+    )
+    die_spline_fixed_ends: bool = key(
+        True,
+        doc="the spline's end heights stay at the die's heights at r0 and r1 (the profile "
+        "stays continuous); false: they are design variables too",
+    )
+    die_spline_offset_max_mm: float = key(
+        1.0, low=0.0, low_open=True, doc="bound on each spline control height's offset (mm)"
+    )
+    die_draft_deg: float = key(
+        0.0,
+        low=0.0,
+        high=89.0,
+        doc="least draft angle of the spline's walls from the press direction (deg; 0: none)",
+    )
+    die_fillet_radius_min_mm: float = key(
+        0.0, low=0.0, doc="least fillet (curvature) radius of the spline (mm; 0: none)"
+    )
+    constraint_penalty: float = key(
+        10.0,
+        low=0.0,
+        low_open=True,
+        doc="weight of the die_spline constraints' exterior penalty: objective units per "
+        "squared relative violation",
+    )
+    flash_radius_mm: float = key(
+        0.0,
+        low=0.0,
+        doc="objective flash_volume: the material beyond this radius (mm; 0: die.part_radius_mm)",
+    )
+    press_capacity_N: float = key(
+        0.0,
+        low=0.0,
+        doc="objective press_capacity: the press's capacity (N); the term is "
+        "design.capacity_penalty x (max(0, F_peak - capacity) / capacity)^2",
+    )
+    capacity_penalty: float = key(
+        1.0, low=0.0, low_open=True, doc="weight of the press_capacity term (objective units)"
+    )
+    lap_angle_deg: float = key(
+        30.0,
+        low=0.0,
+        high=180.0,
+        low_open=True,
+        doc="objective lap: free-surface air wedges narrower than this (deg) at the end are "
+        "penalized as (1 - angle / limit)^2, summed over the free-surface vertices",
+    )
+    terms: tuple[str, ...] = key(
+        [],
+        choices=tuple(o for o in OBJECTIVES if o != "weighted_sum"),
+        doc="objective weighted_sum: its terms (any objective but weighted_sum)",
+    )
+    term_weights: tuple[float, ...] = key(
+        [], doc="objective weighted_sum: the weight of each of design.terms, in their order"
+    )
     optimizer: str = key(
         "lbfgs",
-        choices=("lbfgs", "adam"),
-        doc="optax optimizer (L-BFGS with zoom line search, or Adam)",
+        choices=("lbfgs", "adam", "lhs_rsm", "cmaes"),
+        doc="lbfgs, adam (optax, gradients), lhs_rsm (a Latin hypercube of "
+        "design.samples_per_variable runs per variable, a quadratic response surface, its "
+        "minimum verified by one more run per design.rsm_rounds) or cmaes (CMA-ES; "
+        "design.population, design.cmaes_sigma)",
     )
     iterations: int = key(20, low=1, high=10000, doc="optimizer iterations")
+    samples_per_variable: int = key(
+        8, low=1, high=1000, doc="lhs_rsm: Latin hypercube runs per design variable"
+    )
+    rsm_rounds: int = key(
+        1,
+        low=1,
+        high=100,
+        doc="lhs_rsm: fit, minimize and verify rounds (each after the first refits with the "
+        "verified runs added)",
+    )
+    population: int = key(
+        0, low=0, high=10000, doc="cmaes: runs per generation (0: 4 + 3 ln n for n variables)"
+    )
+    cmaes_sigma: float = key(
+        0.3,
+        low=0.0,
+        high=1.0,
+        low_open=True,
+        doc="cmaes: initial step size, as a fraction of each variable's bound box",
+    )
+    max_simulations: int = key(
+        200, low=1, high=1_000_000, doc="lhs_rsm, cmaes: the most runs the optimizer may use"
+    )
+    seed: int = key(0, low=0, high=2**31 - 1, doc="lhs_rsm, cmaes: the random seed")
     learning_rate: float = key(
         0.05, low=0.0, low_open=True, doc="Adam step size in the scaled design variables"
     )

@@ -7,8 +7,9 @@
 Layers: :mod:`requirements` (what each group and objective needs of a scene; no JAX, the
 config layer reads it), :mod:`parametrize` (design variables -> run inputs),
 :mod:`objectives` (run -> scalar), :mod:`problem` (scene + groups + objective + schedule,
-compiled value and gradient), :mod:`optimizers` (optax loops with bounds), :mod:`taylor`
-(gradient check).
+compiled value and gradient), :mod:`optimizers` (optax loops with bounds),
+:mod:`sampling` (Latin hypercube with a response surface, CMA-ES), :mod:`spline` (a die
+profile as a B-spline and its manufacturability), :mod:`taylor` (gradient check).
 
 Importing the package imports none of them: each name below is loaded from its module on
 first use (PEP 562), so the config layer reads :mod:`requirements` without JAX.
@@ -21,6 +22,8 @@ _EXPORTS = {
     "DesignHistory": "jaxform.design.optimizers",
     "OptimizerSettings": "jaxform.design.optimizers",
     "optimize": "jaxform.design.optimizers",
+    "CmaEs": "jaxform.design.sampling",
+    "LhsRsm": "jaxform.design.sampling",
     "DesignProblem": "jaxform.design.problem",
     "available_groups": "jaxform.design.problem",
     "build_problem": "jaxform.design.problem",
@@ -28,11 +31,13 @@ _EXPORTS = {
     "taylor_test": "jaxform.design.taylor",
 }
 __all__ = [
+    "CmaEs",
     "DesignHistory",
     "DesignProblem",
     "OptimizerSettings",
     "available_groups",
     "build_problem",
+    "LhsRsm",
     "format_table",
     "optimize",
     "taylor_test",

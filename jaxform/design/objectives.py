@@ -28,6 +28,17 @@ sets, targets) with ``__call__(traj, inputs) -> scalar`` (``inputs`` = the run's
   max D (N points) and tends to max D as p grows.
 * :class:`WearDepth`         the same smooth maximum of the Archard wear depth (mm) over
   every die's stations at the end of the run (:mod:`jaxform.wear`).
+* :class:`FlashVolume`      the material beyond a radius at the end (mm^3; both halves
+  of a half-height model): each element clipped to r >= radius, measured as a polygon
+  (:func:`measure_beyond`); continuous with continuous derivatives in the positions.
+* :class:`PressCapacity`    weight x (max(0, F_peak - capacity) / capacity)^2: a
+  penalty on the peak ram force above the press's capacity.
+* :class:`LapPenalty`       sum over the free-surface vertices of (max(0, 1 - a / a_lap))^2,
+  a the air-side wedge angle there at the end (the differentiable form of the first
+  kind of :func:`jaxform.postprocess.fold_angle`: 180 deg on a straight side, 0 when the
+  surface has folded onto itself).
+* :class:`WeightedSum`      sum of weights x terms (any of the above); ``values`` lists
+  each term's value for the report.
 * :class:`TemperatureLimit`  another objective plus a quadratic penalty on the hottest node
   above a limit: weight x sum over the rows of max(0, T_max - limit)^2 (an exterior penalty:
   the limit holds approximately, better as the weight grows).
@@ -190,3 +201,92 @@ class TemperatureLimit(_Identity):
     def __call__(self, traj, inputs):
         over = jnp.maximum(jnp.max(traj.temperature_K, axis=1) - self.limit_K, 0.0)
         return self.inner(traj, inputs) + self.weight * jnp.sum(over**2)
+
+
+def measure_beyond(pos, elements, radius: float, axisymmetric: bool):
+    """(n_el,) measure (volume of revolution or area) of each element clipped to
+    r >= radius (traceable).  Each edge contributes its start vertex and, where it
+    crosses r = radius, the crossing; every vertex is then moved onto the line where it
+    lies inside r < radius.  Along the line the boundary integral of the measure depends
+    only on its end points, so the moved polygon has exactly the clipped element's
+    measure; the measure is continuous with continuous derivatives (a vertex that
+    crosses the line adds a sliver quadratic in its distance)."""
+    p = pos[jnp.asarray(elements)]  # (e, 4, 2)
+    q = jnp.roll(p, -1, axis=1)
+    a, b = p[..., 0] - radius, q[..., 0] - radius
+    cross = a * b < 0.0
+    t = jnp.where(cross, -a / jnp.where(cross, b - a, 1.0), 0.0)
+    x = p + t[..., None] * (q - p)
+    poly = jnp.stack([p, x], axis=2).reshape(p.shape[0], 8, 2)
+    poly = poly.at[..., 0].set(jnp.maximum(poly[..., 0], radius))
+    return polygon_measure(poly, axisymmetric)
+
+
+@dataclass(frozen=True, eq=False)
+class FlashVolume(_Identity):
+    """The material beyond ``radius_mm`` at the end of the run (mm^3 axisymmetric, mm^2
+    per mm plane strain), times ``halves`` (2 for a half-height model)."""
+
+    elements: np.ndarray
+    radius_mm: float
+    axisymmetric: bool
+    halves: float = 2.0
+    unit = "mm^3"
+
+    def __call__(self, traj, inputs):
+        m = measure_beyond(traj.positions, self.elements, self.radius_mm, self.axisymmetric)
+        return self.halves * jnp.sum(m)
+
+
+@dataclass(frozen=True, eq=False)
+class PressCapacity(_Identity):
+    """weight x (max(0, F_peak - capacity) / capacity)^2 (0 within the capacity)."""
+
+    capacity_N: float
+    weight: float = 1.0
+    unit = "-"
+
+    def __call__(self, traj, inputs):
+        over = jnp.maximum(jnp.max(traj.force_N) - self.capacity_N, 0.0) / self.capacity_N
+        return self.weight * over**2
+
+
+@dataclass(frozen=True, eq=False)
+class LapPenalty(_Identity):
+    """sum of (max(0, 1 - a_i / limit))^2 over the free-surface vertices ``nodes`` (the
+    boundary loop's, counter-clockwise, with ``prev`` and ``next`` their neighbours on
+    it): a_i the air-side angle (rad) between the two edges at the end of the run."""
+
+    prev: np.ndarray
+    nodes: np.ndarray
+    next: np.ndarray
+    limit_rad: float
+    unit = "-"
+
+    def angles(self, positions):
+        x = positions[jnp.asarray(self.nodes)]
+        e_in = x - positions[jnp.asarray(self.prev)]
+        e_out = positions[jnp.asarray(self.next)] - x
+        cross = e_in[:, 0] * e_out[:, 1] - e_in[:, 1] * e_out[:, 0]
+        return jnp.pi + jnp.arctan2(cross, jnp.sum(e_in * e_out, axis=1))
+
+    def __call__(self, traj, inputs):
+        a = self.angles(traj.positions)
+        return jnp.sum(jnp.maximum(1.0 - a / self.limit_rad, 0.0) ** 2)
+
+
+@dataclass(frozen=True, eq=False)
+class WeightedSum(_Identity):
+    """sum_i weights_i x terms_i(run); ``names`` label the terms in reports."""
+
+    names: tuple[str, ...]
+    terms: tuple
+    weights: tuple[float, ...]
+    unit = "-"
+
+    def values(self, traj, inputs) -> dict:
+        """{name: the term's value (its own unit)} (unweighted)."""
+        return {n: t(traj, inputs) for n, t in zip(self.names, self.terms)}
+
+    def __call__(self, traj, inputs):
+        return sum(w * t(traj, inputs) for w, t in zip(self.weights, self.terms))

@@ -8,7 +8,9 @@ compiled gradient evaluation per trial design, and
 * L-BFGS: optax's two-loop recursion (``scale_by_lbfgs``) gives the direction, a
   backtracking (Armijo) line search on the projected path picks the step; the first
   step is limited to a quarter of the bound box so that a large gradient cannot throw
-  the design across it;
+  the design across it; a direction that does not descend (curvature pairs taken across
+  a kink of the objective: a contact switch) is replaced by -g, scaled so that its
+  largest component moves a quarter of its box, and the memory is cleared;
 * Adam: optax's ``adam`` with the configured step size;
 * a trial design whose run fails (:class:`GradientRunError`: a load step did not
   converge) is treated as a rejected step and the step is halved, so one bad trial
@@ -52,22 +54,46 @@ class OptimizerSettings:
     max_backtracks: int = 8
     armijo: float = 1e-4
 
+    def minimize(self, problem, design=None, progress=None) -> DesignHistory:
+        return gradient_loop(problem, self, design, progress)
+
 
 @dataclass
 class DesignHistory:
+    """Rows of a design loop: per accepted iteration (gradient optimizers) or per run
+    (sampling optimizers, :mod:`jaxform.design.sampling`) the objective (NaN: the run
+    failed), the projected gradient norm (NaN without gradients), the design and the
+    runs used so far (``simulations``: a gradient evaluation is one run)."""
+
     objective: list[float] = field(default_factory=list)
     grad_norm: list[float] = field(default_factory=list)
     designs: list[dict] = field(default_factory=list)
+    simulations: list[int] = field(default_factory=list)
     evaluations: int = 0
     rejected: int = 0
+    restarts: int = 0  # L-BFGS directions that were not descent directions (-g instead)
     stop_reason: str = ""
 
+    @property
+    def best(self) -> int:
+        """The row of the lowest objective (the first such; failed runs never)."""
+        f = np.where(np.isfinite(self.objective), self.objective, np.inf)
+        return int(np.argmin(f))
+
+    def best_so_far(self) -> np.ndarray:
+        """The lowest objective up to each row (inf before the first run that succeeded)."""
+        f = np.where(np.isfinite(self.objective), self.objective, np.inf)
+        return np.minimum.accumulate(f)
+
     def columns(self, problem) -> dict[str, np.ndarray]:
-        """Per iteration: iteration, objective, grad_norm and the design's physical values
+        """Per row: iteration, simulations (runs used so far), objective, best_objective
+        (the lowest so far), grad_norm and the design's physical values
         (``problem.physical``), as CSV columns."""
         cols = {
             "iteration": np.arange(len(self.objective)),
+            "simulations": np.array(self.simulations),
             "objective": np.array(self.objective),
+            "best_objective": self.best_so_far(),
             "grad_norm": np.array(self.grad_norm),
         }
         phys = [problem.physical(u) for u in self.designs]
@@ -88,24 +114,33 @@ def _projected_grad_norm(u, g, lo, hi):
 
 def optimize(
     problem,
-    settings: OptimizerSettings = OptimizerSettings(),
+    settings=OptimizerSettings(),
     design=None,
     progress: Callable[[int, float, float, dict], None] | None = None,
 ) -> DesignHistory:
-    """Minimize ``problem``'s objective within its bounds (optax, projected steps).
+    """Minimize ``problem``'s objective within its bounds.
 
     Arguments:
-        problem: a :class:`jaxform.design.problem.DesignProblem`.
-        settings: the method (``lbfgs`` with a backtracking line search, or ``adam``),
-            iterations and step size.
+        problem: a :class:`jaxform.design.problem.DesignProblem` (or anything with
+            ``start``, ``bounds()``, ``value`` and, for gradients, ``value_and_grad``).
+        settings: :class:`OptimizerSettings` (gradients: ``lbfgs`` with a backtracking
+            line search, or ``adam``) or a sampling optimizer of
+            :mod:`jaxform.design.sampling` (:class:`~jaxform.design.sampling.LhsRsm`,
+            :class:`~jaxform.design.sampling.CmaEs`): any object with ``minimize``.
         design: the start (default ``problem.start``).
         progress: called after each accepted iteration with (iteration, objective,
-            projected gradient norm, design).
+            projected gradient norm, design); a sampling optimizer calls it after each
+            run with (runs, objective, best objective so far, design).
 
     Returns:
-        the :class:`DesignHistory`: objective, gradient norm and design per iteration,
-        evaluations, rejected trials and why it stopped.
+        the :class:`DesignHistory`: objective, gradient norm, design and runs used per
+        iteration (per run for sampling), evaluations, rejected trials, why it stopped.
     """
+    return settings.minimize(problem, design, progress)
+
+
+def gradient_loop(problem, settings: OptimizerSettings, design=None, progress=None):
+    """The projected L-BFGS / Adam loop of :func:`optimize` (module docstring)."""
     if settings.method not in ("lbfgs", "adam"):
         raise ValueError(f"design.optimizer = {settings.method!r}: must be 'lbfgs' or 'adam'")
     lo, hi = problem.bounds()
@@ -130,14 +165,22 @@ def optimize(
         updates, state_new = opt.update(g, state, u)
         if settings.method == "lbfgs":
             updates = jax.tree_util.tree_map(lambda d: -d, updates)
-            # first / any step: no component moves by more than a quarter of its box
+            slope = sum(float(jnp.vdot(gi, di)) for gi, di in zip(jax.tree_util.tree_leaves(g),
+                        jax.tree_util.tree_leaves(updates)))  # fmt: skip
+            restart = slope >= 0.0  # curvature pairs across a kink: not a descent direction
+            if restart:  # steepest descent, no memory
+                updates = jax.tree_util.tree_map(lambda d: -d, g)
+                state_new = opt.init(u)
+                hist.restarts += 1
+            # first / any step: no component moves by more than a quarter of its box (a
+            # restart: the largest moves by that much, the line search backtracks)
             ratio = max(
                 float(jnp.max(jnp.abs(d) / (0.25 * w)))
                 for d, w in zip(
                     jax.tree_util.tree_leaves(updates), jax.tree_util.tree_leaves(width)
                 )
             )
-            if ratio > 1.0:
+            if ratio > 1.0 or (restart and ratio > 0.0):
                 updates = jax.tree_util.tree_map(lambda d: d / ratio, updates)
         step, accepted = 1.0, False
         for _ in range(settings.max_backtracks + 1):
@@ -176,6 +219,7 @@ def optimize(
 def record(hist, u, val, g, lo, hi, progress):
     gn = _projected_grad_norm(u, g, lo, hi)
     hist.objective.append(val)
+    hist.simulations.append(hist.evaluations)
     hist.grad_norm.append(gn)
     hist.designs.append({k: np.asarray(v) for k, v in u.items()})
     if progress is not None:

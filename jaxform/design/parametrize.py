@@ -21,6 +21,11 @@ Groups compose left to right (:func:`apply_all`).  The design pytree is a dict
   cos(k pi z / H)), k = 1..n, every node moved radially in proportion, with c chosen so
   that the *discrete* volume of the mesh is that of the cylinder (constant volume).
 * :class:`DieProfile`      vertical offsets (mm) of chosen die profile points.
+* :class:`DieSpline`       the top die's profile between two radii as a clamped cubic
+  B-spline of heights z(r): offsets (mm) of its control heights, sampled onto the die's
+  points there; manufacturability (draft angle, fillet radius) as an exterior penalty
+  (:meth:`DieSpline.penalty`) and a report of each constraint's margin
+  (:mod:`jaxform.design.spline`).
 * :class:`Thermal`         chosen thermal inputs of a coupled run: billet and die
   temperatures (u in 100 K from the configured ones), log of the die contact conductance,
   the Taylor-Quinney factor.
@@ -34,6 +39,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxform.design.spline import Manufacturability, SplineBasis
 from jaxform.geometry import polygon_measure
 
 
@@ -283,6 +289,122 @@ class DieProfile:
 
     def physical(self, u):
         return {f"die_dz{i}_mm": float(u[k]) for k, i in enumerate(self.points)}
+
+
+@dataclass(frozen=True, eq=False)
+class DieSpline:
+    """The top die's points ``points`` (indices, radii increasing in [r0, r1]) at the
+    heights of a clamped cubic B-spline: control heights c = c0 + u at the controls
+    ``free`` (the others, the ends where pinned, stay at c0).  ``penalty(u)`` is
+    ``weight`` x the sum of squared relative violations of the slope (draft) and
+    curvature (fillet) rows of :mod:`jaxform.design.spline`; 0 where they all hold."""
+
+    spline: SplineBasis
+    points: np.ndarray  # (k,) die point indices sampled by the spline
+    c0: np.ndarray  # (n,) control heights of the start design (mm)
+    free: np.ndarray  # (m,) the controls that are design variables
+    limits: Manufacturability = Manufacturability()
+    offset_max_mm: float = 1.0
+    weight: float = 10.0
+    name: str = "die_spline"
+
+    def __hash__(self):  # arrays are set-up constants; identity is enough
+        return id(self)
+
+    def initial(self):
+        return _zeros(len(self.free))
+
+    def bounds(self):
+        b = jnp.full(len(self.free), self.offset_max_mm)
+        return -b, b
+
+    def controls(self, u):
+        """(n,) control heights (mm) of design u."""
+        return jnp.asarray(self.c0).at[jnp.asarray(self.free)].add(u)
+
+    def heights(self, u):
+        """(k,) heights (mm) of the sampled die points."""
+        return jnp.asarray(self.spline.heights()) @ self.controls(u)
+
+    def apply(self, u, inputs, times):
+        z = self.heights(u)
+
+        def move(d):
+            return replace(d, points=d.points.at[jnp.asarray(self.points), 1].set(z))
+
+        return replace(inputs, die=inputs.die.replace_top(move)), times
+
+    def violations(self, u) -> dict:
+        """{constraint: relative violation of each row (>0 where violated)}: slope
+        coefficients over the draft's limit (per unit limit), z'' coefficients over the
+        fillet's (per unit limit); only the constraints that are set."""
+        c = self.controls(u)
+        out = {}
+        if np.isfinite(self.limits.slope_max):
+            s = self.limits.slope_max
+            out["draft"] = jnp.abs(jnp.asarray(self.spline.slope()) @ c) / s - 1.0
+        if np.isfinite(self.limits.curvature_max):
+            k = self.limits.curvature_max
+            out["fillet"] = jnp.abs(jnp.asarray(self.spline.second()) @ c) / k - 1.0
+        return out
+
+    def penalty(self, u):
+        """weight x sum of max(0, violation)^2 over every constraint row."""
+        total = jnp.zeros(())
+        for v in self.violations(u).values():
+            total = total + jnp.sum(jnp.maximum(v, 0.0) ** 2)
+        return self.weight * total
+
+    def report(self, u) -> list[dict]:
+        """Each constraint's value, limit and margin (value - limit for a lower bound):
+        the draft angle and fillet radius guaranteed by the coefficients (the rows the
+        penalty sees), the same measured on a fine grid of the curve, and the undercut
+        (0 by construction)."""
+        c = np.asarray(self.controls(jnp.asarray(u)))
+        lim = self.limits
+        slope = float(np.max(np.abs(self.spline.slope() @ c)))
+        curv = float(np.max(np.abs(self.spline.second() @ c)))
+        _, _, b1, b2 = self.spline.dense()
+        z1, z2 = b1 @ c, b2 @ c
+        kappa = float(np.max(np.abs(z2) / (1.0 + z1**2) ** 1.5))
+        rows = [
+            ("draft_deg", _draft(slope), lim.draft_deg),
+            ("draft_sampled_deg", _draft(float(np.max(np.abs(z1)))), lim.draft_deg),
+            ("fillet_radius_mm", _radius(curv), lim.fillet_radius_min_mm),
+            ("fillet_radius_sampled_mm", _radius(kappa), lim.fillet_radius_min_mm),
+            ("undercut_mm", 0.0, 0.0),
+        ]
+        return [dict(constraint=n, value=v, limit=lo, margin=v - lo if n[0] != "u" else 0.0)
+                for n, v, lo in rows]  # fmt: skip
+
+    def physical(self, u):
+        c = np.asarray(self.controls(jnp.asarray(u)))
+        return {f"spline_z{j}_mm": float(c[j]) for j in range(len(c))}
+
+
+def _draft(slope: float) -> float:
+    """The angle (deg) of a wall of slope |dz/dr| from the press direction."""
+    return float(np.degrees(np.arctan2(1.0, slope)))
+
+
+def _radius(curvature: float) -> float:
+    return float(1.0 / curvature) if curvature > 0.0 else float("inf")
+
+
+def penalty_of(groups, design: dict):
+    """The sum of the groups' constraint penalties (those that have one) at design."""
+    total = 0.0
+    for g in groups:
+        if hasattr(g, "penalty"):
+            total = total + g.penalty(design[g.name])
+    return total
+
+
+def constraint_report(groups, design: dict) -> list[dict]:
+    """Every constraint of every group that has some: rows with group, constraint,
+    value, limit, margin."""
+    return [dict(group=g.name, **row) for g in groups if hasattr(g, "report")
+            for row in g.report(np.asarray(design[g.name]))]  # fmt: skip
 
 
 def _zeros(n: int) -> jax.Array:

@@ -27,8 +27,10 @@ from jaxform.damage import CRITERIA
 from jaxform.design import objectives as obj
 from jaxform.design import parametrize as par
 from jaxform.design.requirements import check_groups, check_objective, unmet_group
+from jaxform.design.spline import Manufacturability, SplineBasis
 from jaxform.errors import ConfigError
 from jaxform.gradients import check, release, remeshed_schedule, trajectory
+from jaxform.mesh import boundary_polygon
 from jaxform.postprocess import nodal_volumes
 from jaxform.scenes import DIE_SECTIONS, Scene
 from jaxform.workpieces import DIE_GROUPS
@@ -57,7 +59,10 @@ class DesignProblem:
         compiled program's arguments (see :func:`jaxform.gradients.trajectory`)."""
         inputs, times = self.run_inputs(design)
         traj = trajectory(self.scene, inputs, times, reuse_factorizations, idx=idx, plan=self.plan)
-        return self.objective(traj, inputs), traj
+        value = self.objective(traj, inputs)
+        if any(hasattr(g, "penalty") for g in self.groups):  # the constraints' penalty
+            value = value + par.penalty_of(self.groups, design)
+        return value, traj
 
     def _compiled(self, fn, name: str):
         """One program for the whole run, except through remeshes: there each mesh's steps
@@ -110,6 +115,19 @@ class DesignProblem:
 
     def physical(self, design) -> dict:
         return par.physical_values(self.groups, design)
+
+    def report(self, design) -> dict:
+        """What the design reaches, for the design report: the objective (with the
+        constraints' penalty), each term of a weighted sum, the penalty, and each
+        constraint's value, limit and margin (``constraints``: rows)."""
+        val, traj = self.value(design)
+        inputs, _ = self.run_inputs(design)
+        out = {"objective": float(val)}
+        if hasattr(self.objective, "values"):
+            out.update({k: float(v) for k, v in self.objective.values(traj, inputs).items()})
+        out["constraint_penalty"] = float(par.penalty_of(self.groups, design))
+        out["constraints"] = par.constraint_report(self.groups, design)
+        return out
 
 
 # ----------------------------------------------------------------------------------
@@ -211,6 +229,8 @@ def build_group(scene: Scene, name: str):
                 f"indices in [0, {n_pts - 1}] of the die profile points"
             )
         return par.DieProfile(tuple(int(p) for p in pts), offset_max_mm=d.die_offset_max_mm)
+    if name == "die_spline":
+        return _die_spline(scene)
     if name == "thermal":
         th = cfg.thermal
         names = d.thermal_params or par.THERMAL_VARIABLES
@@ -223,6 +243,39 @@ def build_group(scene: Scene, name: str):
         start = tuple(float(getattr(th, n)) for n in names)
         return par.Thermal(tuple(names), start, bound_log=float(np.log(d.bound_factor)))
     raise ConfigError(f"design group {name!r}: must be one of {', '.join(GROUPS)}")
+
+
+def _die_spline(scene: Scene) -> par.DieSpline:
+    """The 'die_spline' group: the top die's points in [design.die_spline_r0_mm,
+    r1_mm] at the heights of a spline fitted to them (the start design)."""
+    d = scene.settings.design
+    pts = np.asarray(scene.inputs.die.members[0].points)
+    r0 = d.die_spline_r0_mm
+    r1 = d.die_spline_r1_mm if d.die_spline_r1_mm > 0.0 else float(pts[:, 0].max())
+    where = f"design.die_spline_r0_mm, r1_mm = {r0:g}, {r1:g} mm"
+    if r1 <= r0:
+        raise ConfigError(f"{where}: r1 must exceed r0 (r1 0: the die's largest radius)")
+    tol = 1e-9 * max(1.0, r1)
+    idx = np.nonzero((pts[:, 0] >= r0 - tol) & (pts[:, 0] <= r1 + tol))[0]
+    if len(idx) < 2 or np.any(np.diff(idx) != 1) or np.any(np.diff(pts[idx, 0]) <= 0.0):
+        raise ConfigError(
+            f"{where}: the top die's profile needs at least 2 points there, consecutive, with "
+            f"increasing radii (a wall or an undercut inside the range cannot be a height z(r));"
+            f" found radii {[round(float(r), 4) for r in pts[idx, 0]]}"
+        )
+    n_all = d.die_spline_controls + (2 if d.die_spline_fixed_ends else 0)
+    spline = SplineBasis(r0, r1, n_all, pts[idx, 0])
+    z = pts[idx, 1]
+    pinned = {}
+    if d.die_spline_fixed_ends:
+        pinned = {0: float(np.interp(r0, pts[idx, 0], z)),
+                  n_all - 1: float(np.interp(r1, pts[idx, 0], z))}  # fmt: skip
+    free = np.array([j for j in range(n_all) if j not in pinned], dtype=int)
+    return par.DieSpline(
+        spline, idx, spline.fit(z, pinned), free,
+        Manufacturability(d.die_draft_deg, d.die_fillet_radius_min_mm),
+        offset_max_mm=d.die_spline_offset_max_mm, weight=d.constraint_penalty,
+    )  # fmt: skip
 
 
 def _read_columns(path: str, needed: tuple[str, ...]) -> dict[str, np.ndarray]:
@@ -257,7 +310,25 @@ def build_objective(scene: Scene):
 
 def _base_objective(scene: Scene):
     d = scene.settings.design
-    name = d.objective
+    if d.objective == "weighted_sum":
+        terms = tuple(_objective(scene, n) for n in d.terms)
+        return obj.WeightedSum(tuple(d.terms), terms, tuple(float(w) for w in d.term_weights))
+    return _objective(scene, d.objective)
+
+
+def lap_penalty(scene: Scene, limit_deg: float) -> obj.LapPenalty:
+    """The lap penalty on the free-surface vertices of the scene's mesh: those whose two
+    boundary edges lie on sets a die may touch."""
+    _, labels, loop = boundary_polygon(scene.mesh, np.asarray(scene.mesh.coords))
+    free = set(scene.workpiece.contact_sets(scene.mesh))
+    out = np.array([lab in free for lab in labels])
+    keep = out & np.roll(out, 1)
+    return obj.LapPenalty(np.roll(loop, 1)[keep], loop[keep], np.roll(loop, -1)[keep],
+                          float(np.radians(limit_deg)))  # fmt: skip
+
+
+def _objective(scene: Scene, name: str):
+    d = scene.settings.design
     axi = scene.model.formulation.axisymmetric
     if name == "forging_work":
         return obj.ForgingWork()
@@ -278,6 +349,14 @@ def _base_objective(scene: Scene):
                 "it needs a half-height scene with one die (no [bottom_die] or [side_die])"
             )
         return obj.UnfilledCavity(np.asarray(scene.mesh.elements), axi)
+    if name == "flash_volume":
+        radius = d.flash_radius_mm or scene.settings.die.part_radius_mm
+        halves = 2.0 if scene.symmetric_z else 1.0
+        return obj.FlashVolume(np.asarray(scene.mesh.elements), radius, axi, halves)
+    if name == "press_capacity":
+        return obj.PressCapacity(d.press_capacity_N, d.capacity_penalty)
+    if name == "lap":
+        return lap_penalty(scene, d.lap_angle_deg)
     if name == "force_misfit":
         c = _read_columns(d.target_csv, ("stroke_mm", "force_N"))
         keep = c["stroke_mm"] > 0

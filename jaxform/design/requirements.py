@@ -92,6 +92,15 @@ def _heat_to_the_dies(cfg: Config) -> str | None:
     return "thermal.model = 'coupled' and thermal.htc_die_W_m2K > 0"
 
 
+def _spline_controls(cfg: Config) -> str | None:
+    n = cfg.design.die_spline_controls
+    fixed = 2 if cfg.design.die_spline_fixed_ends else 0
+    if n > 0 and n + fixed >= 4:
+        return None
+    return (f"design.die_spline_controls >= {4 - fixed} (the spline's free control heights; "
+            f"now {n})")  # fmt: skip
+
+
 # every design group, in the order problems list them
 GROUPS: dict[str, GroupSpec] = {
     "material": GroupSpec("the law's parameters (design.material_params), log-scaled"),
@@ -100,6 +109,10 @@ GROUPS: dict[str, GroupSpec] = {
     "preform": GroupSpec("cosine modes of the billet's side", (_a_structured_billet,)),
     "nodes": GroupSpec("every free initial node coordinate"),
     "die": GroupSpec("vertical offsets of the top die's profile points", (_a_die,)),
+    "die_spline": GroupSpec(
+        "control heights of a cubic B-spline of the top die's profile between two radii",
+        (_a_die, _spline_controls),
+    ),
     "thermal": GroupSpec(
         "temperatures, die contact conductance, Taylor-Quinney factor", (_heat_to_the_dies,)
     ),
@@ -128,6 +141,30 @@ def _coupled(cfg: Config) -> str | None:
     return None if cfg.thermal.model == "coupled" else "thermal.model = 'coupled'"
 
 
+def _a_flash_radius(cfg: Config) -> str | None:
+    if cfg.design.flash_radius_mm > 0.0 or (cfg.die is not None and cfg.die.part_radius_mm > 0.0):
+        return None
+    return "design.flash_radius_mm > 0 or die.part_radius_mm > 0 (the radius the flash lies beyond)"
+
+
+def _a_capacity(cfg: Config) -> str | None:
+    return None if cfg.design.press_capacity_N > 0.0 else "design.press_capacity_N > 0"
+
+
+def _a_free_surface(cfg: Config) -> str | None:
+    if cfg.membrane is None and not cfg.mesh.file:
+        return None
+    return "a die scene on the structured mesh (its free surface is the contact sets)"
+
+
+def _terms(cfg: Config) -> str | None:
+    d = cfg.design
+    if d.terms and len(d.terms) == len(d.term_weights):
+        return None
+    return (f"design.terms (now {list(d.terms)}) and as many design.term_weights "
+            f"(now {list(d.term_weights)})")  # fmt: skip
+
+
 OBJECTIVES: dict[str, ObjectiveSpec] = {
     "forging_work": ObjectiveSpec("force integral over stroke (N mm)", through_remeshes=True),
     "peak_force": ObjectiveSpec("peak ram force (N)", through_remeshes=True),
@@ -154,7 +191,34 @@ OBJECTIVES: dict[str, ObjectiveSpec] = {
     "wear_depth": ObjectiveSpec(
         "smooth maximum of the die wear depth (mm)", (_wear,), through_remeshes=True
     ),
+    "flash_volume": ObjectiveSpec(
+        "material beyond design.flash_radius_mm at the end (mm^3)", (_a_die, _a_flash_radius)
+    ),
+    "press_capacity": ObjectiveSpec(
+        "penalty on the peak force above design.press_capacity_N",
+        (_a_die, _a_capacity),
+        through_remeshes=True,
+    ),
+    "lap": ObjectiveSpec(
+        "penalty on free-surface wedges narrower than design.lap_angle_deg at the end",
+        (_a_die, _a_free_surface),
+    ),
+    "weighted_sum": ObjectiveSpec(
+        "sum of design.term_weights x design.terms (each term's value in the report)", (_terms,)
+    ),
 }
+
+
+def objective_names(cfg: Config) -> tuple[str, ...]:
+    """The objectives the config's design.objective evaluates: itself, or the terms of a
+    weighted sum."""
+    d = cfg.design
+    return tuple(d.terms) if d.objective == "weighted_sum" else (d.objective,)
+
+
+def through_remeshes(cfg: Config) -> bool:
+    """Whether every objective the config evaluates has a gradient through remeshes."""
+    return all(OBJECTIVES[n].through_remeshes for n in objective_names(cfg))
 
 
 # ----------------------------------------------------------------------------------
@@ -199,17 +263,24 @@ def check_objective(cfg: Config) -> None:
     its requirements, and for an objective with a target a readable design.target_csv
     with its columns."""
     d = cfg.design
-    spec = OBJECTIVES[d.objective]
-    for need in spec.requires:
-        reason = need(cfg)
-        if reason is not None:
-            raise ConfigError(f"design.objective = {d.objective!r} needs {reason}")
+    names = objective_names(cfg)
+    for name in {d.objective, *names}:
+        where = "design.objective =" if name == d.objective else "design.terms:"
+        for need in OBJECTIVES[name].requires:
+            reason = need(cfg)
+            if reason is not None:
+                raise ConfigError(f"{where} {name!r} needs {reason}")
     if d.max_temperature_K > 0.0 and _coupled(cfg) is not None:
         raise ConfigError("design.max_temperature_K > 0 needs thermal.model = 'coupled'")
-    if spec.target_columns:
-        if not d.target_csv:
-            raise ConfigError(f"design.objective = {d.objective!r} needs design.target_csv")
-        _check_target_csv(d.target_csv, spec.target_columns)
+    if d.objective == "weighted_sum" and any(w < 0.0 for w in d.term_weights):
+        raise ConfigError(f"design.term_weights = {list(d.term_weights)}: must be >= 0")
+    for name in names:
+        columns = OBJECTIVES[name].target_columns
+        if columns:
+            if not d.target_csv:
+                where = "design.objective =" if name == d.objective else "design.terms:"
+                raise ConfigError(f"{where} {name!r} needs design.target_csv")
+            _check_target_csv(d.target_csv, columns)
 
 
 def check_gradient_run(
@@ -227,7 +298,7 @@ def check_gradient_run(
         )
     d = cfg.design
     if cfg.remesh.on:
-        if not OBJECTIVES[d.objective].through_remeshes:
+        if not through_remeshes(cfg):
             ok = ", ".join(n for n, o in OBJECTIVES.items() if o.through_remeshes)
             raise ConfigError(
                 f"design.objective = {d.objective!r} reads the initial mesh's nodes or "

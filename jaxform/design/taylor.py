@@ -45,12 +45,13 @@ SCALE = {
     "preform": 0.01,
     "nodes": 0.003,
     "die": 0.01,
+    "die_spline": 0.01,
     "thermal": 0.01,
 }
 # groups that move the geometry (mm): their direction is also capped at this fraction of
 # the run's stroke, so that a scene pressed by a few micrometres (Prandtl's punch: 1.8 um)
 # is not tested with a die lifted off the material or elements larger than its motion
-GEOMETRIC = ("nodes", "die", "preform")
+GEOMETRIC = ("nodes", "die", "die_spline", "preform")
 STROKE_FRACTION = 0.05
 
 
