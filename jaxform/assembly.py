@@ -2,7 +2,8 @@
 
 Unknown vector x = [nodal fields (n_nodes * n_fields) | contact multipliers (2 n_contact)
 | corner multipliers (n_facets)], node a's field k at a * n_fields + k (fields: u_r, u_z[,
-p]); candidate i's normal and tangential multipliers at n_nodes * n_fields + 2 i + (0, 1);
+p]); candidate i's normal and tangential multipliers at n_nodes * n_fields + 2 i + (0, 1)
+(a candidate is a contact node, or a (node, die) pair: :class:`Candidates`);
 facet f's corner-contact multiplier (:func:`jaxform.contact.facet_terms`) after those.
 
 The assembly is a tuple of terms (:attr:`Model.terms`): the element term (the
@@ -54,7 +55,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxform import element as el
-from jaxform.contact import TOUCH_GAP_MM, ContactLaw, ContactStep, facet_terms
+from jaxform.contact import TOUCH_GAP_MM, Candidates, ContactLaw, ContactStep, facet_terms
 from jaxform.formulations import Formulation, GaussState, PointGiven
 from jaxform.heat import ElementHeat, ThermalInputs, element_heat, plastic_work
 from jaxform.mesh import boundary_edges
@@ -89,6 +90,9 @@ class Indices:
     # (n_el, 4) 1.0 where element edge k exchanges heat (jaxform.heat.exposed_edges);
     # None without a temperature field
     exposed_edges: jax.Array | None = None
+    # (n_c,) the die of each candidate where candidates are (node, die) pairs
+    # (:class:`jaxform.contact.EachDie`); zeros where each faces its nearest die
+    contact_die: jax.Array | None = None
 
 
 @jax.tree_util.register_dataclass
@@ -199,27 +203,28 @@ def build_indices(
     mesh,
     n_fields: int,
     fixed_dofs: np.ndarray,
-    contact_nodes: np.ndarray,
+    candidates: Candidates,
     reaction_dofs: np.ndarray | None = None,
-    contact_facets: np.ndarray | None = None,
     load_facets: np.ndarray | None = None,
     corner_contact: bool = False,
 ) -> tuple[Layout, Indices]:
     """(Layout, Indices) of a mesh's unknowns, without the sparsity pattern (that is the
-    terms', :meth:`Model.with_pattern`).  contact_facets: (n_f, 2) node pairs of the free
-    surface (for contact areas; with ``corner_contact`` each also gets a corner-contact
-    multiplier); load_facets: (n_lf, 2) node pairs of the boundary carrying a traction
-    load."""
+    terms', :meth:`Model.with_pattern`).  candidates: the contact candidates and the
+    free-surface facets (with ``corner_contact`` each facet of die 0 also gets a
+    corner-contact multiplier); load_facets: (n_lf, 2) node pairs of the boundary carrying
+    a traction load."""
     nf = n_fields
     n_nodes = mesh.n_nodes
     elements = np.asarray(mesh.elements, dtype=np.int64)
     edofs = (elements[:, :, None] * nf + np.arange(nf)[None, None, :]).reshape(len(elements), -1)
+    contact_nodes = np.asarray(candidates.nodes, dtype=np.int64)
+    die, facet_die = candidates.dies()
     n_c = len(contact_nodes)
     ndof_nodes = n_nodes * nf
     cdofs = contact_nodes[:, None] * nf + np.arange(2)[None, :]
     mdofs = ndof_nodes + np.arange(2 * n_c).reshape(n_c, 2)
-    walked = _oriented(elements, contact_facets)
-    corner = walked if corner_contact else np.zeros((0, 2), int)
+    walked = _oriented(elements, candidates.facets)
+    corner = walked[facet_die == 0] if corner_contact else np.zeros((0, 2), int)
     n_fc = len(corner)
     fdofs = (corner[:, :, None] * nf + np.arange(2)[None, None, :]).reshape(n_fc, 4)
     fmult = ndof_nodes + 2 * n_c + np.arange(n_fc)
@@ -232,7 +237,7 @@ def build_indices(
         contact_nodes=_device_int32(contact_nodes),
         contact_dofs=_device_int32(cdofs),
         mult_dofs=_device_int32(mdofs),
-        contact_facets=_device_int32(_local_facets(contact_nodes, walked)),
+        contact_facets=_device_int32(_local_facets(contact_nodes, die, walked, facet_die)),
         contact_fixed=jax.device_put(np.isin(cdofs[:, :2], np.asarray(fixed_dofs))),
         facet_dofs=_device_int32(fdofs),
         facet_mult=_device_int32(fmult),
@@ -247,6 +252,7 @@ def build_indices(
             if load_facets is None
             else np.asarray(load_facets, dtype=np.int64)
         ),
+        contact_die=_device_int32(die),
     )
     return layout, idx
 
@@ -261,12 +267,16 @@ def _oriented(elements: np.ndarray, facets) -> np.ndarray:
     return np.where(forward[:, None], facets, facets[:, ::-1]).reshape(-1, 2)
 
 
-def _local_facets(contact_nodes, facets) -> np.ndarray:
+def _local_facets(contact_nodes, die, facets, facet_die) -> np.ndarray:
+    """The facets (node pairs) as indices into the candidates: each end the candidate of
+    that node and of the facet's die."""
     if facets is None or len(facets) == 0:
         return np.zeros((0, 2), dtype=np.int64)
-    local = -np.ones(int(max(contact_nodes.max(), np.max(facets))) + 1, dtype=np.int64)
-    local[contact_nodes] = np.arange(len(contact_nodes))
-    out = local[np.asarray(facets, dtype=np.int64)]
+    n = int(max(contact_nodes.max(), np.max(facets))) + 1
+    n_die = int(max(die.max(), facet_die.max())) + 1
+    local = -np.ones(n_die * n, dtype=np.int64)
+    local[die * n + contact_nodes] = np.arange(len(contact_nodes))
+    out = local[facet_die[:, None] * n + np.asarray(facets, dtype=np.int64)]
     if np.any(out < 0):
         raise ValueError("contact facets must join contact candidate nodes")
     return out

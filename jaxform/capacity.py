@@ -39,6 +39,7 @@ import numpy as np
 
 from jaxform import mesh as meshing
 from jaxform.assembly import Layout, build_indices
+from jaxform.contact import Candidates
 from jaxform.fields import OUTPUT_FIELDS, FieldMap, map_state
 from jaxform.linear import choose_backend
 from jaxform.solver import newton_variant
@@ -192,6 +193,12 @@ class _Trim(FieldMap):
     status = candidate
 
 
+def _ghost_die(scene):
+    """The die the ghost candidates face (None: no die)."""
+    die = scene.inputs.die
+    return None if die is None else scene.model.contact.pairing.ghost_die(die)
+
+
 def _ghost_square(coords: np.ndarray, die=None, t_end: float = 0.0) -> np.ndarray:
     """A unit square far from the section (r > 0: a valid axisymmetric element),
     counter-clockwise, where ``die`` (if any) leaves it open all the run: far below the
@@ -265,7 +272,7 @@ def _padded(scene, bucket: Bucket) -> Padded:
         [
             np.asarray(scene.inputs.coords),
             np.repeat(
-                _ghost_square(mesh.coords, scene.inputs.die, scene.t_end), [1, 1, 1, len(g) - 3], 0
+                _ghost_square(mesh.coords, _ghost_die(scene), scene.t_end), [1, 1, 1, len(g) - 3], 0
             ),
         ]
     )
@@ -276,14 +283,19 @@ def _padded(scene, bucket: Bucket) -> Padded:
     fixed = np.concatenate([fixed, np.full(bucket.nodes * nf - len(fixed), g[0] * nf)])
     ghost_c = np.where(np.arange(bucket.contacts - n_c) % 2 == 0, g[0], g[1])
     contact_nodes = np.concatenate([np.asarray(idx.contact_nodes), ghost_c]).astype(np.int64)
-    real_facets = np.asarray(idx.contact_nodes)[np.asarray(idx.contact_facets)]
-    facets = np.vstack(
-        [real_facets, np.tile([g[0], g[1]], (bucket.contacts - len(real_facets), 1))]
-    )
+    # the ghosts are candidates of die 0 (where candidates are (node, die) pairs)
+    real_die = np.asarray(idx.contact_die, dtype=np.int64)
+    contact_die = np.concatenate([real_die, np.zeros(len(ghost_c), np.int64)])
+    local = np.asarray(idx.contact_facets, dtype=np.int64).reshape(-1, 2)
+    real_facets = np.asarray(idx.contact_nodes)[local]
+    n_ghost_f = bucket.contacts - len(real_facets)
+    facets = np.vstack([real_facets, np.tile([g[0], g[1]], (n_ghost_f, 1))])
+    facet_die = np.concatenate([real_die[local[:, 0]], np.zeros(n_ghost_f, np.int64)])
     reaction = np.asarray(idx.bottom_reaction_dofs)
     reaction = np.concatenate([reaction, np.full(bucket.nodes - len(reaction), g[0] * nf + 1)])
-    layout, pidx = build_indices(ghost_mesh, nf, fixed, contact_nodes, reaction_dofs=reaction,
-                                 contact_facets=facets, corner_contact=corner)  # fmt: skip
+    candidates = Candidates(contact_nodes, facets, contact_die, facet_die)
+    layout, pidx = build_indices(ghost_mesh, nf, fixed, candidates, reaction_dofs=reaction,
+                                 corner_contact=corner)  # fmt: skip
     layout = replace(layout, temperature=real.temperature)
     pmodel, pidx = replace(scene.model, layout=layout).with_pattern(pidx)
     layout = pmodel.layout

@@ -38,6 +38,13 @@ the condition holds there already and a friction equation would make the system 
 
 Status of a converged node: 0 open, 1 stick, 2 slip (:func:`pair_status`).
 
+Candidates and dies (``pairing``, ``die.contact_pairs``).  :class:`NearestDie`: a
+candidate is a node and faces the die of a set with the least gap.  :class:`EachDie`: a
+candidate is a (node, die) pair, every contact node against every die, so a node pressed
+into the corner of two dies carries both dies' forces; a pair whose node touches two dies
+at the step start is held by their normals and has no friction for the step
+(:meth:`EachDie.cornered`).
+
 Convex die corners.  Node contact alone lets a convex arc of the die reach between two
 contact nodes into the facet that joins them (by the arc's sagitta over the facet).  With
 corner contact on (``die.corner_contact``), each free-surface facet also carries one
@@ -51,6 +58,7 @@ from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 OPEN, STICK, SLIP = 0, 1, 2
 
@@ -68,6 +76,11 @@ class ContactStep:
     sigma_eq: jax.Array  # (n_c,) nodal flow stress (MPa)
     area: jax.Array  # (n_c,) contact area of the facets in contact (mm^2)
     temperature_K: jax.Array  # (n_c,) nodal temperature (K; NaN in an isothermal run)
+    # (n_c,) int: the die of each candidate where candidates are (node, die) pairs
+    # (:class:`EachDie`); zeros where each faces its nearest die (:class:`NearestDie`)
+    die: jax.Array | None = None
+    # (n_c,) bool: the candidate's node touched another die too at t_n (:meth:`EachDie.cornered`)
+    cornered: jax.Array | None = None
 
 
 @jax.tree_util.register_dataclass
@@ -213,15 +226,89 @@ def flatten_laws(laws):
 
 
 @dataclass(frozen=True)
+class NearestDie:
+    """Strategy: a candidate is a workpiece node, and it faces the die with the least gap
+    (:meth:`jaxform.dies.DieSet.frame`): one multiplier pair per node.  A node pressed into
+    the corner of two dies can carry only one of their forces."""
+
+    def copies(self, n_dies: int) -> int:
+        """How many candidates each contact node gives: one."""
+        return 1
+
+    def frame(self, die, x, t, t_old, which):
+        return die.frame(x, t, t_old)
+
+    def ghost_die(self, die):
+        """The die a padding's ghost candidates face (:mod:`jaxform.capacity`): all."""
+        return die
+
+    def cornered(self, die, pos, idx, t, n_nodes: int):
+        """None: a node faces one die, never two at once."""
+        return None
+
+
+@dataclass(frozen=True)
+class EachDie:
+    """Strategy: a candidate is a (node, die) pair, every contact node against every die
+    of the set (:meth:`jaxform.dies.DieSet.member_frame`): one multiplier pair per node and
+    die, each with that die's friction law, so a node pressed into the corner of two dies
+    (a container wall and the punch or the bottom die) carries both dies' forces.  With
+    one die it is :class:`NearestDie`."""
+
+    def copies(self, n_dies: int) -> int:
+        """How many candidates each contact node gives: one per die."""
+        return n_dies
+
+    def frame(self, die, x, t, t_old, which):
+        return die.member_frame(x, t, t_old, which)
+
+    def ghost_die(self, die):
+        """The die a padding's ghost candidates face: the first (they are its pairs), so
+        they need room away from it only (inside a closed container there is none away
+        from every die)."""
+        return die.members[0]
+
+    def cornered(self, die, pos, idx, t, n_nodes: int):
+        """(n_c,) bool: the candidate's node (of ``n_nodes``; candidate positions ``pos``)
+        touches its die and another one at time t (gap
+        <= TOUCH_GAP_MM to both): held in the corner by the two dies' normals, which fix
+        both its displacement components, so its tangential conditions are frictionless
+        for the step (two friction conditions on top, sticking, would repeat the normal
+        ones: a singular system).  Lagged like the shear law's area: a node that leaves
+        one of the dies during the step slides on the other without friction for that
+        step."""
+        f = candidate_frames(self, die, pos, idx.contact_die, t, t)
+        touching = f.g <= TOUCH_GAP_MM
+        per_node = (
+            jnp.zeros(n_nodes, jnp.int32).at[idx.contact_nodes].add(touching.astype(jnp.int32))
+        )
+        return touching & (per_node[idx.contact_nodes] >= 2)
+
+
+def candidate_frames(pairing, die, pos, which, t, t_old):
+    """The :class:`jaxform.dies.DieFrame` of every candidate (vmapped) at positions pos
+    (n_c, 2), of die ``which`` (n_c,) where the candidates are pairs (``pairing``)."""
+    return jax.vmap(lambda p, k: pairing.frame(die, p, t, t_old, k))(pos, which)
+
+
+@dataclass(frozen=True)
 class ContactLaw:
     """Strategy: the node-to-die contact conditions; the friction law of each die lives in
     the die pytree (a :class:`jaxform.dies.RigidDie`, or a :class:`jaxform.dies.DieSet`
-    whose nearest die holds the node)."""
+    whose nearest die holds the node, or each die its own candidate: ``pairing``)."""
+
+    pairing: NearestDie | EachDie = NearestDie()
+
+    def frames(self, die, pos, which, t, t_old):
+        """Every candidate's die frame (:func:`candidate_frames`)."""
+        return candidate_frames(self.pairing, die, pos, which, t, t_old)
 
     def _parts(self, die, x, lam, t, c, step: ContactStep, k):
         """The quantities both the residual and the status read for candidate k, and the
         friction law of the die that holds it."""
-        f = die.frame(x, t, step.t_old)  # the nearest die's surface, motion and friction
+        # the surface, motion and friction of the nearest die or of the candidate's die
+        which = None if step.die is None else step.die[k]
+        f = self.pairing.frame(die, x, t, step.t_old, which)
         g, n, tan = f.g, f.n, f.tan
         slip = jnp.dot(x - step.x_old[k] - f.move, tan)
         lam_n, lam_t = lam[0], lam[1]
@@ -233,6 +320,8 @@ class ContactLaw:
         # (on the mid-plane) against a die surface that runs more up than across (a mandrel)
         fixed = step.fixed[k]
         frictionless = fixed[0] | (fixed[1] & (jnp.abs(tan[1]) > jnp.abs(tan[0])))
+        if step.cornered is not None:  # held in the corner of two dies (EachDie.cornered)
+            frictionless = frictionless | step.cornered[k]
         site = FrictionSite(trial_n=trial_n, sigma_eq=step.sigma_eq[k], area=step.area[k],
                             temperature_K=step.temperature_K[k])  # fmt: skip
         p = dict(g=g, n=n, tan=tan, slip=slip, lam_n=lam_n, lam_t=lam_t, trial_n=trial_n,
@@ -297,3 +386,36 @@ def facets_in_contact(touching, facets):
     0.0: the facets whose area carries the contact tractions (``counted`` of
     :func:`jaxform.geometry.tributary_areas`)."""
     return (touching[facets[:, 0]] & touching[facets[:, 1]]).astype(float)
+
+
+@dataclass(frozen=True)
+class Candidates:
+    """The contact candidates of a mesh (host NumPy): ``nodes`` (n_c,) their nodes,
+    ``die`` (n_c,) the die each candidate faces where candidates are (node, die) pairs
+    (:class:`jaxform.contact.EachDie`; zeros: the nearest die), ``facets`` (n_f, 2) node
+    pairs of the free surface (for contact areas; the corner-contact facets, with their
+    own multiplier, are those of die 0) and ``facet_die`` (n_f,) the die of each facet's
+    candidates.  A node appears once per die it is paired with."""
+
+    nodes: np.ndarray
+    facets: np.ndarray
+    die: np.ndarray | None = None
+    facet_die: np.ndarray | None = None
+
+    @classmethod
+    def paired(cls, nodes, facets, copies: int = 1) -> Candidates:
+        """Every node and facet once per die (``copies`` dies), die after die."""
+        nodes = np.asarray(nodes, dtype=np.int64)
+        facets = np.asarray(facets, dtype=np.int64).reshape(-1, 2)
+        return cls(
+            nodes=np.tile(nodes, copies),
+            facets=np.tile(facets, (copies, 1)),
+            die=np.repeat(np.arange(copies), len(nodes)),
+            facet_die=np.repeat(np.arange(copies), len(facets)),
+        )
+
+    def dies(self) -> tuple[np.ndarray, np.ndarray]:
+        """(die of each candidate, die of each facet), zeros where not given."""
+        die = np.zeros(len(self.nodes), np.int64) if self.die is None else self.die
+        fdie = np.zeros(len(self.facets), np.int64) if self.facet_die is None else self.facet_die
+        return np.asarray(die, np.int64), np.asarray(fdie, np.int64)

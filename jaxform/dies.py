@@ -124,6 +124,10 @@ class RigidDie:
         return DieFrame(g=g, n=n, tan=tan, move=move, friction=self.friction,
                         which=jnp.zeros((), jnp.int32))  # fmt: skip
 
+    def member_frame(self, x, t, t_old, which) -> DieFrame:
+        """The frame of die ``which`` (the one die: :meth:`frame`)."""
+        return self.frame(x, t, t_old)
+
     def facet_frame(self, xa, xb, t):
         """(g, engaged, which die) of a facet against the convex arcs (:meth:`facet_gap`)."""
         g, engaged = self.facet_gap(xa, xb, t)
@@ -218,6 +222,15 @@ class DieSet:
     def frame(self, x, t, t_old) -> DieFrame:
         frames = [d.frame(x, t, t_old) for d in self.dies]
         k = jnp.argmin(jnp.stack([f.g for f in frames])).astype(jnp.int32)
+        pick = {name: self._pick([getattr(f, name) for f in frames], k)
+                for name in ("g", "n", "tan", "move")}  # fmt: skip
+        return DieFrame(**pick, friction=pick_law([d.friction for d in self.dies], k), which=k)
+
+    def member_frame(self, x, t, t_old, which) -> DieFrame:
+        """The frame of die ``which`` (a traced index): a (node, die) pair's candidate
+        (:class:`jaxform.contact.EachDie`) faces its own die, near or not."""
+        frames = [d.frame(x, t, t_old) for d in self.dies]
+        k = jnp.asarray(which, jnp.int32)
         pick = {name: self._pick([getattr(f, name) for f in frames], k)
                 for name in ("g", "n", "tan", "move")}  # fmt: skip
         return DieFrame(**pick, friction=pick_law([d.friction for d in self.dies], k), which=k)
@@ -390,7 +403,8 @@ def corner_gap(points, corner_radius, xa, xb, profile=None):
     # the soft minimum over the qualifying arcs only: taking the facet length of the
     # others as their g made the weights underflow to 0 (g = inf) where every qualifying
     # arc lies more than a facet length away
-    g_min = jnp.where(engaged, jnp.min(jnp.where(ok, g, jnp.inf)), length)
+    # (initial: a straight two-point die has no arc at all)
+    g_min = jnp.where(engaged, jnp.min(jnp.where(ok, g, jnp.inf), initial=jnp.inf), length)
     g_ok = jnp.where(ok, g, g_min)
     weights = jnp.where(ok, jnp.exp(-(g_ok - g_min) / scale), 0.0)
     soft = g_min - scale * jnp.log(jnp.where(engaged, jnp.sum(weights), 1.0))

@@ -34,14 +34,16 @@ def _contact_point_data(scene, result, k: int, n_nodes: int) -> dict:
     )
     nodes = np.asarray(scene.idx.contact_nodes)
     out = {}
-    for name, key in (
-        ("contact_pressure", "pressure_MPa"),
-        ("contact_shear", "shear_MPa"),
-        ("contact_status", "status"),
-        ("contact_slip", "slip_mm"),
+    # a node with one candidate per die (:class:`jaxform.contact.EachDie`): the dies'
+    # tractions summed, the largest status and slip
+    for name, key, gather in (
+        ("contact_pressure", "pressure_MPa", np.add),
+        ("contact_shear", "shear_MPa", np.add),
+        ("contact_status", "status", np.maximum),
+        ("contact_slip", "slip_mm", np.maximum),
     ):
         v = np.zeros(n_nodes)
-        v[nodes] = cp[key]
+        gather.at(v, nodes, cp[key])
         out[name] = v
     return out
 

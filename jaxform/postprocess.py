@@ -422,8 +422,9 @@ def contact_profile(
 ) -> dict:
     """Per candidate node: position, pressure and shear traction (MPa), status,
     accumulated slip (mm); with the time t also ``s_mm``, the arc length along the die
-    the node faces (the nearest die at t, from its profile's first point; negative on the
-    extension before it) and ``die``, that die's name: the axis a profile is drawn
+    the node faces (the nearest die at t, or the candidate's own where candidates are
+    (node, die) pairs; from its profile's first point; negative on the extension before
+    it) and ``die``, that die's name: the axis a profile is drawn
     against (a vertical die wall has one r but spreads along s)."""
     idx = scene.idx
     pos = positions(scene, x)[np.asarray(idx.contact_nodes)]
@@ -443,6 +444,8 @@ def contact_profile(
         names = list(outlines)
         fits = [arc_position(p, pos, -reach) for p in outlines.values()]
         nearest = np.argmin(np.stack([f[1] for f in fits]), axis=0)
+        if scene.model.contact.pairing.copies(len(names)) > 1:  # (node, die) pairs
+            nearest = np.asarray(idx.contact_die)
         s_mm = np.stack([f[0] for f in fits])[nearest, np.arange(len(pos))]
         along = dict(s_mm=s_mm, die=np.array([names[k] for k in nearest]))
     return dict(

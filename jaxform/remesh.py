@@ -321,13 +321,16 @@ def contact_map(scene, new_scene, state, pos, new_pos) -> ContactMap:
     counted = facets_in_contact(status > 0, np.asarray(idx.contact_facets))
     area = tributary_areas(pos[cn], np.asarray(idx.contact_facets), axi, counted)
     per_area = np.where(area > 0, 1.0 / np.where(area > 0, area, 1.0), 0.0)
-    cand = np.full(lay.n_nodes, -1)  # old node -> candidate index
-    cand[cn] = np.arange(len(cn))
+    # (old die, old node) -> candidate index: a candidate is a node, or a (node, die) pair
+    # (:class:`jaxform.contact.EachDie`) whose values carry to the new pairs of its die
+    die, new_die = np.asarray(idx.contact_die), np.asarray(new_idx.contact_die)
+    cand = np.full((int(max(die.max(), new_die.max())) + 1, lay.n_nodes), -1)
+    cand[die, cn] = np.arange(len(cn))
     edges = boundary_edges(scene.mesh.elements)
     new_cn = np.asarray(new_idx.contact_nodes)
     p = new_pos[new_cn]
     k, s, _ = nearest_on_segments(p, pos[edges[:, 0]], pos[edges[:, 1]])
-    ends = cand[edges[k]]  # (n_new, 2)
+    ends = cand[new_die[:, None], edges[k]]  # (n_new, 2)
     is_cand = ends >= 0
     ends = np.where(is_cand, ends, 0)
     along = np.column_stack([1.0 - s, s]) * is_cand

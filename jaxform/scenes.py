@@ -25,7 +25,17 @@ from jaxform import mesh as meshing
 from jaxform.assembly import Indices, Model, build_indices
 from jaxform.config import Config, DieConfig, FrictionConfig, RemeshConfig, typed
 from jaxform.config.stroke import closing_time
-from jaxform.contact import ContactLaw, Coulomb, FrictionLaw, Frictionless, Shear, Sticking
+from jaxform.contact import (
+    Candidates,
+    ContactLaw,
+    Coulomb,
+    EachDie,
+    FrictionLaw,
+    Frictionless,
+    NearestDie,
+    Shear,
+    Sticking,
+)
 from jaxform.dies import (
     DieError,
     DieSet,
@@ -201,12 +211,14 @@ def membrane_load(cfg: Config, mesh: meshing.Mesh) -> FacetLoad:
 
 
 def _indices(mesh: meshing.Mesh, n_fields: int, contact_sets: tuple[str, ...], corner: bool,
-             temperature: bool = False):  # fmt: skip
+             temperature: bool = False, copies: int = 1):  # fmt: skip
     """(Layout, Indices) of the mesh: Dirichlet dofs from the named sets
     (:data:`FIXED_COMPONENTS`), the reaction dofs, the contact candidates and facets (with
-    a corner-contact multiplier each where ``corner``); with ``temperature`` one more
-    nodal field (the last) and the edges that exchange heat.  No sparsity pattern yet:
-    the model's terms give it (:meth:`jaxform.assembly.Model.with_pattern`)."""
+    a corner-contact multiplier each where ``corner``), each contact node ``copies`` times
+    (once per die where candidates are (node, die) pairs, :class:`EachDie`); with
+    ``temperature`` one more nodal field (the last) and the edges that exchange heat.  No
+    sparsity pattern yet: the model's terms give it
+    (:meth:`jaxform.assembly.Model.with_pattern`)."""
     sets = mesh.node_sets
     n_fields = n_fields + temperature  # the temperature is the last nodal field
     fixed = [sets[s] * n_fields + k for s, comps in FIXED_COMPONENTS.items() if s in sets
@@ -219,9 +231,9 @@ def _indices(mesh: meshing.Mesh, n_fields: int, contact_sets: tuple[str, ...], c
     else:
         contact, facets = np.zeros(0, dtype=np.int64), np.zeros((0, 2), dtype=np.int64)
     loaded = mesh.facet_sets.get("loaded")
-    layout, idx = build_indices(mesh, n_fields, np.concatenate(fixed), contact,
-                                reaction_dofs=reaction, contact_facets=facets,
-                                load_facets=loaded,
+    layout, idx = build_indices(mesh, n_fields, np.concatenate(fixed),
+                                Candidates.paired(contact, facets, copies),
+                                reaction_dofs=reaction, load_facets=loaded,
                                 corner_contact=corner and len(facets) > 0)  # fmt: skip
     if temperature:  # the last nodal field (no Dirichlet rows) and the edges exchanging heat
         layout = replace(layout, temperature=True)
@@ -488,6 +500,7 @@ def scene_on_mesh(scene: Scene, mesh: meshing.Mesh) -> Scene:
         scene.workpiece.contact_sets(mesh),
         model.layout.n_facets > 0,
         temperature=model.layout.temperature,
+        copies=_copies(model.contact, scene.inputs.die),
     )
     model, idx = replace(model, layout=layout).with_pattern(idx)
     so = scene.settings.solver
@@ -505,6 +518,15 @@ def scene_on_mesh(scene: Scene, mesh: meshing.Mesh) -> Scene:
         inputs=replace(scene.inputs, coords=jnp.asarray(mesh.coords)),
         grid=None,
     )
+
+
+# the contact candidates of each die.contact_pairs (the config's names end here)
+PAIRINGS = {"nearest": NearestDie, "each_die": EachDie}
+
+
+def _copies(contact: ContactLaw, die) -> int:
+    """How many candidates each contact node gives (one per die where they are pairs)."""
+    return 1 if die is None else contact.pairing.copies(len(die.members))
 
 
 def analyzed(scene: Scene) -> Scene:
@@ -552,11 +574,12 @@ def build_scene(cfg: dict | Config, mesh: meshing.Mesh | None = None) -> Scene:
         and any(has_convex_corner(d.points, float(d.corner_radius)) for d in die.members)
     )
     thermal = thermal_inputs(cfg)
-    layout, idx = _indices(
-        mesh, form.n_fields, piece.contact_sets(mesh), corner, temperature=thermal is not None
-    )
+    contact = ContactLaw(PAIRINGS[cfg.die.contact_pairs]())
+    layout, idx = _indices(mesh, form.n_fields, piece.contact_sets(mesh), corner,
+                           temperature=thermal is not None,
+                           copies=_copies(contact, die))  # fmt: skip
     law = law.for_points(4 * layout.n_elements)  # its local solve for the mesh's size
-    model = Model(form, law, layout, ContactLaw())
+    model = Model(form, law, layout, contact)
     model, idx = model.with_pattern(idx)
     c = _contact_scale(mesh, float(law.shear_modulus(params)), axi)
     remesh = None

@@ -128,7 +128,7 @@ def contact_step(model: Model, state: SimState, inp: Inputs, idx: Indices) -> Co
         sigma_eq = nodal_average(eq_el, idx.elements, model.layout.n_nodes)[idx.contact_nodes]
         # friction acts on the facets in contact only: counting a free facet below an edge
         # node (the bore or the bulge) let the edge carry up to twice m k
-        frames = jax.vmap(lambda p: inp.die.frame(p, state.t, state.t))(pos)
+        frames = model.contact.frames(inp.die, pos, idx.contact_die, state.t, state.t)
         counted = facets_in_contact(frames.g <= TOUCH_GAP_MM, idx.contact_facets)
         areas = tributary_areas(
             pos, idx.contact_facets, model.formulation.axisymmetric, counted, jnp
@@ -139,7 +139,9 @@ def contact_step(model: Model, state: SimState, inp: Inputs, idx: Indices) -> Co
             temps = model.layout.temperatures(state.x, inp.thermal.billet_temperature_K)
             temperature = temps[idx.contact_nodes]
     return ContactStep(x_old=pos, t_old=state.t, fixed=idx.contact_fixed, sigma_eq=sigma_eq,
-                       area=areas, temperature_K=temperature)  # fmt: skip
+                       area=areas, temperature_K=temperature, die=idx.contact_die,
+                       cornered=model.contact.pairing.cornered(inp.die, pos, idx, state.t,
+                                                               model.layout.n_nodes))  # fmt: skip
 
 
 def element_heat_data(model: Model, state: SimState, inp: Inputs, idx: Indices, t_new):
@@ -319,7 +321,7 @@ def step_wear(model: Model, x, inp: Inputs, idx: Indices, t_new, dt, slip, statu
     if inp.die is None or not model.layout.n_contact:
         return jnp.zeros(law.stations.shape[:2])
     pos = model.nodal_positions(x, inp.coords, idx)[idx.contact_nodes]
-    frames = jax.vmap(lambda p: inp.die.frame(p, t_new, t_new))(pos)
+    frames = model.contact.frames(inp.die, pos, idx.contact_die, t_new, t_new)
     counted = facets_in_contact(status > 0, idx.contact_facets)
     areas = tributary_areas(pos, idx.contact_facets, model.formulation.axisymmetric, counted, jnp)
     lam_n = x[idx.mult_dofs[:, 0]]
@@ -477,12 +479,13 @@ def applied_forces(model: Model, inp: Inputs, t, idx: Indices):
 def die_forces(model: Model, x, inp: Inputs, t, idx: Indices):
     """The force each die carries (N, positive in compression; (n_dies,)): the z-component
     of the force the die puts on the workpiece, lambda_n n + lambda_t t summed over the
-    candidates that face it (:meth:`jaxform.dies.DieSet.frame`), negated for a die that
+    candidates that face it (:meth:`jaxform.dies.DieSet.frame`; the candidates paired
+    with it, :class:`jaxform.contact.EachDie`), negated for a die that
     presses from above.  Corner contact adds the facets' multipliers along -(their
     normal) to the die whose arc holds them."""
     members = inp.die.members
     pos = model.nodal_positions(x, inp.coords, idx)[idx.contact_nodes]
-    frames = jax.vmap(lambda p: inp.die.frame(p, t, t))(pos)
+    frames = model.contact.frames(inp.die, pos, idx.contact_die, t, t)
     lam = x[idx.mult_dofs]
     fz = lam[:, 0] * frames.n[:, 1] + lam[:, 1] * frames.tan[:, 1]  # the die on the node
     per_die = jnp.zeros(len(members), x.dtype).at[frames.which].add(fz)

@@ -301,7 +301,10 @@ def fold_angle_deg(pos, idx: Indices, status):
         return jnp.asarray(180.0, pos.dtype)
     prev = jnp.full(n_c, -1, f.dtype).at[f[:, 1]].set(f[:, 0])
     nxt = jnp.full(n_c, -1, f.dtype).at[f[:, 0]].set(f[:, 1])
-    ok = (prev >= 0) & (nxt >= 0) & (status == 0)
+    # open against every die: a node's candidates (one per die where they are (node, die)
+    # pairs) share its status's largest
+    node_status = jnp.zeros(pos.shape[0], status.dtype).at[idx.contact_nodes].max(status)
+    ok = (prev >= 0) & (nxt >= 0) & (node_status[idx.contact_nodes] == 0)
     p = pos[idx.contact_nodes]
     e_in = p - p[jnp.maximum(prev, 0)]
     e_out = p[jnp.maximum(nxt, 0)] - p

@@ -69,6 +69,15 @@ class DieConfig:
         "material (history die_overlap_mm). Straight facets cannot wrap a corner, so on a "
         "coarse mesh it stiffens the response (docs: scenes)",
     )
+    contact_pairs: str = key(
+        "nearest",
+        choices=("nearest", "each_die"),
+        doc="with several dies: 'nearest', each workpiece node faces the die with the least "
+        "gap (one multiplier pair per node); 'each_die', one multiplier pair per node and "
+        "die, each with that die's friction law, so a node pressed into the corner of two "
+        "dies (a container wall and the punch or the bottom die) carries both dies' forces "
+        "(more unknowns: the contact nodes times the dies)",
+    )
     closed: bool = key(
         False,
         doc="the profile closes a cavity with the mid-plane: report die_fill (cavity volume "
