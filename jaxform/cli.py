@@ -160,12 +160,20 @@ def _load_checked(args, gradient: bool = False):
         read_document,
         typed,
     )
-    from jaxform.process_config import Process, load_typed
+    from jaxform.process_config import Process, check_process_design, load_typed
 
     raw = read_document(args.config)  # read once: loaded below, its sections named after
-    # a process ([[process.operation]]) runs with `jaxform run` only: load_config refuses it
-    loaded = typed(load_config(raw, args.set)) if gradient else load_typed(raw, args.set)
-    if gradient and args.command == "design":
+    # a gradient command of one scene reads the scene's config; a process
+    # ([[process.operation]]) its operations and [design] (jaxform.process_design)
+    process = "process" in raw
+    loaded = (
+        typed(load_config(raw, args.set)) if gradient and not process else load_typed(raw, args.set)
+    )
+    if gradient and process:
+        taylor = args.command != "design" and args.groups
+        check_process_design(loaded, args.groups if taylor else None,
+                             "--groups" if taylor else "design.variables")  # fmt: skip
+    elif gradient and args.command == "design":
         check_design_run(loaded)
     elif gradient:
         check_gradient_run(loaded, args.groups, "--groups")
@@ -300,6 +308,9 @@ def _taylor(args) -> int:
     print("taylor-test: the forward run of the initial design (it fixes the step schedule)",
           flush=True)  # fmt: skip
 
+    def announce(line):
+        print(line, flush=True)
+
     def evaluated(group, h, j):
         print(f"  {group}: h = {h:g}, J = {j:.10g} ({time.perf_counter() - t0:.1f} s)", flush=True)
 
@@ -312,6 +323,7 @@ def _taylor(args) -> int:
             h=args.h,
             progress=evaluated,
             forward_progress=ForwardProgress(t0),
+            announce=announce,
         ),  # fmt: skip
     )
     if code:
@@ -350,6 +362,9 @@ def _design(args) -> int:
     cfg = _load_checked(args, gradient=True)
     t0 = time.perf_counter()
 
+    def announce(line):
+        print(line, flush=True)
+
     sampling = cfg.design.optimizer in ("lhs_rsm", "cmaes")
 
     def progress(it, val, gnorm, design):
@@ -368,7 +383,12 @@ def _design(args) -> int:
     out, code = _guarded(
         "design",
         lambda: run_design(
-            cfg, (), out_dir=args.out, progress=progress, forward_progress=ForwardProgress(t0)
+            cfg,
+            (),
+            out_dir=args.out,
+            progress=progress,
+            forward_progress=ForwardProgress(t0),
+            announce=announce,
         ),  # fmt: skip
     )
     if code:
@@ -383,8 +403,8 @@ def _design(args) -> int:
         f"{time.perf_counter() - t0:.1f} s"
     )
     print("design: " + ", ".join(f"{k} = {v:.6g}" for k, v in final.items()))
-    print(f"outputs in {args.out}: design_history.csv, design_report.csv, objective.png, "
-          "shapes.png, config.toml")  # fmt: skip
+    written = sorted(p.name for p in Path(args.out).iterdir() if p.is_file())
+    print(f"outputs in {args.out}: {', '.join(written)}")
     return 0
 
 

@@ -381,7 +381,12 @@ def design_problem(config, overrides=(), forward_progress=None, single_program: 
 
 
 def run_design(
-    config, overrides=(), out_dir: str | Path = "out/design", progress=None, forward_progress=None
+    config,
+    overrides=(),
+    out_dir: str | Path = "out/design",
+    progress=None,
+    forward_progress=None,
+    announce=None,
 ):
     """Optimize the config's [design] problem; write the history and plots to out_dir.
 
@@ -395,6 +400,8 @@ def run_design(
             objective, best objective so far, design).
         forward_progress: the progress callback of the forward run that fixes the step
             schedule (:func:`jaxform.simulation.simulate`).
+        announce: a process's lines as each operation's forward run starts
+            (:mod:`jaxform.process_design`: a config with [[process.operation]] tables).
 
     Returns:
         (the design problem, its optimization history)."""
@@ -402,7 +409,12 @@ def run_design(
     from jaxform.plot import design_objective, design_shapes
 
     require_x64()
-    cfg, problem = design_problem(config, overrides, forward_progress)
+    loaded = _loaded(config, overrides, load_typed)
+    if isinstance(loaded, Process):
+        from jaxform.process_design import run_process_design
+
+        return run_process_design(loaded, out_dir, progress, forward_progress, announce)
+    cfg, problem = design_problem(loaded, (), forward_progress)
     scene = problem.scene
     d = cfg.design
     hist = optimize(problem, optimizer_settings(d), progress=progress)
@@ -441,16 +453,23 @@ def run_design(
 
 def run_taylor(
     config, overrides=(), groups=None, h=(1.0, 0.5, 0.25, 0.125), progress=None,
-    forward_progress=None,
+    forward_progress=None, announce=None,
 ):  # fmt: skip
     """Taylor test of every design group of the scene (or the ones named); ``config`` as
     :func:`run_design` takes it; ``progress`` is called with (group, h, J) after each
     evaluation, ``forward_progress`` by the forward run that fixes the step schedule
-    (:func:`jaxform.simulation.simulate`)."""
+    (:func:`jaxform.simulation.simulate`); a process config (:mod:`jaxform.process_design`)
+    tests design.variables (or ``groups``, ``<operation>.<group>``), ``announce`` getting a
+    line as each operation's forward run starts."""
     from jaxform.design import available_groups, build_problem, taylor_test
 
     require_x64()
-    cfg = _scene_config(config, overrides)
+    loaded = _loaded(config, overrides, load_typed)
+    if isinstance(loaded, Process):
+        from jaxform.process_design import run_process_taylor
+
+        return run_process_taylor(loaded, groups, h, progress, forward_progress, announce)
+    cfg = _scene_config(loaded, ())
     enable_compilation_cache(cfg.solver.compilation_cache_dir)
     scene = build_scene(cfg)
     names = available_groups(scene) if not groups else tuple(groups)

@@ -32,6 +32,7 @@ from typing import Any
 from jaxform.config.document import Config, typed
 from jaxform.config.loading import load_config, parse_override, read_toml
 from jaxform.config.schema import check_value, key, schema_of
+from jaxform.design import requirements
 from jaxform.errors import ConfigError
 
 KINDS = ("forming", "dwell", "trim", "reheat")
@@ -396,3 +397,88 @@ def describe_process_schema() -> str:
             lines.append(f"| `{k}` | {f.kind} | {default} | {f.allowed()} | {f.doc} |")
         lines.append("")
     return "\n".join(lines)
+
+
+def check_process_design(process: Process, groups=None, where: str = "design.variables") -> None:
+    """Refuse, before anything compiles, a process's gradient run (jaxform design,
+    taylor-test) whose [design] the process cannot serve: design.operation or
+    design.objective_operation naming no operation; a group (``groups``, default
+    design.variables; ``<operation>.<group>`` or ``<group>``) that is unknown, names no
+    operation, or that its operation cannot vary (a dwell's die, a forming operation's
+    dwell time, the group's requirements on the operation's config); an objective that is
+    not a process's or whose operation lacks what it reads.  One line naming the key."""
+    ops = process.operations
+    d = ops[0].config.design
+    names = [op.name for op in ops]
+    by_name = {op.name: op for op in ops}
+    for g in d.operation_variables:
+        if "." not in g:
+            raise ConfigError(
+                f"design.operation_variables = {list(d.operation_variables)!r}: {g!r} names "
+                "no operation: each entry is '<operation>.<group>'"
+            )
+    for k in ("operation", "objective_operation"):
+        value = getattr(d, k)
+        if value and value not in by_name:
+            raise ConfigError(
+                f"design.{k} = {value!r}: no operation of that name; the process has: "
+                f"{', '.join(names)}"
+            )
+    if groups is None:
+        groups = [*d.variables, *d.operation_variables]
+    listed = " ".join(groups)
+    shown = f"{where} = {groups!r}" if where.startswith("design.") else f"{where} {listed}"
+    if not groups:
+        raise ConfigError(f"{shown}: name at least one design group")
+    first_forming = next(op for op in ops if op.forming)
+    for g in groups:
+        _check_process_group(g, by_name, by_name.get(d.operation, first_forming), shown)
+    if d.objective not in requirements.PROCESS_OBJECTIVES:
+        raise ConfigError(
+            f"design.objective = {d.objective!r}: a process's objective is one of "
+            f"{', '.join(requirements.PROCESS_OBJECTIVES)} (of design.objective_operation)"
+        )
+    target = by_name[d.objective_operation] if d.objective_operation else None
+    target = target or [op for op in ops if op.forming][-1]
+    needs = list(requirements.OBJECTIVES[d.objective].requires)
+    if d.objective == "die_fill":  # the part inside the flash land
+        needs.append(requirements.part_radius)
+    reasons = [r for need in needs if (r := need(target.config)) is not None]
+    if d.objective in ("flash_volume", "die_fill") and not target.forming:
+        reasons.insert(0, "a forming operation")
+    if reasons:
+        what = f"design.objective = {d.objective!r} of {target.label}"
+        raise ConfigError(f"{what} needs {reasons[0]}")
+
+
+def _check_process_group(spec: str, by_name: dict, default: Operation, shown: str) -> None:
+    op_name, _, kind = spec.rpartition(".")
+    if not op_name and kind in requirements.PROCESS_GROUPS:
+        if kind != "billet":
+            requirements.check_groups(default.config, (kind,), shown)
+        return
+    if kind not in requirements.OPERATION_GROUPS:
+        allowed = [*requirements.PROCESS_GROUPS]
+        allowed += [f"<operation>.{g}" for g in requirements.OPERATION_GROUPS]
+        raise ConfigError(f"{shown}: {spec!r} is not a process's design group; allowed: "
+                          f"{', '.join(allowed)}")  # fmt: skip
+    if op_name and op_name not in by_name:
+        raise ConfigError(
+            f"{shown}: {spec!r}: no operation named {op_name!r}; the process has: "
+            f"{', '.join(by_name)}"
+        )
+    op = by_name[op_name] if op_name else default
+    air = getattr(op.keys, "time_s", None) is not None and op.config.thermal.model == "coupled"
+    if kind == "dwell":
+        if not air:
+            raise ConfigError(
+                f"{shown}: {spec!r}: {op.label} is no dwell or furnace with time_s and "
+                'thermal.model = "coupled"'
+            )
+        return
+    if kind == "thermal" and (op.forming or air):
+        requirements.check_groups(op.config, (kind,), shown)
+        return
+    if not op.forming:
+        raise ConfigError(f"{shown}: {spec!r}: {op.label} is no forming operation")
+    requirements.check_groups(op.config, (kind,), shown)

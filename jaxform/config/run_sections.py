@@ -162,7 +162,8 @@ class DesignConfig:
         "force-stroke misfit against a target curve, variance of eqps, 1 - die fill, mean "
         "squared misfit of the mean temperature history against a target (K^2), a smooth "
         "maximum of output.damage_criterion's damage at the end (-) or of the die wear "
-        "depth (mm; needs wear.on) (design.smooth_max_p)",
+        "depth (mm; needs wear.on) (design.smooth_max_p), the flash volume, press capacity "
+        "and lap penalties, a weighted sum, the mean temperature at the end (K)",
     )
     smooth_max_p: float = key(
         8.0,
@@ -188,6 +189,25 @@ class DesignConfig:
         ["material"],
         choices=tuple(GROUPS),
         doc="design variable groups jaxform design optimizes",
+    )
+    operation: str = key(
+        "",
+        doc="a process ([[process.operation]]): the operation (its name) whose inputs the "
+        "operation groups of design.variables vary (die, friction, speed, thermal, dwell; "
+        "'' = the first forming operation; jaxform taylor-test --groups may name one per "
+        "group, e.g. finisher.friction)",
+    )
+    operation_variables: tuple[str, ...] = key(
+        [],
+        doc="a process: design groups of named operations, '<operation>.<group>' (group: "
+        "die, friction, speed, thermal, dwell; e.g. blocker.die, finisher.friction), "
+        "besides design.variables (set that to [] for these alone)",
+    )
+    objective_operation: str = key(
+        "",
+        doc="a process: the operation whose run design.objective reads (peak_force, "
+        "forging_work, press_capacity, flash_volume, die_fill, lap, mean_temperature; '' = "
+        "the last forming one)",
     )
     material_params: tuple[str, ...] = key(
         [],

@@ -290,3 +290,103 @@ class WeightedSum(_Identity):
 
     def __call__(self, traj, inputs):
         return sum(w * t(traj, inputs) for w, t in zip(self.weights, self.terms))
+
+
+def _beyond_antiderivative(r, radius: float, axisymmetric: bool):
+    """G with G' = f, f the integrand of the boundary integral of the material beyond
+    ``radius`` (f = (r^2 - R^2) / 2 axisymmetric, r - R plane, both 0 for r < R)."""
+    if axisymmetric:
+        g = r**3 / 6.0 - radius**2 * r / 2.0 + radius**3 / 3.0
+    else:
+        g = 0.5 * (r - radius) ** 2
+    return jnp.where(r > radius, g, 0.0)
+
+
+def _edge_beyond(p, q, radius: float, axisymmetric: bool):
+    """The integral of f(r) dz along the straight edges p -> q (..., 2): the divided
+    difference (G(q_r) - G(p_r)) / (q_r - p_r) times the edge's dz, its Taylor form
+    f(mid) (+ d^2 / 24 axisymmetric) where |q_r - p_r| < 1e-7 mm (no cancellation)."""
+    d = q[..., 0] - p[..., 0]
+    small = jnp.abs(d) < 1e-7
+    safe = jnp.where(small, 1.0, d)
+    diff = (
+        _beyond_antiderivative(q[..., 0], radius, axisymmetric)
+        - _beyond_antiderivative(p[..., 0], radius, axisymmetric)
+    ) / safe
+    mid = 0.5 * (p[..., 0] + q[..., 0])
+    if axisymmetric:
+        near = 0.5 * (mid**2 - radius**2) + d**2 / 24.0
+    else:
+        near = mid - radius
+    near = jnp.where(mid > radius, near, 0.0)
+    return jnp.where(small, near, diff) * (q[..., 1] - p[..., 1])
+
+
+def polygon_measure_beyond(polygons, radius: float, axisymmetric: bool):
+    """Signed measure (volume of revolution, mm^3; plane strain, mm^2) of the parts of
+    the polygons (..., m, 2) at r >= ``radius`` (positive for counter-clockwise ones):
+    Green's theorem, int int_{r > R} r dA = oint f(r) dz with f = (r^2 - R^2)/2 beyond R
+    and 0 before it (plane: f = r - R), each straight edge's integral in closed form.
+    Continuously differentiable in the vertices (f is continuous); for any closed
+    polygon (the cavity of :func:`part_cavity_volume`), where :func:`measure_beyond` takes
+    a mesh's quadrilaterals."""
+    p = jnp.asarray(polygons)
+    q = jnp.roll(p, -1, axis=-2)
+    total = jnp.sum(_edge_beyond(p, q, radius, axisymmetric), axis=-1)
+    return 2.0 * jnp.pi * total if axisymmetric else total
+
+
+def part_cavity_volume(points, travel, radius: float, axisymmetric: bool):
+    """The cavity of a closed die's profile ``points`` moved down by ``travel`` (sharp
+    corners), the axis and the mid-plane (:func:`cavity_volume`), inside r <= ``radius``
+    (the part; the flash land beyond it)."""
+    pts = points - jnp.stack([0.0, travel])[None, :]
+    pts = pts.at[:, 1].set(jnp.maximum(pts[:, 1], 0.0))
+    poly = jnp.concatenate(
+        [jnp.zeros((1, 2), pts.dtype), pts, jnp.stack([pts[-1, 0], 0.0])[None, :]], axis=0
+    )
+    poly = poly[::-1]  # counter-clockwise: axis, mid-plane, then back along the die
+    whole = polygon_measure(poly, axisymmetric)
+    return whole - polygon_measure_beyond(poly, radius, axisymmetric)
+
+
+@dataclass(frozen=True, eq=False)
+class UnfilledPart(_Identity):
+    """1 - die fill of a closed die with a flash land at the end of the run: 1 - (the
+    material inside r <= ``radius``) / (the top die's cavity there, sharp-cornered
+    profile, :func:`part_cavity_volume`).  The material there lies under the die and
+    above the mid-plane, so it is the part of the cavity it fills (0 = filled)."""
+
+    elements: np.ndarray  # the final mesh's elements
+    radius: float
+    axisymmetric: bool
+    unit = "-"
+
+    def __call__(self, traj, inputs):
+        quads = traj.positions[self.elements]
+        axi = self.axisymmetric
+        beyond = measure_beyond(traj.positions, self.elements, self.radius, axi)
+        inside = jnp.sum(polygon_measure(quads, axi) - beyond)
+        die = inputs.die.members[0]
+        cav = part_cavity_volume(die.points, die.travel(traj.time_s[-1]), self.radius, axi)
+        return 1.0 - inside / cav
+
+
+@dataclass(frozen=True, eq=False)
+class MeanTemperature(_Identity):
+    """The mean temperature (K) of the part at the end of the run, each node weighted by
+    a quarter of the volume of each element it belongs to (at the final positions); the
+    temperature unknown counts from the run's billet temperature."""
+
+    elements: np.ndarray  # the final mesh's elements
+    layout: object  # the final mesh's jaxform.assembly.Layout
+    axisymmetric: bool
+    unit = "K"
+
+    def __call__(self, traj, inputs):
+        lay = self.layout
+        vol = jnp.abs(polygon_measure(traj.positions[self.elements], self.axisymmetric))
+        n = traj.positions.shape[0]
+        w = jnp.zeros(n).at[self.elements.ravel()].add(jnp.repeat(0.25 * vol, 4))
+        temps = lay.nodal(traj.x)[:, lay.temperature_column]
+        return jnp.sum(w * temps) / jnp.sum(w) + inputs.thermal.billet_temperature_K

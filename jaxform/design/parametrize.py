@@ -21,6 +21,9 @@ Groups compose left to right (:func:`apply_all`).  The design pytree is a dict
   cos(k pi z / H)), k = 1..n, every node moved radially in proportion, with c chosen so
   that the *discrete* volume of the mesh is that of the cylinder (constant volume).
 * :class:`DieProfile`      vertical offsets (mm) of chosen die profile points.
+* :class:`BilletAspect`    ``u = log(H / H0)``: the billet taller and thinner at fixed
+  volume (a process's first operation; its top die moved with the billet's top).
+* :class:`DwellTime`       ``u = log(t / t0)``: a dwell's (furnace's) time.
 * :class:`DieSpline`       the top die's profile between two radii as a clamped cubic
   B-spline of heights z(r): offsets (mm) of its control heights, sampled onto the die's
   points there; manufacturability (draft angle, fillet radius) as an exterior penalty
@@ -146,10 +149,11 @@ THERMAL_VARIABLES = ("billet_temperature_K", "die_temperature_K", "htc_die_W_m2K
 
 @dataclass(frozen=True)
 class Thermal:
-    """Chosen thermal inputs (``names``, of :data:`THERMAL_VARIABLES`) from their
-    configured values ``start``: a temperature as u = (T - T_start) / 100 K (within
-    +-``temperature_max_K``), the die conductance as u = log(h / h_start) (within a factor
-    exp(bound_log)), the Taylor-Quinney factor as itself (in [0, 1])."""
+    """Chosen thermal inputs (``names``, of :data:`THERMAL_VARIABLES`; a process's dwell:
+    air_temperature_K, htc_air_W_m2K) from their configured values ``start``: a
+    temperature as u = (T - T_start) / 100 K (within +-``temperature_max_K``), a
+    conductance (htc_*) as u = log(h / h_start) (within a factor exp(bound_log)), the
+    Taylor-Quinney factor as itself (in [0, 1])."""
 
     names: tuple[str, ...]
     start: tuple[float, ...]
@@ -165,15 +169,16 @@ class Thermal:
 
     def bounds(self):
         t = self.temperature_max_K / self.KELVIN_PER_UNIT
-        box = {"htc_die_W_m2K": (-self.bound_log, self.bound_log), "taylor_quinney": (0.0, 1.0)}
-        lo, hi = zip(*(box.get(n, (-t, t)) for n in self.names))
+        log = (-self.bound_log, self.bound_log)
+        box = {"taylor_quinney": (0.0, 1.0)}
+        lo, hi = zip(*(log if n.startswith("htc_") else box.get(n, (-t, t)) for n in self.names))
         return jnp.asarray(lo), jnp.asarray(hi)
 
     def values(self, u):
         """{name: value in the config's units} at u."""
         out = {}
         for i, (n, v0) in enumerate(zip(self.names, self.start)):
-            if n == "htc_die_W_m2K":
+            if n.startswith("htc_"):  # a conductance: log-scaled
                 out[n] = v0 * jnp.exp(u[i])
             elif n == "taylor_quinney":
                 out[n] = u[i]
@@ -289,6 +294,66 @@ class DieProfile:
 
     def physical(self, u):
         return {f"die_dz{i}_mm": float(u[k]) for k, i in enumerate(self.points)}
+
+
+@dataclass(frozen=True)
+class BilletAspect:
+    """The billet's height against its diameter at fixed volume: u = log(H / H0), every
+    node's z times e^u about the mid-plane (or the bottom, z = 0), its r times e^(-u/2)
+    (axisymmetric; plane strain e^(-u)), so the volume stays exactly that of the mesh;
+    the top die moves with the billet's top (``top_mm``: its z at u = 0), so it starts
+    where it started and closes by the same stroke."""
+
+    top_mm: float
+    axisymmetric: bool = True
+    bound_log: float = float(np.log(1.25))
+    name: str = "billet"
+
+    def initial(self):
+        return _zeros(1)
+
+    def bounds(self):
+        return jnp.full(1, -self.bound_log), jnp.full(1, self.bound_log)
+
+    def apply(self, u, inputs, times):
+        tall = jnp.exp(u[0])
+        thin = jnp.exp(-0.5 * u[0]) if self.axisymmetric else 1.0 / tall
+        coords = jnp.asarray(inputs.coords) * jnp.stack([thin, tall])[None, :]
+        lift = (tall - 1.0) * self.top_mm
+
+        def move(d):
+            return replace(d, points=d.points.at[:, 1].add(lift))
+
+        return replace(inputs, coords=coords, die=inputs.die.replace_top(move)), times
+
+    def physical(self, u):
+        tall = float(np.exp(float(u[0])))
+        thin = tall ** (-0.5 if self.axisymmetric else -1.0)
+        return {"billet_height_factor": tall, "billet_diameter_factor": thin}
+
+
+@dataclass(frozen=True)
+class DwellTime:
+    """The time of a dwell (or a furnace) as u = log(t / t0): its step times and its
+    (still) die's path table scaled by e^u."""
+
+    time0_s: float
+    bound_log: float = float(np.log(2.0))
+    name: str = "dwell"
+
+    def initial(self):
+        return _zeros(1)
+
+    def bounds(self):
+        return jnp.full(1, -self.bound_log), jnp.full(1, self.bound_log)
+
+    def apply(self, u, inputs, times):
+        longer = jnp.exp(u[0])
+        die = inputs.die.replace_each(lambda d: replace(d, path_time_s=d.path_time_s * longer))
+        return replace(inputs, die=die), times * longer
+
+    def physical(self, u):
+        return {"dwell_time_s": float(self.time0_s * np.exp(float(u[0])))}
 
 
 @dataclass(frozen=True, eq=False)

@@ -357,6 +357,8 @@ def _objective(scene: Scene, name: str):
         return obj.PressCapacity(d.press_capacity_N, d.capacity_penalty)
     if name == "lap":
         return lap_penalty(scene, d.lap_angle_deg)
+    if name == "mean_temperature":
+        return obj.MeanTemperature(np.asarray(scene.mesh.elements), scene.model.layout, axi)
     if name == "force_misfit":
         c = _read_columns(d.target_csv, ("stroke_mm", "force_N"))
         keep = c["stroke_mm"] > 0

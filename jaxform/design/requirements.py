@@ -101,6 +101,11 @@ def _spline_controls(cfg: Config) -> str | None:
             f"now {n})")  # fmt: skip
 
 
+def _a_process(cfg: Config) -> str | None:
+    """Groups that only a process has (its billet before the first blow, its dwells)."""
+    return "a process ([[process.operation]] tables)"
+
+
 # every design group, in the order problems list them
 GROUPS: dict[str, GroupSpec] = {
     "material": GroupSpec("the law's parameters (design.material_params), log-scaled"),
@@ -116,7 +121,17 @@ GROUPS: dict[str, GroupSpec] = {
     "thermal": GroupSpec(
         "temperatures, die contact conductance, Taylor-Quinney factor", (_heat_to_the_dies,)
     ),
+    "billet": GroupSpec("the billet's height against its diameter at fixed volume", (_a_process,)),
+    "dwell": GroupSpec("a dwell's (furnace's) time, log-scaled", (_a_process,)),
 }
+# a process's groups: those that act on one operation's inputs (named <operation>.<group>
+# or, with design.operation, by the group alone) and those that act on the process (the
+# first mesh, or every operation alike; thermal: every operation, or one if named)
+OPERATION_GROUPS = ("die", "friction", "speed", "thermal", "dwell")
+PROCESS_GROUPS = ("preform", "nodes", "billet", "material", "thermal")
+# the objectives of a process (of one operation's run: design.objective_operation)
+PROCESS_OBJECTIVES = ("peak_force", "forging_work", "press_capacity", "flash_volume",
+                      "die_fill", "lap", "mean_temperature")  # fmt: skip
 
 
 # ----------------------------------------------------------------------------------
@@ -139,6 +154,12 @@ def _a_free_side(cfg: Config) -> str | None:
 
 def _coupled(cfg: Config) -> str | None:
     return None if cfg.thermal.model == "coupled" else "thermal.model = 'coupled'"
+
+
+def part_radius(cfg: Config) -> str | None:
+    if cfg.die is not None and cfg.die.part_radius_mm > 0.0:
+        return None
+    return "die.part_radius_mm > 0 (a closed die's part, the flash land beyond it)"
 
 
 def _a_flash_radius(cfg: Config) -> str | None:
@@ -187,6 +208,7 @@ OBJECTIVES: dict[str, ObjectiveSpec] = {
         (_coupled,),
         target_columns=("time_s", "mean_temperature_K"),
     ),
+    "mean_temperature": ObjectiveSpec("mean temperature at the end (K)", (_coupled,)),
     "max_damage": ObjectiveSpec("smooth maximum of the damage at the end", through_remeshes=True),
     "wear_depth": ObjectiveSpec(
         "smooth maximum of the die wear depth (mm)", (_wear,), through_remeshes=True
@@ -297,6 +319,12 @@ def check_gradient_run(
             f"history has no gradient); --set mesh.rezone_quality=0"
         )
     d = cfg.design
+    for k in ("operation", "objective_operation", "operation_variables"):
+        if getattr(d, k):
+            raise ConfigError(
+                f"design.{k} = {getattr(d, k)!r}: names an operation of a process "
+                "([[process.operation]] tables); this config has none"
+            )
     if cfg.remesh.on:
         if not through_remeshes(cfg):
             ok = ", ".join(n for n, o in OBJECTIVES.items() if o.through_remeshes)

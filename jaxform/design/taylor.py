@@ -47,11 +47,13 @@ SCALE = {
     "die": 0.01,
     "die_spline": 0.01,
     "thermal": 0.01,
+    "billet": 0.01,
+    "dwell": 0.02,
 }
 # groups that move the geometry (mm): their direction is also capped at this fraction of
 # the run's stroke, so that a scene pressed by a few micrometres (Prandtl's punch: 1.8 um)
 # is not tested with a die lifted off the material or elements larger than its motion
-GEOMETRIC = ("nodes", "die", "die_spline", "preform")
+GEOMETRIC = ("nodes", "die", "die_spline", "preform", "billet")
 STROKE_FRACTION = 0.05
 
 
@@ -175,8 +177,9 @@ def taylor_test(
         if groups is not None and g.name not in groups:
             continue
         rng = np.random.default_rng([seed, *g.name.encode()])
-        scale = SCALE.get(g.name, 0.01)
-        if g.name in GEOMETRIC:
+        kind = getattr(g, "kind", g.name)  # a process's group: <operation>.<kind>
+        scale = SCALE.get(kind, 0.01)
+        if kind in GEOMETRIC:
             scale = min(scale, STROKE_FRACTION * stroke)
         du = scale * rng.standard_normal(design[g.name].shape)
         dj = float(np.dot(np.asarray(grad[g.name]).ravel(), du.ravel()))

@@ -1,0 +1,287 @@
+"""A design problem over a multi-stage process: design groups acting on chosen operations'
+inputs, an objective of any operation's run, exact gradients through the whole sequence.
+
+    ProcessPlan (jaxform.process_gradients) --build_process_problem(plan, groups, objective)
+        --> ProcessDesignProblem: value(design), value_and_grad(design), bounds(), physical()
+
+The interface is that of the single-scene :class:`jaxform.design.problem.DesignProblem`
+(``start``, ``groups`` with ``name``, ``value``, ``value_and_grad``, ``bounds``,
+``physical``), so the optimizers and the Taylor test take either.
+
+A group is named ``<operation>.<group>`` where it acts on one operation's inputs
+(``blocker.die``: the blocker's top die profile points; ``finisher.friction``: each die's
+friction coefficient of the finisher; ``blocker.speed``: its die speed;
+``transfer.dwell``: the dwell's time; ``finisher.thermal``: its die temperature and
+conductance) or by the group's name alone where it acts on the process (``preform``,
+``nodes``, ``billet``: the first mesh's coordinates; ``material``, ``thermal``: every
+operation's inputs; the billet temperature, the origin of the temperature unknown, is the
+process's).  The physical values carry the same prefix (``blocker.die_dz3_mm``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxform.design import objectives as obj
+from jaxform.design import parametrize as par
+from jaxform.design.problem import build_group, friction_variables, lap_penalty
+from jaxform.design.requirements import OPERATION_GROUPS, PROCESS_GROUPS, PROCESS_OBJECTIVES
+from jaxform.process_gradients import ProcessPlan, check_process, process_trajectory
+
+# the thermal inputs of one operation (the billet temperature is the process's): a
+# forming operation's dies, a dwell's or furnace's air
+OPERATION_THERMAL = ("die_temperature_K", "htc_die_W_m2K")
+AIR_THERMAL = ("air_temperature_K", "htc_air_W_m2K")
+
+
+@dataclass(frozen=True)
+class OnStages:
+    """A design group (``inner``, of :mod:`jaxform.design.parametrize`) applied to the
+    inputs and step times of the process's stages ``stages``; named
+    ``<prefix>.<inner name>`` (the operation's name), or the inner name for the process."""
+
+    inner: object
+    stages: tuple[int, ...]
+    prefix: str = ""
+
+    @property
+    def name(self) -> str:
+        return f"{self.prefix}.{self.inner.name}" if self.prefix else self.inner.name
+
+    @property
+    def kind(self) -> str:
+        """The group's kind (its inner group's name: die, friction, ...)."""
+        return self.inner.name
+
+    def initial(self):
+        return self.inner.initial()
+
+    def bounds(self):
+        return self.inner.bounds()
+
+    def apply(self, u, inputs: tuple, times: tuple):
+        inputs, times = list(inputs), list(times)
+        for k in self.stages:
+            inputs[k], times[k] = self.inner.apply(u, inputs[k], times[k])
+        return tuple(inputs), tuple(times)
+
+    def physical(self, u) -> dict:
+        pre = f"{self.prefix}." if self.prefix else ""
+        return {pre + k: v for k, v in self.inner.physical(u).items()}
+
+
+def _stage_of(plan: ProcessPlan, name: str, spec: str) -> int:
+    try:
+        return plan.index(name)
+    except ValueError as err:
+        raise ValueError(f"design group {spec!r}: {err}") from None
+
+
+def build_process_group(plan: ProcessPlan, spec: str, default_operation: str = "") -> OnStages:
+    """The group ``spec`` (``<operation>.<group>`` or ``<group>``; an operation group
+    without an operation acts on ``default_operation``, else the first forming one).
+    Raises ValueError for an unknown operation or group, a group the operation cannot
+    vary (a dwell's die, a forming operation's dwell time)."""
+    op_name, _, group = spec.rpartition(".")
+    stages = plan.stages
+    first = stages[0].scene
+    if not op_name and group in PROCESS_GROUPS:
+        every = tuple(range(len(stages)))
+        if group in ("preform", "nodes"):
+            return OnStages(build_group(first, group), (0,))
+        if group == "billet":
+            top = float(np.max(np.asarray(first.inputs.coords)[:, 1]))
+            axi = first.model.formulation.axisymmetric
+            return OnStages(par.BilletAspect(top, axi), (0,))
+        return OnStages(build_group(first, group), every)  # material, thermal
+    if group not in OPERATION_GROUPS:
+        allowed = ", ".join([*PROCESS_GROUPS, *(f"<operation>.{g}" for g in OPERATION_GROUPS)])
+        raise ValueError(f"design group {spec!r}: must be one of {allowed}")
+    if not op_name:
+        op_name = default_operation or next(s.name for s in stages if s.operation.forming)
+    k = _stage_of(plan, op_name, spec)
+    stage = stages[k]
+    forming = stage.operation.forming
+    if group == "dwell":
+        if forming or not stage.stepped:
+            raise ValueError(
+                f"design group {spec!r}: {stage.operation.label} is no dwell or furnace "
+                "that takes steps (with coupled heat)"
+            )
+        return OnStages(par.DwellTime(float(stage.times[-1])), (k,), op_name)
+    if group == "thermal":
+        scene = stage.scene
+        th = scene.settings.thermal
+        own = OPERATION_THERMAL if forming else AIR_THERMAL
+        names = tuple(n for n in scene.settings.design.thermal_params if n in own) or own
+        start = tuple(float(getattr(th, n)) for n in names)
+        d = scene.settings.design
+        return OnStages(par.Thermal(names, start, float(np.log(d.bound_factor))), (k,), op_name)
+    if not forming:
+        raise ValueError(f"design group {spec!r}: {stage.operation.label} is no forming operation")
+    if group == "friction":
+        return OnStages(par.Friction(friction_variables(stage.scene)), (k,), op_name)
+    return OnStages(build_group(stage.scene, group), (k,), op_name)  # die, speed
+
+
+@dataclass(frozen=True, eq=False)
+class OnOperation(obj._Identity):
+    """A single-scene objective (:mod:`jaxform.design.objectives`) of one operation's run
+    (``stage``: its index in the process) and inputs."""
+
+    inner: object
+    stage: int
+
+    @property
+    def unit(self):
+        return self.inner.unit
+
+    def __call__(self, ptraj, inputs):
+        return self.inner(ptraj.operations[self.stage], inputs[self.stage])
+
+
+@dataclass(frozen=True, eq=False)
+class WeightedSum(obj._Identity):
+    """sum_i weight_i objective_i (each a process objective)."""
+
+    terms: tuple  # ((weight, objective), ...)
+    unit = "-"
+
+    def __call__(self, ptraj, inputs):
+        return sum(w * o(ptraj, inputs) for w, o in self.terms)
+
+
+def _final_elements(plan: ProcessPlan, k: int) -> np.ndarray:
+    return np.asarray(plan.stages[k].final_scene.mesh.elements)
+
+
+def process_objective(plan: ProcessPlan, name: str, operation: str = "") -> OnOperation:
+    """The process objective ``name`` of the operation named ``operation`` ('' = the last
+    forming operation): ``peak_force`` (N), ``forging_work`` (N mm), ``press_capacity``
+    (penalty above design.press_capacity_N), ``flash_volume`` (mm^3 beyond
+    design.flash_radius_mm or its die's die.part_radius_mm, both halves), ``die_fill``
+    (1 - fill of its closed die inside die.part_radius_mm), ``lap`` (penalty on the air
+    wedges of the free surface of the mesh it ends on, design.lap_angle_deg),
+    ``mean_temperature`` (K, at its end).
+    Raises ValueError for another name or an operation that lacks what it reads."""
+    stages = plan.stages
+    if operation:
+        k = plan.index(operation)
+    else:
+        k = max(i for i, s in enumerate(stages) if s.operation.forming)
+    stage = stages[k]
+    scene = stage.final_scene
+    axi = scene.model.formulation.axisymmetric
+    elements = _final_elements(plan, k)
+    die = stage.scene.settings.die
+    if name == "peak_force":
+        return OnOperation(obj.PeakForce(), k)
+    if name == "forging_work":
+        return OnOperation(obj.ForgingWork(), k)
+    d = stage.scene.settings.design
+    if name == "press_capacity":
+        return OnOperation(obj.PressCapacity(d.press_capacity_N, d.capacity_penalty), k)
+    if name == "lap":  # the free surface of the mesh the operation ends on
+        return OnOperation(lap_penalty(scene, d.lap_angle_deg), k)
+    if name == "mean_temperature":
+        if not scene.model.layout.temperature:
+            raise ValueError("objective 'mean_temperature' needs thermal.model = 'coupled'")
+        return OnOperation(obj.MeanTemperature(elements, scene.model.layout, axi), k)
+    if name in ("flash_volume", "die_fill"):
+        radius = die.part_radius_mm
+        if name == "flash_volume":
+            radius = stage.scene.settings.design.flash_radius_mm or radius
+        if not stage.operation.forming or radius <= 0.0:
+            raise ValueError(
+                f"objective {name!r} reads die.part_radius_mm > 0 of a forming operation: "
+                f"{stage.operation.label} has none"
+            )
+        if name == "flash_volume":
+            halves = 2.0 if scene.symmetric_z else 1.0
+            return OnOperation(obj.FlashVolume(elements, radius, axi, halves), k)
+        if not die.closed or len(stage.scene.inputs.die.members) > 1:
+            raise ValueError(
+                f"objective 'die_fill' reads a closed top die of a half-height part: "
+                f"{stage.operation.label} has none"
+            )
+        return OnOperation(obj.UnfilledPart(elements, die.part_radius_mm, axi), k)
+    raise ValueError(f"process objective {name!r}: must be one of {', '.join(PROCESS_OBJECTIVES)}")
+
+
+@dataclass(frozen=True, eq=False)
+class ProcessDesignProblem:
+    """A process's design problem: its forward run's plan, the groups, the objective
+    (``(ProcessTrajectory, inputs per operation) -> scalar``) and the start design.
+    ``single_program``: value() runs the gradient programs too (one compile per mesh
+    bucket instead of two; pays off for small processes and tests)."""
+
+    plan: ProcessPlan
+    groups: tuple[OnStages, ...]
+    objective: object
+    start: dict
+    single_program: bool = False
+
+    def run_inputs(self, design):
+        """(inputs, step times) of every operation at ``design``."""
+        inputs = self.plan.inputs()
+        times = tuple(jnp.asarray(t) for t in self.plan.times())
+        for g in self.groups:
+            inputs, times = g.apply(design[g.name], inputs, times)
+        return inputs, times
+
+    @cached_property
+    def _inputs(self):
+        return jax.jit(self.run_inputs)  # one program, not dozens of eager operations
+
+    @cached_property
+    def _objective(self):
+        return jax.jit(self.objective)
+
+    def _j(self, design):
+        inputs, times = self._inputs(design)
+        ptraj = process_trajectory(self.plan, inputs, times)
+        return self._objective(ptraj, inputs), ptraj
+
+    def value(self, design):
+        if self.single_program:
+            val, _, ptraj = self.value_and_grad(design)
+            return val, ptraj
+        val, ptraj = self._j(design)
+        check_process(self.plan, ptraj)
+        return val, ptraj
+
+    def value_and_grad(self, design):
+        (val, ptraj), grad = jax.value_and_grad(self._j, has_aux=True)(design)
+        check_process(self.plan, ptraj)
+        return val, grad, ptraj
+
+    def bounds(self):
+        return par.design_bounds(self.groups)
+
+    def physical(self, design) -> dict:
+        return par.physical_values(self.groups, design)
+
+
+def build_process_problem(
+    plan: ProcessPlan,
+    groups: tuple[str, ...],
+    objective,
+    default_operation: str = "",
+    single_program: bool = False,
+) -> ProcessDesignProblem:
+    """A design problem over the process of ``plan`` (:meth:`ProcessPlan.of` of a forward
+    run): ``groups`` as :func:`build_process_group` names them, ``objective`` a process
+    objective (:func:`process_objective`, :class:`OnOperation`, :class:`WeightedSum`) or a
+    name for :func:`process_objective` of the last forming operation."""
+    built = tuple(build_process_group(plan, g, default_operation) for g in groups)
+    names = [g.name for g in built]
+    if len(set(names)) != len(names):
+        raise ValueError(f"design groups {list(groups)}: each may be named once")
+    if isinstance(objective, str):
+        objective = process_objective(plan, objective)
+    return ProcessDesignProblem(plan, built, objective, par.initial_design(built), single_program)

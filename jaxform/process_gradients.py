@@ -1,0 +1,320 @@
+"""Exact gradients through a multi-stage process: every operation replayed with traced state.
+
+    run_process(...) --ProcessPlan.of--> ProcessPlan --process_trajectory(plan, inputs, times)
+        --> ProcessTrajectory (one jaxform.gradients.Trajectory per operation)
+
+The forward process run (:func:`jaxform.process.run_process`) fixes, per operation, the
+step schedule and the meshes it went through (:class:`jaxform.gradients.MeshSegment`:
+each mesh, padded to its capacity bucket where the operation remeshes, and the remesh map
+that brought the state onto it), and the map that brought the part into the operation: a
+:class:`jaxform.process.Carry` (the deformed positions become the next reference; stress,
+resistance, eqps, temperature carry over; contact starts afresh), a trim's
+:class:`jaxform.remesh.StateMap`, or a reheat to a set temperature (:class:`SetTemperature`).
+:func:`process_trajectory` replays the whole sequence with traced values: each operation's
+inputs (its dies, friction, speed, thermal inputs; the first one's coordinates: the
+billet) and step times are arguments, so ``jax.grad`` of any output of any operation goes
+back to any input of any operation, through every step, remesh, carry and trim and the
+heat of a dwell.
+
+What the gradient is: that of the process whose step schedules, meshes, remesh and trim
+maps (topology and interpolation weights) and die placements are those of the forward run
+at the design point (as :class:`jaxform.gradients.RemeshPlan` states for one scene): exact
+for perturbations that leave them unchanged.  A forming operation's die travel is fixed
+(a ``travel_mm`` or ``final_gap_mm`` stroke of an explicit profile does not depend on the
+incoming part); a *flat* die placed on the incoming part's top stands where the forward
+run's part had its top.  A trim cuts at the forward run's cut (its new mesh's nodes move
+with the old deformed positions through the fixed weights).
+
+Each mesh's steps run the compiled program of its capacity bucket
+(:func:`jaxform.gradients._segment`, shared with single-scene remeshed gradient runs and
+between the operations whose meshes share a bucket); the maps between them run as one
+compiled program each.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from functools import partial
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxform.gradients import MeshSegment, Trajectory, _segment, check
+from jaxform.remesh import StateMap
+from jaxform.scenes import Inputs, Scene
+from jaxform.stepping import initial_state, stepper_of
+
+
+@dataclass(frozen=True, eq=False)
+class SetTemperature:
+    """A reheat to a set temperature as a map: every node's temperature unknown set to
+    ``temperature_K`` minus the run's billet temperature (the unknown's origin), the clock
+    at 0; the mesh and the rest of the state as they are."""
+
+    layout: object  # jaxform.assembly.Layout
+    temperature_K: float
+
+    def apply(self, state, coords, thermal):
+        lay = self.layout
+        nodal = lay.nodal(state.x)
+        col = lay.temperature_column
+        value = self.temperature_K - thermal.billet_temperature_K
+        nodal = nodal.at[:, col].set(jnp.broadcast_to(value, nodal[:, col].shape))
+        n_nodal = nodal.size
+        x = jnp.concatenate([nodal.ravel(), state.x[n_nodal:]])
+        return replace(state, x=x, t=jnp.zeros_like(state.t)), coords
+
+
+@dataclass(frozen=True, eq=False)
+class Stage:
+    """One operation as a gradient run replays it: the map that brought the part in
+    (``entry``: None for the first operation, a :class:`jaxform.process.Carry`, a
+    :class:`jaxform.remesh.StateMap` of a trim, a :class:`SetTemperature`), the meshes
+    its steps ran on (``segments``; none for a trim, a set temperature, a dwell without
+    heat) and its step end times (s, its own clock).  ``scene``: the operation's scene
+    (its inputs are what the design varies), ``final_scene``: the one the part leaves on."""
+
+    operation: object  # jaxform.process_config.Operation
+    scene: Scene
+    final_scene: Scene
+    entry: object
+    segments: tuple[MeshSegment, ...]
+    times: np.ndarray
+
+    @property
+    def name(self) -> str:
+        return self.operation.name
+
+    @property
+    def stepped(self) -> bool:
+        """Whether the operation takes steps (forming; a dwell or furnace with heat)."""
+        return len(self.segments) > 0
+
+
+@dataclass(frozen=True, eq=False)
+class ProcessPlan:
+    """The operations of a forward process run, fixed for gradient runs
+    (:func:`process_trajectory`)."""
+
+    stages: tuple[Stage, ...]
+
+    @classmethod
+    def of(cls, result) -> ProcessPlan:
+        """The plan of a :class:`jaxform.process.ProcessResult` that ran to its end."""
+        if result.failure:
+            raise ValueError(f"ProcessPlan.of: the process run failed: {result.failure}")
+        return cls(tuple(_stage(run) for run in result.runs))
+
+    def inputs(self) -> tuple[Inputs, ...]:
+        """Each operation's inputs as the forward run had them."""
+        return tuple(s.scene.inputs for s in self.stages)
+
+    def times(self) -> tuple[np.ndarray, ...]:
+        return tuple(np.asarray(s.times) for s in self.stages)
+
+    def index(self, name: str) -> int:
+        """The stage of the operation named ``name``; ValueError if none is."""
+        for k, s in enumerate(self.stages):
+            if s.name == name:
+                return k
+        names = ", ".join(s.name for s in self.stages)
+        raise ValueError(f"no operation named {name!r}; the process has: {names}")
+
+
+def _stage(run) -> Stage:
+    """A :class:`Stage` from one :class:`jaxform.process.OperationRun`."""
+    res, op = run.result, run.operation
+    n_rows = len(res.history["time_s"])
+    entry = run.transfer
+    set_to = getattr(op.keys, "set_temperature_K", None)
+    if entry is None and set_to is not None:  # a set temperature: the same mesh, T set
+        entry = SetTemperature(res.scene.model.layout, float(set_to))
+    if n_rows == 1 and not op.forming:  # a trim, a set temperature, a dwell without heat
+        return Stage(op, res.scene, res.final_scene, entry, (), np.zeros(0))
+    ends = [s.first_row for s in res.segments[1:]] + [n_rows]
+    starts = [1] + ends[:-1]
+    segments = tuple(
+        MeshSegment(s.scene, s.padded, end - start, s.transfer)
+        for s, start, end in zip(res.segments, starts, ends)
+        if end > start
+    )
+    times = np.asarray(res.history["time_s"][1:])
+    return Stage(op, res.scene, res.final_scene, entry, segments, times)
+
+
+@jax.tree_util.register_dataclass
+@dataclass(frozen=True)
+class ProcessTrajectory:
+    """A differentiable process run: one :class:`jaxform.gradients.Trajectory` per
+    operation (a trim, a set temperature, a dwell without heat: one row, the part as the
+    operation leaves it, no steps)."""
+
+    operations: tuple
+
+    @property
+    def final(self) -> Trajectory:
+        return self.operations[-1]
+
+    @property
+    def codes(self):
+        return jnp.concatenate([t.codes for t in self.operations])
+
+    @property
+    def stroke_mm(self):
+        """Every operation's strokes (each its own, from 0)."""
+        return jnp.concatenate([t.stroke_mm for t in self.operations])
+
+    @property
+    def contact_status(self):
+        """Every step's contact status of every operation (padded with -1 to the widest)."""
+        n_c = max(t.contact_status.shape[1] for t in self.operations)
+        return jnp.concatenate([
+            jnp.pad(t.contact_status, ((0, 0), (0, n_c - t.contact_status.shape[1])),
+                    constant_values=-1)
+            for t in self.operations
+        ])  # fmt: skip
+
+
+@partial(jax.jit, static_argnums=0)
+def _entered(stage: Stage, state, coords, inputs: Inputs):
+    """(state, coords) on the operation's first mesh: the first operation's initial state,
+    or the part carried, trimmed or set to a temperature; the die wear the operation's own
+    (from 0 at its dies' stations)."""
+    scene = stage.scene
+    if stage.entry is None:
+        return initial_state(scene.model, inputs), inputs.coords
+    if isinstance(stage.entry, SetTemperature):
+        return stage.entry.apply(state, coords, inputs.thermal)
+    state, coords = stage.entry.apply(state, coords, jnp)
+    if isinstance(stage.entry, StateMap):  # a trim: the clock at 0, the wear kept
+        return replace(state, t=jnp.zeros_like(state.t)), coords
+    wear = scene.inputs.wear
+    shape = (0, 0) if wear is None else wear.stations.shape[:2]
+    return replace(state, wear_mm=jnp.zeros(shape)), coords
+
+
+@partial(jax.jit, static_argnums=0)
+def _on_mesh(seg: MeshSegment, state, coords):
+    """(state, coords) through the segment's remesh map (if any), then typed strongly
+    and padded to its bucket (where it has one): what its step program takes."""
+    if seg.transfer is not None:
+        state, coords = seg.transfer.apply(state, coords, jnp)
+    state, coords = jax.tree_util.tree_map(
+        lambda a: jax.lax.convert_element_type(a, a.dtype), (state, coords)
+    )
+    if seg.padded is None:
+        return state, coords, coords, state
+    return state, coords, seg.padded.coords(coords, jnp), seg.padded.state(state, jnp)
+
+
+@partial(jax.jit, static_argnums=0)
+def _off_mesh(seg: MeshSegment, state):
+    return state if seg.padded is None else seg.padded.trim(state, jnp)
+
+
+@partial(jax.jit, static_argnums=0)
+def _still(stage: Stage, state, coords, inputs: Inputs):
+    """The one-row trajectory of an operation that takes no step (its part as it leaves,
+    at its time 0)."""
+    model, z = stage.final_scene.model, jnp.zeros(1)
+    t = jnp.zeros_like(state.t)
+    temps = model.element.temperatures(model.layout, state.x, inputs.thermal)
+    return Trajectory(
+        time_s=jnp.reshape(t, (1,)),
+        stroke_mm=z,
+        force_N=z,
+        friction_work_Nmm=jnp.reshape(state.friction_work, (1,)),
+        x=state.x,
+        gauss=state.gauss,
+        positions=coords + model.layout.nodal(state.x)[:, :2],
+        coords=coords,
+        codes=jnp.zeros(0, jnp.int32),
+        iterations=jnp.zeros(0, jnp.int32),
+        contact_status=jnp.zeros((0, model.layout.n_contact), jnp.int32),
+        temperature_K=None if temps is None else temps[None],
+        final_state=state,
+    )
+
+
+def _stepped(stage: Stage, inputs: Inputs, times, state, coords) -> Trajectory:
+    """The operation's steps through its meshes from (state, coords) on its first mesh."""
+    parts, first = [], 0
+    for seg in stage.segments:
+        sc = seg.scene if seg.padded is None else seg.padded.scene
+        stepper = stepper_of(sc, differentiable=True)
+        state, coords, run_coords, run_state = _on_mesh(seg, state, coords)
+        part = _segment(stepper, sc.idx, replace(inputs, coords=run_coords),
+                        times[first : first + seg.n_steps], run_state)  # fmt: skip
+        state = _off_mesh(seg, part.final_state)
+        parts.append(part)
+        first += seg.n_steps
+    return _joined(stage, tuple(parts), state, coords)
+
+
+@partial(jax.jit, static_argnums=0)
+def _joined(stage: Stage, parts: tuple, state, coords) -> Trajectory:
+    """The operation's trajectory from its meshes' parts (row 0 of the first, then every
+    mesh's steps; contact status padded with -1 to the widest mesh): one program (and one
+    for its reverse), not dozens of eager concatenations that would each compile."""
+
+    def rows(name):
+        return jnp.concatenate(
+            [getattr(parts[0], name)[:1]] + [getattr(p, name)[1:] for p in parts]
+        )
+
+    n_c = max(s.scene.model.layout.n_contact for s in stage.segments)
+    status = [
+        jnp.pad(p.contact_status[:, : s.scene.model.layout.n_contact],
+                ((0, 0), (0, n_c - s.scene.model.layout.n_contact)), constant_values=-1)
+        for p, s in zip(parts, stage.segments)
+    ]  # fmt: skip
+    one_mesh = len(parts) == 1 and stage.segments[0].padded is None
+    last = stage.segments[-1].scene.model.layout
+    return Trajectory(
+        time_s=rows("time_s"),
+        stroke_mm=rows("stroke_mm"),
+        force_N=rows("force_N"),
+        friction_work_Nmm=rows("friction_work_Nmm"),
+        x=state.x,
+        gauss=state.gauss,
+        positions=coords + last.nodal(state.x)[:, :2],
+        coords=coords,
+        codes=jnp.concatenate([p.codes for p in parts]),
+        iterations=jnp.concatenate([p.iterations for p in parts]),
+        contact_status=jnp.concatenate(status),
+        temperature_K=parts[0].temperature_K if one_mesh else None,
+        final_state=state,
+    )
+
+
+def process_trajectory(plan: ProcessPlan, inputs=None, times=None) -> ProcessTrajectory:
+    """Replay the process of ``plan`` with each operation's ``inputs`` and step ``times``
+    (tuples, one per operation; default the forward run's).  Traced and differentiable
+    (not for an enclosing jit: each mesh runs its bucket's compiled program).  A failed
+    step leaves its code in the operation's ``codes`` (:func:`check_process`)."""
+    inputs = plan.inputs() if inputs is None else tuple(inputs)
+    times = plan.times() if times is None else tuple(times)
+    state = coords = None
+    out = []
+    for stage, inp, ts in zip(plan.stages, inputs, times):
+        state, coords = _entered(stage, state, coords, inp)
+        if stage.stepped:
+            traj = _stepped(stage, inp, jnp.asarray(ts), state, coords)
+            state, coords = traj.final_state, traj.coords
+        else:
+            traj = _still(stage, state, coords, inp)
+        out.append(traj)
+    return ProcessTrajectory(tuple(out))
+
+
+def check_process(plan: ProcessPlan, ptraj: ProcessTrajectory) -> None:
+    """Raise :class:`jaxform.gradients.GradientRunError` (naming the operation) if a step
+    of the process's differentiable run failed (outside jit)."""
+    from jaxform.gradients import GradientRunError
+
+    for stage, traj in zip(plan.stages, ptraj.operations):
+        try:
+            check(traj)
+        except GradientRunError as err:
+            raise GradientRunError(f"{stage.operation.label}: {err}") from None
