@@ -40,6 +40,10 @@ from jaxform.process_gradients import ProcessPlan, SetTemperature, process_traje
 sys.path.insert(0, str(Path(__file__).parent))
 from test_process import CONE, FIRST, TRIM_RADIUS, seed_document  # noqa: E402
 
+# every test here replays whole processes (dozens of compiled programs, 145 s on an idle
+# 2-core machine): the slow suite (python -m pytest -m slow)
+pytestmark = pytest.mark.slow
+
 ROOT = Path(__file__).resolve().parents[1]
 SECOND = {"kind": "forming", "name": "second", "travel_mm": 0.3,
           "die": {"profile_mm": CONE, "speed_mm_s": 0.15, "closed": True,
