@@ -574,7 +574,8 @@ def build_scene(cfg: dict | Config, mesh: meshing.Mesh | None = None) -> Scene:
         and any(has_convex_corner(d.points, float(d.corner_radius)) for d in die.members)
     )
     thermal = thermal_inputs(cfg)
-    contact = ContactLaw(PAIRINGS[cfg.die.contact_pairs]())
+    # a scene under a load (no [die]) has no candidates: the default pairing
+    contact = ContactLaw(PAIRINGS[cfg.die.contact_pairs if cfg.die is not None else "nearest"]())
     layout, idx = _indices(mesh, form.n_fields, piece.contact_sets(mesh), corner,
                            temperature=thermal is not None,
                            copies=_copies(contact, die))  # fmt: skip
