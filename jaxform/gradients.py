@@ -383,19 +383,26 @@ def _remeshed_trajectory(scene: Scene, inputs: Inputs, times, plan: RemeshPlan) 
         state = _leave_mesh(seg, part.final_state)
         parts.append(part)
         first += seg.n_steps
-    last = plan.segments[-1].scene
+    return joined(plan.segments, tuple(parts), state, coords)
 
-    def rows(name):  # row 0 of the first mesh, then every mesh's steps
+
+def joined(segments, parts: tuple, state, coords, temperature_K=None) -> Trajectory:
+    """One trajectory from the parts run on each mesh of ``segments`` (row 0 of the first
+    mesh, then every mesh's steps; the contact status padded with -1 to the widest mesh),
+    ending in ``state`` on the last mesh at reference ``coords``."""
+
+    def rows(name):
         return jnp.concatenate(
             [getattr(parts[0], name)[:1]] + [getattr(p, name)[1:] for p in parts]
         )
 
-    n_c = max(s.scene.model.layout.n_contact for s in plan.segments)
+    n_c = max(s.scene.model.layout.n_contact for s in segments)
     status = [
         jnp.pad(p.contact_status[:, : s.scene.model.layout.n_contact],
                 ((0, 0), (0, n_c - s.scene.model.layout.n_contact)), constant_values=-1)
-        for p, s in zip(parts, plan.segments)
+        for p, s in zip(parts, segments)
     ]  # fmt: skip
+    last = segments[-1].scene.model.layout
     return Trajectory(
         time_s=rows("time_s"),
         stroke_mm=rows("stroke_mm"),
@@ -403,11 +410,12 @@ def _remeshed_trajectory(scene: Scene, inputs: Inputs, times, plan: RemeshPlan) 
         friction_work_Nmm=rows("friction_work_Nmm"),
         x=state.x,
         gauss=state.gauss,
-        positions=last.model.nodal_positions(state.x, coords, last.idx),
+        positions=coords + last.nodal(state.x)[:, :2],
         coords=coords,
         codes=jnp.concatenate([p.codes for p in parts]),
         iterations=jnp.concatenate([p.iterations for p in parts]),
         contact_status=jnp.concatenate(status),
+        temperature_K=temperature_K,
         final_state=state,
     )
 
@@ -451,13 +459,15 @@ def _enter_mesh(seg: MeshSegment, state, coords):
     # which would make its step program another one than the later meshes'
     state, coords = jax.tree_util.tree_map(lambda a: jax.lax.convert_element_type(a, a.dtype),
                                            (state, coords))  # fmt: skip
+    if seg.padded is None:  # a mesh stepped as it is (a process operation's own)
+        return state, coords, coords, state
     return state, coords, seg.padded.coords(coords, jnp), seg.padded.state(state, jnp)
 
 
 @partial(jax.jit, static_argnums=0)
 def _leave_mesh(seg: MeshSegment, state):
     """The segment's last state without the padding."""
-    return seg.padded.trim(state, jnp)
+    return state if seg.padded is None else seg.padded.trim(state, jnp)
 
 
 def check(traj: Trajectory) -> None:

@@ -40,7 +40,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxform.gradients import MeshSegment, Trajectory, _segment, check
+from jaxform.gradients import (
+    MeshSegment,
+    Trajectory,
+    _enter_mesh,
+    _leave_mesh,
+    _segment,
+    check,
+    joined,
+)
 from jaxform.remesh import StateMap
 from jaxform.scenes import Inputs, Scene
 from jaxform.stepping import initial_state, stepper_of
@@ -195,25 +203,6 @@ def _entered(stage: Stage, state, coords, inputs: Inputs):
 
 
 @partial(jax.jit, static_argnums=0)
-def _on_mesh(seg: MeshSegment, state, coords):
-    """(state, coords) through the segment's remesh map (if any), then typed strongly
-    and padded to its bucket (where it has one): what its step program takes."""
-    if seg.transfer is not None:
-        state, coords = seg.transfer.apply(state, coords, jnp)
-    state, coords = jax.tree_util.tree_map(
-        lambda a: jax.lax.convert_element_type(a, a.dtype), (state, coords)
-    )
-    if seg.padded is None:
-        return state, coords, coords, state
-    return state, coords, seg.padded.coords(coords, jnp), seg.padded.state(state, jnp)
-
-
-@partial(jax.jit, static_argnums=0)
-def _off_mesh(seg: MeshSegment, state):
-    return state if seg.padded is None else seg.padded.trim(state, jnp)
-
-
-@partial(jax.jit, static_argnums=0)
 def _still(stage: Stage, state, coords, inputs: Inputs):
     """The one-row trajectory of an operation that takes no step (its part as it leaves,
     at its time 0)."""
@@ -243,10 +232,10 @@ def _stepped(stage: Stage, inputs: Inputs, times, state, coords) -> Trajectory:
     for seg in stage.segments:
         sc = seg.scene if seg.padded is None else seg.padded.scene
         stepper = stepper_of(sc, differentiable=True)
-        state, coords, run_coords, run_state = _on_mesh(seg, state, coords)
+        state, coords, run_coords, run_state = _enter_mesh(seg, state, coords)
         part = _segment(stepper, sc.idx, replace(inputs, coords=run_coords),
                         times[first : first + seg.n_steps], run_state)  # fmt: skip
-        state = _off_mesh(seg, part.final_state)
+        state = _leave_mesh(seg, part.final_state)
         parts.append(part)
         first += seg.n_steps
     return _joined(stage, tuple(parts), state, coords)
@@ -258,34 +247,9 @@ def _joined(stage: Stage, parts: tuple, state, coords) -> Trajectory:
     mesh's steps; contact status padded with -1 to the widest mesh): one program (and one
     for its reverse), not dozens of eager concatenations that would each compile."""
 
-    def rows(name):
-        return jnp.concatenate(
-            [getattr(parts[0], name)[:1]] + [getattr(p, name)[1:] for p in parts]
-        )
-
-    n_c = max(s.scene.model.layout.n_contact for s in stage.segments)
-    status = [
-        jnp.pad(p.contact_status[:, : s.scene.model.layout.n_contact],
-                ((0, 0), (0, n_c - s.scene.model.layout.n_contact)), constant_values=-1)
-        for p, s in zip(parts, stage.segments)
-    ]  # fmt: skip
     one_mesh = len(parts) == 1 and stage.segments[0].padded is None
-    last = stage.segments[-1].scene.model.layout
-    return Trajectory(
-        time_s=rows("time_s"),
-        stroke_mm=rows("stroke_mm"),
-        force_N=rows("force_N"),
-        friction_work_Nmm=rows("friction_work_Nmm"),
-        x=state.x,
-        gauss=state.gauss,
-        positions=coords + last.nodal(state.x)[:, :2],
-        coords=coords,
-        codes=jnp.concatenate([p.codes for p in parts]),
-        iterations=jnp.concatenate([p.iterations for p in parts]),
-        contact_status=jnp.concatenate(status),
-        temperature_K=parts[0].temperature_K if one_mesh else None,
-        final_state=state,
-    )
+    temps = parts[0].temperature_K if one_mesh else None
+    return joined(stage.segments, parts, state, coords, temps)
 
 
 def process_trajectory(plan: ProcessPlan, inputs=None, times=None) -> ProcessTrajectory:
