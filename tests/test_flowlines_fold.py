@@ -125,4 +125,5 @@ def test_the_boss_folds_over_into_a_lap_and_its_surface_line_folds_there(tmp_pat
     (fold,) = self_folds(lines, args.spacing)
     assert fold.family == 2 and abs(fold.turn_deg - 175.0) <= 2.0
     assert abs(fold.depth_mm - 0.25) <= 0.05
-    assert np.hypot(fold.r_mm - h["fold_r_mm"][-1], fold.z_mm - h["fold_z_mm"][-1]) <= 1e-9
+    assert np.hypot(fold.r_mm - h["wedge_r_mm"][-1], fold.z_mm - h["wedge_z_mm"][-1]) <= 1e-9
+    assert lap["depth_mm"] > 0.0 and not res.pockets
