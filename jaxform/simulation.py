@@ -445,6 +445,7 @@ def init(scene: Scene) -> tuple[SimState, StepControl]:
         h=jnp.asarray(scene.dt),
         dt_max=jnp.asarray(scene.dt),
         t_end=jnp.asarray(scene.t_end),
+        continuations=jnp.asarray(scene.continuations),
         thresholds=off(stepper_of(scene).triggers),
     )
     return initial_state(scene.model, scene.inputs), control

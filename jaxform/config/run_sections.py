@@ -48,6 +48,14 @@ class SolverConfig:
         doc="relative residual tolerance of Newton",
     )
     max_cutbacks: int = key(6, low=0, high=30, doc="times a failed step may be halved")
+    smallest_step_continuations: int = key(
+        3,
+        low=0,
+        high=20,
+        doc="at the smallest step (after max_cutbacks halvings), times a Newton solve that has "
+        "not converged goes on from its last iterate (max_newton_iterations more each) before "
+        "the run stops; runs that never fail at the smallest step are unchanged",
+    )
     line_search: bool = key(True, doc="backtracking line search in Newton")
     linear: str = key(
         "auto",
