@@ -90,7 +90,7 @@ class SurfaceFolds:
     def narrowest(self) -> tuple[float, float, float, float]:
         """(angle deg, r, z, depth mm) of the narrower of the two (a pocket's depth: its
         length); (180, nan, nan, 0) where there is neither."""
-        if self.kind == FoldKind.POCKET:
+        if self.pocket.angle_deg < self.wedge.angle_deg:
             p = self.pocket
             return p.angle_deg, p.r_mm, p.z_mm, p.length_mm
         w = self.wedge
