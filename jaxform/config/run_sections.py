@@ -131,8 +131,10 @@ class OutputConfig:
         10.0,
         low=0.0,
         high=90.0,
-        doc="report a lap (fold) where the narrowest air wedge of the free surface (history "
-        "fold_angle_deg: against itself or against a die) closes below this (deg; 0 = never)",
+        doc="report a lap where a wedge of the free surface (history wedge_angle_deg: the "
+        "surface folded onto itself) and a pocket where air between the material and a die "
+        "(pocket_angle_deg = atan(gap / half its length)) stays below this to the end (deg; "
+        "0 = never)",
     )
     damage_critical: float = key(
         0.0,
