@@ -93,9 +93,13 @@ def run_process_design(process: Process, out_dir, progress=None, forward_progres
     d = process.operations[0].config.design
     if announce is not None:
         announce("  compiling the gradient programs and evaluating the start design")
-    hist = optimize(problem, optimizer_settings(d), progress=progress)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    if announce is not None:  # the start design's terms, before a long optimization
+        start = problem.report(problem.start)
+        terms = ", ".join(f"{k} {v:.6g}" for k, v in start.items() if k != "constraints")
+        announce(f"  start design: {terms}")
+    hist = optimize(problem, optimizer_settings(d), progress=progress)
     dump_config(process_document(process.document), out / "config.toml")
     write_csv(out / "design_history.csv", hist.columns(problem))
     rows = design_report(problem, hist)

@@ -84,7 +84,7 @@ def test_die_spline_gradient_through_the_process(group):
     """dJ/du . du of each blow's spline controls against (J(u + h du) - J(u - h du)) / 2h,
     h = 1e-4 mm along a unit direction: relative error <= 1e-4 (the runs solve each step to
     Newton's tolerance; that noise over 2h bounds the quotient).  The flash and press terms
-are nonzero; the cone's cavity fills (underfill 0)."""
+    are nonzero; the cone's cavity fills (underfill 0)."""
     pb = problem()
     val, grad, _ = start_gradient()
     report = pb.report(pb.start)
@@ -163,3 +163,48 @@ def test_two_stage_disk_design_config_is_accepted_and_starts_at_its_die():
     np.testing.assert_allclose(np.asarray(group.heights(u)), pts[group.points, 1], atol=1e-12)
     assert len(group.points) == 11 and len(group.free) == 4
     assert float(group.penalty(u)) == 0.0
+
+
+@pytest.mark.slow  # one design iteration of the tiny process (its programs compiled above)
+def test_design_command_on_a_process(tmp_path, capsys):
+    """`jaxform design` of the tiny process (1 L-BFGS iteration): exit 0, the start
+    design's terms on one line, design_report.csv with the start objective equal to the
+    problem's (relative 1e-9), each term, each blow's peak force and the splines' rows."""
+    import csv
+
+    import tomli_w
+
+    from jaxform.cli import main
+
+    path = tmp_path / "p.toml"
+    path.write_bytes(tomli_w.dumps(document(iterations=1)).encode())
+    out = tmp_path / "o"
+    try:
+        code = main(["design", str(path), "--out", str(out)])
+    except SystemExit as exc:
+        code = exc.code
+    text = capsys.readouterr().out
+    assert code == 0, text
+    assert "start design: objective" in text
+    with open(out / "design_report.csv", newline="") as fh:
+        rows = {r["quantity"]: r for r in csv.DictReader(fh)}
+    pb = problem()
+    val, _, _ = start_gradient()
+    assert abs(float(rows["objective"]["start"]) - float(val)) <= 1e-9 * abs(float(val))
+    for k in ("flash_volume", "die_fill", "first.press_capacity", "first.peak_force_N",
+              "second.peak_force_N", "second.die_spline.fillet_radius_mm"):  # fmt: skip
+        assert k in rows, sorted(rows)
+    capacity = pb.plan.stages[0].scene.settings.design.press_capacity_N
+    assert float(rows["first.peak_force_N"]["start"]) > capacity
+    assert (out / "design_history.csv").is_file() and (out / "config.toml").is_file()
+
+
+@pytest.mark.slow  # shares the problem above
+def test_die_spline_taylor_rate_through_the_process():
+    """Taylor remainders of the second blow's die spline through the process (the first
+    blow, then the cone die's): second-order rate >= 1.9."""
+    from jaxform.design import taylor_test
+
+    (row,) = taylor_test(problem(), groups=("second.die_spline",))
+    assert row.group == "second.die_spline"
+    assert row.min_rate >= 1.9, (row.rate1, row.r1)
