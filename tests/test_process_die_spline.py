@@ -147,9 +147,9 @@ def test_bad_die_spline_design_refused_in_one_line(tmp_path, design, needle):
 
 def test_two_stage_disk_design_config_is_accepted_and_starts_at_its_die():
     """configs/two_stage_disk_design.toml passes the process's design check, and its
-    blocker's die_spline group starts at the configured (flat) die: the spline's heights at
+    blocker's die_spline group starts at the configured die (its flat web face): the spline's heights at
     u = 0 equal the profile's z at every sampled point (1e-12 mm; the replay's start design
-    is the forward run's), 11 points sampled, 4 free controls, no penalty at the start."""
+    is the forward run's), 9 points sampled (r = 0 .. 4 mm), 4 free controls, no penalty at the start."""
     from jaxform.design.problem import build_group
     from jaxform.process import forming_scene
 
@@ -161,7 +161,7 @@ def test_two_stage_disk_design_config_is_accepted_and_starts_at_its_die():
     pts = np.asarray(forming_scene(ops[0], initial, initial).inputs.die.members[0].points)
     u = group.initial()
     np.testing.assert_allclose(np.asarray(group.heights(u)), pts[group.points, 1], atol=1e-12)
-    assert len(group.points) == 11 and len(group.free) == 4
+    assert len(group.points) == 9 and len(group.free) == 4
     assert float(group.penalty(u)) == 0.0
 
 
