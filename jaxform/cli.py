@@ -380,7 +380,9 @@ def _design(args) -> int:
     def announce(line):
         print(line, flush=True)
 
-    sampling = cfg.design.optimizer in ("lhs_rsm", "cmaes")
+    # a process's [design] is its first operation's config's (jaxform.process_design)
+    design = cfg.operations[0].config.design if hasattr(cfg, "operations") else cfg.design
+    sampling = design.optimizer in ("lhs_rsm", "cmaes")
 
     def progress(it, val, gnorm, design):
         if sampling:  # per run: the runs used, its objective, the best so far

@@ -433,28 +433,67 @@ def check_process_design(process: Process, groups=None, where: str = "design.var
     first_forming = next(op for op in ops if op.forming)
     for g in groups:
         _check_process_group(g, by_name, by_name.get(d.operation, first_forming), shown)
+    target = by_name[d.objective_operation] if d.objective_operation else None
+    target = target or [op for op in ops if op.forming][-1]
+    if d.objective == requirements.PROCESS_WEIGHTED_SUM:
+        _check_process_terms(d, by_name, target)
+        return
     if d.objective not in requirements.PROCESS_OBJECTIVES:
         raise ConfigError(
             f"design.objective = {d.objective!r}: a process's objective is one of "
-            f"{', '.join(requirements.PROCESS_OBJECTIVES)} (of design.objective_operation)"
+            f"{', '.join(requirements.PROCESS_OBJECTIVES)}, weighted_sum (of "
+            "design.objective_operation)"
         )
-    target = by_name[d.objective_operation] if d.objective_operation else None
-    target = target or [op for op in ops if op.forming][-1]
-    needs = list(requirements.OBJECTIVES[d.objective].requires)
-    if d.objective == "die_fill":  # the part inside the flash land
+    _check_process_objective(d.objective, target, f"design.objective = {d.objective!r}")
+
+
+def _check_process_objective(name: str, target: Operation, what: str) -> None:
+    """Refuse the process objective ``name`` of the operation ``target`` where the
+    operation lacks what it reads (``what``: the key that asked, for the line)."""
+    needs = list(requirements.OBJECTIVES[name].requires)
+    if name == "die_fill":  # the part inside the flash land
         needs.append(requirements.part_radius)
     reasons = [r for need in needs if (r := need(target.config)) is not None]
-    if d.objective in ("flash_volume", "die_fill") and not target.forming:
+    if name in ("flash_volume", "die_fill") and not target.forming:
         reasons.insert(0, "a forming operation")
     if reasons:
-        what = f"design.objective = {d.objective!r} of {target.label}"
-        raise ConfigError(f"{what} needs {reasons[0]}")
+        raise ConfigError(f"{what} of {target.label} needs {reasons[0]}")
+
+
+def _check_process_terms(d, by_name: dict, target: Operation) -> None:
+    """A process's weighted sum: design.terms (of ``target``) and design.operation_terms
+    ('<operation>.<objective>'), as many design.term_weights, each >= 0."""
+    terms = [*d.terms, *d.operation_terms]
+    if not terms or len(terms) != len(d.term_weights):
+        raise ConfigError(
+            f"design.objective = 'weighted_sum' of a process needs design.terms (now "
+            f"{list(d.terms)}) and design.operation_terms (now {list(d.operation_terms)}) "
+            f"with as many design.term_weights (now {list(d.term_weights)})"
+        )
+    if any(w < 0.0 for w in d.term_weights):
+        raise ConfigError(f"design.term_weights = {list(d.term_weights)}: must be >= 0")
+    shown = f"design.operation_terms = {list(d.operation_terms)!r}"
+    for spec in terms:
+        op_name, _, name = spec.rpartition(".")
+        own = spec in d.operation_terms
+        if own and not op_name:
+            raise ConfigError(f"{shown}: {spec!r} names no operation: each entry is "
+                              "'<operation>.<objective>'")  # fmt: skip
+        if own and op_name not in by_name:
+            raise ConfigError(f"{shown}: {spec!r}: no operation named {op_name!r}; the "
+                              f"process has: {', '.join(by_name)}")  # fmt: skip
+        if name not in requirements.PROCESS_OBJECTIVES:
+            where = shown if own else f"design.terms = {list(d.terms)!r}"
+            raise ConfigError(f"{where}: {spec!r}: a process's term is one of "
+                              f"{', '.join(requirements.PROCESS_OBJECTIVES)}")  # fmt: skip
+        op = by_name[op_name] if own else target
+        _check_process_objective(name, op, f"design term {spec!r}")
 
 
 def _check_process_group(spec: str, by_name: dict, default: Operation, shown: str) -> None:
     op_name, _, kind = spec.rpartition(".")
     if not op_name and kind in requirements.PROCESS_GROUPS:
-        if kind != "billet":
+        if kind not in ("billet", "billet_volume"):
             requirements.check_groups(default.config, (kind,), shown)
         return
     if kind not in requirements.OPERATION_GROUPS:

@@ -15,6 +15,7 @@ of the run of ``design.objective_operation`` (the last forming operation by defa
 
 from __future__ import annotations
 
+import csv
 import time
 from pathlib import Path
 
@@ -56,14 +57,14 @@ def process_problem(process: Process, groups=None, progress=None, announce=None)
     (``groups``, default ``design.variables``; checked by
     :func:`jaxform.process_config.check_process_design`) and ``design.objective`` of
     ``design.objective_operation``."""
-    from jaxform.design.process_problem import build_process_problem, process_objective
+    from jaxform.design.process_problem import build_process_problem, config_objective
 
     where = "design.variables" if groups is None else "--groups"
     check_process_design(process, groups, where)
     d = process.operations[0].config.design
     names = tuple(groups) if groups else (*d.variables, *d.operation_variables)
     _, plan = forward_plan(process, progress, announce)
-    objective = process_objective(plan, d.objective, d.objective_operation)
+    objective = config_objective(plan, d)
     return build_process_problem(plan, names, objective, d.operation)
 
 
@@ -80,21 +81,32 @@ def run_process_taylor(process: Process, groups=None, h=(1.0, 0.5, 0.25, 0.125),
 
 def run_process_design(process: Process, out_dir, progress=None, forward_progress=None,
                        announce=None):  # fmt: skip
-    """Optimize a process's [design] problem; write design_history.csv, objective.png
-    and config.toml (the process as configured) to ``out_dir``."""
+    """Optimize a process's [design] problem; write design_history.csv,
+    design_report.csv (start and best: the objective, each term, each blow's peak force,
+    each constraint), objective.png and config.toml (the process as configured) to
+    ``out_dir``."""
     from jaxform.design import optimize
-    from jaxform.driver import optimizer_settings
+    from jaxform.driver import design_report, optimizer_settings
     from jaxform.plot import design_objective
 
     problem = process_problem(process, None, forward_progress, announce)
     d = process.operations[0].config.design
     if announce is not None:
         announce("  compiling the gradient programs and evaluating the start design")
-    hist = optimize(problem, optimizer_settings(d), progress=progress)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    if announce is not None:  # the start design's terms, before a long optimization
+        start = problem.report(problem.start)
+        terms = ", ".join(f"{k} {v:.6g}" for k, v in start.items() if k != "constraints")
+        announce(f"  start design: {terms}")
+    hist = optimize(problem, optimizer_settings(d), progress=progress)
     dump_config(process_document(process.document), out / "config.toml")
     write_csv(out / "design_history.csv", hist.columns(problem))
+    rows = design_report(problem, hist)
+    with open(out / "design_report.csv", "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
     unit = getattr(problem.objective, "unit", "-")
     title = f"{d.objective} of {d.objective_operation or 'the last blow'} ({d.optimizer})"
     design_objective(hist.objective, out / "objective.png", title, unit)

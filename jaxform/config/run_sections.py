@@ -334,7 +334,16 @@ class DesignConfig:
         doc="objective weighted_sum: its terms (any objective but weighted_sum)",
     )
     term_weights: tuple[float, ...] = key(
-        [], doc="objective weighted_sum: the weight of each of design.terms, in their order"
+        [],
+        doc="objective weighted_sum: the weight of each of design.terms, in their order (a "
+        "process: then of each of design.operation_terms)",
+    )
+    operation_terms: tuple[str, ...] = key(
+        [],
+        doc="a process, objective weighted_sum: terms of named operations, "
+        "'<operation>.<objective>' (peak_force, forging_work, press_capacity, flash_volume, "
+        "die_fill, lap, mean_temperature; e.g. finisher.die_fill, blocker.press_capacity), "
+        "after design.terms (those of design.objective_operation)",
     )
     optimizer: str = key(
         "lbfgs",

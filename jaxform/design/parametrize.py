@@ -308,6 +308,7 @@ class BilletAspect:
     axisymmetric: bool = True
     bound_log: float = float(np.log(1.25))
     name: str = "billet"
+    lifts_the_die = True  # applied after the groups that set die heights (a die spline)
 
     def initial(self):
         return _zeros(1)
@@ -330,6 +331,39 @@ class BilletAspect:
         tall = float(np.exp(float(u[0])))
         thin = tall ** (-0.5 if self.axisymmetric else -1.0)
         return {"billet_height_factor": tall, "billet_diameter_factor": thin}
+
+
+@dataclass(frozen=True)
+class BilletVolume:
+    """The billet's volume at fixed aspect: u = log(V / V0), every node's r and z times
+    e^(u/3) (axisymmetric; plane strain e^(u/2)) about the axis and the mid-plane (or the
+    bottom, z = 0); the top die moves with the billet's top (``top_mm``: its z at u = 0),
+    so it starts where it started and closes by the same stroke."""
+
+    top_mm: float
+    axisymmetric: bool = True
+    bound_log: float = float(np.log(1.25))
+    name: str = "billet_volume"
+    lifts_the_die = True
+
+    def initial(self):
+        return _zeros(1)
+
+    def bounds(self):
+        return jnp.full(1, -self.bound_log), jnp.full(1, self.bound_log)
+
+    def apply(self, u, inputs, times):
+        grow = jnp.exp(u[0] / (3.0 if self.axisymmetric else 2.0))
+        coords = jnp.asarray(inputs.coords) * grow
+        lift = (grow - 1.0) * self.top_mm
+
+        def move(d):
+            return replace(d, points=d.points.at[:, 1].add(lift))
+
+        return replace(inputs, coords=coords, die=inputs.die.replace_top(move)), times
+
+    def physical(self, u):
+        return {"billet_volume_factor": float(np.exp(float(u[0])))}
 
 
 @dataclass(frozen=True)

@@ -30,7 +30,12 @@ import numpy as np
 from jaxform.design import objectives as obj
 from jaxform.design import parametrize as par
 from jaxform.design.problem import build_group, friction_variables, lap_penalty
-from jaxform.design.requirements import OPERATION_GROUPS, PROCESS_GROUPS, PROCESS_OBJECTIVES
+from jaxform.design.requirements import (
+    OPERATION_GROUPS,
+    PROCESS_GROUPS,
+    PROCESS_OBJECTIVES,
+    PROCESS_WEIGHTED_SUM,
+)
 from jaxform.process_gradients import ProcessPlan, check_process, process_trajectory
 
 # the thermal inputs of one operation (the billet temperature is the process's): a
@@ -74,6 +79,14 @@ class OnStages:
         pre = f"{self.prefix}." if self.prefix else ""
         return {pre + k: v for k, v in self.inner.physical(u).items()}
 
+    def penalty(self, u):
+        """The inner group's constraint penalty (a die spline's), else 0."""
+        return self.inner.penalty(u) if hasattr(self.inner, "penalty") else 0.0
+
+    def report(self, u) -> list[dict]:
+        """The inner group's constraint rows (a die spline's), else none."""
+        return self.inner.report(u) if hasattr(self.inner, "report") else []
+
 
 def _stage_of(plan: ProcessPlan, name: str, spec: str) -> int:
     try:
@@ -94,10 +107,11 @@ def build_process_group(plan: ProcessPlan, spec: str, default_operation: str = "
         every = tuple(range(len(stages)))
         if group in ("preform", "nodes"):
             return OnStages(build_group(first, group), (0,))
-        if group == "billet":
+        if group in ("billet", "billet_volume"):
             top = float(np.max(np.asarray(first.inputs.coords)[:, 1]))
             axi = first.model.formulation.axisymmetric
-            return OnStages(par.BilletAspect(top, axi), (0,))
+            kind = par.BilletAspect if group == "billet" else par.BilletVolume
+            return OnStages(kind(top, axi), (0,))
         return OnStages(build_group(first, group), every)  # material, thermal
     if group not in OPERATION_GROUPS:
         allowed = ", ".join([*PROCESS_GROUPS, *(f"<operation>.{g}" for g in OPERATION_GROUPS)])
@@ -126,7 +140,7 @@ def build_process_group(plan: ProcessPlan, spec: str, default_operation: str = "
         raise ValueError(f"design group {spec!r}: {stage.operation.label} is no forming operation")
     if group == "friction":
         return OnStages(par.Friction(friction_variables(stage.scene)), (k,), op_name)
-    return OnStages(build_group(stage.scene, group), (k,), op_name)  # die, speed
+    return OnStages(build_group(stage.scene, group), (k,), op_name)  # die, die_spline, speed
 
 
 @dataclass(frozen=True, eq=False)
@@ -213,6 +227,22 @@ def process_objective(plan: ProcessPlan, name: str, operation: str = "") -> OnOp
     raise ValueError(f"process objective {name!r}: must be one of {', '.join(PROCESS_OBJECTIVES)}")
 
 
+def config_objective(plan: ProcessPlan, d):
+    """The objective of a process's [design] ``d``: design.objective of
+    design.objective_operation, or its weighted sum (:class:`objectives.WeightedSum`, each
+    term named as configured) of design.terms (of design.objective_operation) and
+    design.operation_terms ('<operation>.<objective>') by design.term_weights."""
+    if d.objective != PROCESS_WEIGHTED_SUM:
+        return process_objective(plan, d.objective, d.objective_operation)
+    names = (*d.terms, *d.operation_terms)
+    terms = []
+    for spec in names:
+        op_name, _, name = spec.rpartition(".")
+        op_name = op_name if spec in d.operation_terms else d.objective_operation
+        terms.append(process_objective(plan, name, op_name))
+    return obj.WeightedSum(names, tuple(terms), tuple(float(w) for w in d.term_weights))
+
+
 @dataclass(frozen=True, eq=False)
 class ProcessDesignProblem:
     """A process's design problem: its forward run's plan, the groups, the objective
@@ -227,10 +257,12 @@ class ProcessDesignProblem:
     single_program: bool = False
 
     def run_inputs(self, design):
-        """(inputs, step times) of every operation at ``design``."""
+        """(inputs, step times) of every operation at ``design``; the billet's groups,
+        which lift the first top die with the billet's top, after those that set its
+        heights (a die spline)."""
         inputs = self.plan.inputs()
         times = tuple(jnp.asarray(t) for t in self.plan.times())
-        for g in self.groups:
+        for g in sorted(self.groups, key=lambda g: getattr(g.inner, "lifts_the_die", False)):
             inputs, times = g.apply(design[g.name], inputs, times)
         return inputs, times
 
@@ -245,7 +277,8 @@ class ProcessDesignProblem:
     def _j(self, design):
         inputs, times = self._inputs(design)
         ptraj = process_trajectory(self.plan, inputs, times)
-        return self._objective(ptraj, inputs), ptraj
+        value = self._objective(ptraj, inputs)
+        return value + par.penalty_of(self.groups, design), ptraj  # die splines' constraints
 
     def value(self, design):
         if self.single_program:
@@ -265,6 +298,24 @@ class ProcessDesignProblem:
 
     def physical(self, design) -> dict:
         return par.physical_values(self.groups, design)
+
+    def report(self, design) -> dict:
+        """The objective (with the constraints' penalty), each term of a weighted sum
+        (unweighted, its own unit), each forming operation's peak force
+        (``<operation>.peak_force_N``), the penalty and each constraint's rows.  Runs the
+        gradient program (compiled already where a design ran)."""
+        val, _, ptraj = self.value_and_grad(design)
+        inputs, _ = self._inputs(design)
+        out = {"objective": float(val)}
+        if hasattr(self.objective, "values"):
+            out.update({k: float(v) for k, v in self.objective.values(ptraj, inputs).items()})
+        for k, stage in enumerate(self.plan.stages):
+            if stage.operation.forming:
+                peak = OnOperation(obj.PeakForce(), k)(ptraj, inputs)
+                out[f"{stage.name}.peak_force_N"] = float(peak)
+        out["constraint_penalty"] = float(par.penalty_of(self.groups, design))
+        out["constraints"] = par.constraint_report(self.groups, design)
+        return out
 
 
 def build_process_problem(

@@ -122,16 +122,20 @@ GROUPS: dict[str, GroupSpec] = {
         "temperatures, die contact conductance, Taylor-Quinney factor", (_heat_to_the_dies,)
     ),
     "billet": GroupSpec("the billet's height against its diameter at fixed volume", (_a_process,)),
+    "billet_volume": GroupSpec("the billet's volume at fixed aspect, log-scaled", (_a_process,)),
     "dwell": GroupSpec("a dwell's (furnace's) time, log-scaled", (_a_process,)),
 }
 # a process's groups: those that act on one operation's inputs (named <operation>.<group>
 # or, with design.operation, by the group alone) and those that act on the process (the
 # first mesh, or every operation alike; thermal: every operation, or one if named)
-OPERATION_GROUPS = ("die", "friction", "speed", "thermal", "dwell")
-PROCESS_GROUPS = ("preform", "nodes", "billet", "material", "thermal")
+OPERATION_GROUPS = ("die", "die_spline", "friction", "speed", "thermal", "dwell")
+PROCESS_GROUPS = ("preform", "nodes", "billet", "billet_volume", "material", "thermal")
 # the objectives of a process (of one operation's run: design.objective_operation)
 PROCESS_OBJECTIVES = ("peak_force", "forging_work", "press_capacity", "flash_volume",
                       "die_fill", "lap", "mean_temperature")  # fmt: skip
+# a process's weighted sum: design.terms of design.objective_operation and
+# design.operation_terms ('<operation>.<objective>'), weighted by design.term_weights
+PROCESS_WEIGHTED_SUM = "weighted_sum"
 
 
 # ----------------------------------------------------------------------------------
@@ -319,7 +323,7 @@ def check_gradient_run(
             f"history has no gradient); --set mesh.rezone_quality=0"
         )
     d = cfg.design
-    for k in ("operation", "objective_operation", "operation_variables"):
+    for k in ("operation", "objective_operation", "operation_variables", "operation_terms"):
         if getattr(d, k):
             raise ConfigError(
                 f"design.{k} = {getattr(d, k)!r}: names an operation of a process "

@@ -48,12 +48,13 @@ SCALE = {
     "die_spline": 0.01,
     "thermal": 0.01,
     "billet": 0.01,
+    "billet_volume": 0.01,
     "dwell": 0.02,
 }
 # groups that move the geometry (mm): their direction is also capped at this fraction of
 # the run's stroke, so that a scene pressed by a few micrometres (Prandtl's punch: 1.8 um)
 # is not tested with a die lifted off the material or elements larger than its motion
-GEOMETRIC = ("nodes", "die", "die_spline", "preform", "billet")
+GEOMETRIC = ("nodes", "die", "die_spline", "preform", "billet", "billet_volume")
 STROKE_FRACTION = 0.05
 
 
