@@ -16,7 +16,7 @@ section is written as a gmsh mesh (``mesh.file``) with the free surface in the s
     python experiments/lap_scene.py table --at 1.6 out/lap_refine/size_*/flow_lines.npz
 
 ``run`` runs the scene once (element size ``--size``, step ``--dt``) and prints its row:
-the lap (``postprocess.laps``), the flow lines' fold (``flowlines.self_folds``), the
+the lap (``jaxform.laps.laps``), the flow lines' fold (``flowlines.self_folds``), the
 largest turn of a grid line; it draws ``flow_lines.png`` (with the die) and
 ``flow_lines_root.png`` (the root: the fold's red cross, the lap's green circle) and saves
 every row's lines and history in ``flow_lines.npz``.  ``refine`` runs the LEVELS (element
@@ -149,11 +149,11 @@ def write_scene(out: Path, args) -> Path:
 
 
 def analyse(result, spacing: float, lap_angle: float):
-    """(laps, folds, turns): the run's laps (``postprocess.laps``), the flow lines' folds
+    """(laps, folds, turns): the run's laps (``jaxform.laps.laps``), the flow lines' folds
     at the last row (``flowlines.self_folds``) and the largest turn of any line (deg) at
     every row."""
     from jaxform.flowlines import flow_lines, largest_turn, self_folds
-    from jaxform.postprocess import laps
+    from jaxform.laps import laps
 
     lines = flow_lines(result, spacing)
     rows = len(result.history["time_s"])
@@ -200,16 +200,16 @@ def run_level(args, size: float, dt: float) -> dict:
     first = int(np.argmax(turns >= 150.0)) if np.any(turns >= 150.0) else -1
     row = dict(size_mm=size, dt_s=dt, steps=len(h["time_s"]) - 1, remeshes=len(res.remeshes),
                wall_s=round(wall, 1), stroke_mm=float(h["stroke_mm"][-1]),
-               force_N=float(h["force_N"][-1]), end_fold_angle_deg=float(h["fold_angle_deg"][-1]),
-               laps=len(lap_list))  # fmt: skip
+               force_N=float(h["force_N"][-1]), end_wedge_deg=float(h["wedge_angle_deg"][-1]),
+               laps=len(lap_list), pockets=len(res.pockets))  # fmt: skip
     if lap_list:
         lap = lap_list[0]
         row.update(lap_stroke_mm=lap["stroke_mm"], lap_r_mm=lap["r_mm"], lap_z_mm=lap["z_mm"],
-                   lap_end_r_mm=float(h["fold_r_mm"][-1]), lap_end_z_mm=float(h["fold_z_mm"][-1]),
+                   lap_end_r_mm=lap["end_r_mm"], lap_end_z_mm=lap["end_z_mm"],
                    lap_depth_mm=lap["depth_mm"])  # fmt: skip
-    # the stroke where the air wedge would close: the fold angle's line through its last
+    # the stroke where the air wedge would close: the wedge angle's line through its last
     # two rows reaching 0
-    a, s = h["fold_angle_deg"][-2:], h["stroke_mm"][-2:]
+    a, s = h["wedge_angle_deg"][-2:], h["stroke_mm"][-2:]
     row["closing_stroke_mm"] = float(s[1] - a[1] * (s[1] - s[0]) / (a[1] - a[0]))
     row["fold_turn_stroke_mm"] = float(h["stroke_mm"][first]) if first >= 0 else float("nan")
     if folds:
@@ -231,15 +231,16 @@ def at_stroke(path: Path, spacing: float, stroke: float | None) -> dict:
     its last row), from its ``flow_lines.npz``: the run to that stroke is the run's rows
     up to there (laps() of that history, self_folds() of the lines at that row)."""
     from jaxform.flowlines import FlowLines, line_fold, self_folds
-    from jaxform.postprocess import laps
+    from jaxform.laps import laps
 
     z = np.load(path, allow_pickle=True)
     s = z["stroke_mm"]
     k = len(s) - 1 if stroke is None else int(np.argmax(s >= stroke - 1e-9))
-    names = ("time_s", "stroke_mm", "fold_angle_deg", "fold_r_mm", "fold_z_mm", "fold_depth_mm")
+    names = ("time_s", "stroke_mm", "wedge_angle_deg", "wedge_r_mm", "wedge_z_mm",
+             "wedge_depth_mm")  # fmt: skip
     hist = {n: z[n][: k + 1] for n in names}
     lines = FlowLines(z["points"][: k + 1], z["line"], z["family"], z["level"])
-    out = dict(row=k, stroke_mm=float(s[k]), fold_angle_deg=float(z["fold_angle_deg"][k]),
+    out = dict(row=k, stroke_mm=float(s[k]), wedge_angle_deg=float(z["wedge_angle_deg"][k]),
                laps=laps(hist, 10.0), folds=self_folds(lines, spacing))  # fmt: skip
     out["grid_turn_deg"] = max(line_fold(p, spacing)[0] for j, p in enumerate(lines.polylines())
                                if lines.family[j] < 2)  # fmt: skip

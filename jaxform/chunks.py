@@ -23,7 +23,7 @@ from jaxform.adaptation import OnMesh, absolute
 from jaxform.presses import capacity_message
 from jaxform.rezone import corner_qualities
 from jaxform.scenes import Inputs, Scene
-from jaxform.status import CAUSES, NOT_FINITE, OK, SINGULAR
+from jaxform.status import CAUSES, NEWTON_NOT_CONVERGED, NOT_FINITE, OK, SINGULAR
 from jaxform.stepping import SimState, StepControl, Stepper, run_chunk
 from jaxform.triggers import CAPACITY
 
@@ -44,9 +44,21 @@ def failure_message(scene: Scene, inp: Inputs, state: SimState, step: int | None
     return (
         f"{name} (last converged time {t:g} s, target time "
         f"{min(t + h_min, scene.t_end):g} s) failed after {int(row['cutbacks'])} attempts, "
-        f"the last at the smallest step dt = {h_min:g} s (time.dt_s / 2**solver.max_cutbacks): "
+        f"the last at the smallest step dt = {h_min:g} s (time.dt_s / 2**solver.max_cutbacks)"
+        f"{_continued(scene, int(row['code']))}: "
         f"{CAUSES.get(int(row['code']), 'unknown')}; worst element {e} at "
         f"({centre[0]:.4g}, {centre[1]:.4g}) mm, corner quality {q[e]:.3g}{_remedy(scene, q[e])}"
+    )
+
+
+def _continued(scene: Scene, code: int) -> str:
+    """How long Newton went on at the smallest step, for the failure message."""
+    k = scene.continuations
+    if k == 0 or code != NEWTON_NOT_CONVERGED:
+        return ""
+    return (
+        f" and Newton continued there {k} times (solver.smallest_step_continuations; "
+        f"{(k + 1) * scene.newton.max_iterations} iterations)"
     )
 
 

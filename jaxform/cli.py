@@ -243,6 +243,27 @@ def _material_point(args) -> int:
     return 0
 
 
+def fold_lines(result) -> list[str]:
+    """One line per persisting lap (a wedge: the material folded onto itself) and per
+    persisting pocket (air between the material and a die) of a run (:mod:`jaxform.laps`)."""
+    out = [
+        f"lap: from stroke {lap['stroke_mm']:.4g} mm the free surface folds onto itself at "
+        f"({lap['end_r_mm']:.4g}, {lap['end_z_mm']:.4g}) mm and stays folded to the end, "
+        f"fold angle {lap['angle_deg']:.3g} -> {lap['end_angle_deg']:.3g} deg, depth "
+        f"{lap['depth_mm']:.3g} mm (history wedge_angle_deg, wedge_depth_mm; "
+        f"output.lap_angle_deg)"
+        for lap in result.laps
+    ]
+    out += [
+        f"pocket (underfill along the die): from stroke {p['stroke_mm']:.4g} mm air stays "
+        f"between the material and the die at ({p['end_r_mm']:.4g}, {p['end_z_mm']:.4g}) mm, "
+        f"closed at both ends by material on the die: gap {1e3 * p['gap_mm']:.3g} um, "
+        f"{p['length_mm']:.3g} mm long; not a lap (history pocket_gap_mm, pocket_length_mm)"
+        for p in getattr(result, "pockets", [])
+    ]
+    return out
+
+
 def _run(args) -> int:
     from jaxform.config import ConfigError
     from jaxform.driver import run
@@ -274,14 +295,8 @@ def _run(args) -> int:
         f"{time.perf_counter() - t0:.1f} s wall (first chunk incl. compile "
         f"{first or 0:.1f} s)"
     )
-    for lap in result.laps:
-        print(
-            f"lap: from stroke {lap['stroke_mm']:.4g} mm the free surface folds at "
-            f"({lap['r_mm']:.4g}, {lap['z_mm']:.4g}) mm and stays folded to the end, fold "
-            f"angle {lap['angle_deg']:.3g} -> {lap['end_angle_deg']:.3g} deg, depth "
-            f"{lap['depth_mm']:.3g} mm (history fold_angle_deg, fold_depth_mm; "
-            f"output.lap_angle_deg)"
-        )
+    for line in fold_lines(result):
+        print(line)
     overlap = float(np.max(h["die_overlap_mm"])) if "die_overlap_mm" in h else 0.0
     if overlap > 1e-3:
         print(

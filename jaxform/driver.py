@@ -176,7 +176,10 @@ def write_outputs(out_dir: str | Path, result: Result) -> None:
             f"initial and deformed mesh, {red:.1f} % reduction",
             axes,
             elements1=el1,
-            marks=[(lap["r_mm"], lap["z_mm"]) for lap in result.laps],
+            marks=plot.Marks(
+                laps=tuple((lap["end_r_mm"], lap["end_z_mm"]) for lap in result.laps),
+                pockets=tuple((p["end_r_mm"], p["end_z_mm"]) for p in result.pockets),
+            ),
         )
         plot.cell_contours(
             coords1,

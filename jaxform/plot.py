@@ -131,6 +131,15 @@ def _quads(coords, elements):
     return PolyCollection(coords[elements], closed=True)
 
 
+@dataclass(frozen=True)
+class Marks:
+    """Points marked on the deformed-mesh plot (mm): laps (red crosses: the material folded
+    onto itself) and pockets (orange circles: air between the material and a die)."""
+
+    laps: tuple = ()
+    pockets: tuple = ()
+
+
 def deformed_mesh(
     coords0,
     coords1,
@@ -142,9 +151,10 @@ def deformed_mesh(
     marks=(),
 ):
     """Deformed mesh (blue) over the initial mesh (grey), as thesis Fig. 6.4; ``elements1``:
-    the deformed mesh's elements where it is another mesh (after remeshing); ``marks``:
-    (r, z) points marked with a red cross (laps, where they were found); ``axes``: the
-    labels, or a :class:`SectionFrame` with the dies at the deformed mesh's instant."""
+    the deformed mesh's elements where it is another mesh (after remeshing); ``marks``: a
+    :class:`Marks` (laps and pockets), or (r, z) points of laps; ``axes``: the labels, or a
+    :class:`SectionFrame` with the dies at the deformed mesh's instant."""
+    marks = marks if isinstance(marks, Marks) else Marks(laps=tuple(marks))
     frame = _frame(axes)
     fig, ax = _figure(figsize=(6, 5))
     for c, e, style in (
@@ -155,11 +165,15 @@ def deformed_mesh(
         pc = _quads(c, e)
         pc.set(**style)
         ax.add_collection(pc)
-    if len(marks):
-        m = np.asarray(marks, dtype=float).reshape(-1, 2)
+    if len(marks.laps):
+        m = np.asarray(marks.laps, dtype=float).reshape(-1, 2)
         ax.plot(m[:, 0], m[:, 1], "x", color="tab:red", ms=9, mew=2, label="lap")
+    if len(marks.pockets):
+        m = np.asarray(marks.pockets, dtype=float).reshape(-1, 2)
+        ax.plot(m[:, 0], m[:, 1], "o", mfc="none", color="tab:orange", ms=10, mew=2,
+                label="pocket (underfill)")  # fmt: skip
     _section_axes(ax, frame, np.vstack([coords0, coords1]), title)
-    if len(marks) or frame.dies:
+    if len(marks.laps) or len(marks.pockets) or frame.dies:
         ax.legend(loc="upper right", fontsize=8)
     return _save(fig, path)
 

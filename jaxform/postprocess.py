@@ -19,6 +19,7 @@ import numpy as np
 from jaxform.contact import facets_in_contact
 from jaxform.dies import sample_rounded
 from jaxform.geometry import nearest_on_segments, polygon_measure, tributary_areas
+from jaxform.laps import fold_columns
 from jaxform.mesh import boundary_edges
 
 
@@ -243,113 +244,11 @@ def filled_volume(scene, pos: np.ndarray, t: float) -> float:
     return min(green, part, abs(float(polygon_measure(cav, axi))))
 
 
-def fold_angle(scene, pos: np.ndarray, t: float) -> tuple[float, float, float, float]:
-    """(angle in degrees, r, z of where, depth in mm): the narrowest air wedge the free
-    surface makes at nodal positions ``pos`` and time t, where a lap (fold) forms as it
-    closes, and how far it reaches along the surface (the depth):
-
-    * at a free-surface vertex off the die whose two edges are free: the air-side angle
-      between them, the surface turning back on itself (270 deg at a square corner of the
-      section, 180 on a straight side, 0 when the surface has folded flat onto itself);
-      its depth is the shorter of the two edges (the faces that close on each other);
-    * over a pocket, a run of free vertices off the die between two vertices that touch a
-      die (gap <= TOUCH_GAP_MM), the material closing on the die from both sides:
-      atan(largest gap / half the pocket's length along the surface) (0 when it closes);
-      its depth is the pocket's length along the surface.
-
-    A free surface that meets the die at a contact front, as a side rolling onto the die
-    or material filling a die corner, is neither.  Free means on a set a die may touch
-    (:meth:`Workpiece.contact_sets`); (180, nan, nan) where there is no fold or pocket."""
-    from jaxform.contact import TOUCH_GAP_MM
-    from jaxform.mesh import boundary_polygon
-    from jaxform.rezone import gap_function
-
-    free_sets = set(scene.workpiece.contact_sets(scene.mesh))
-    pts, labels, _ = boundary_polygon(scene.mesh, pos)
-    n = len(pts)
-    free_out = np.array([lab in free_sets for lab in labels])  # edge i: pts[i] -> pts[i+1]
-    free_in = np.roll(free_out, 1)
-    gap = np.full(n, np.inf)
-    if scene.inputs.die is not None and free_out.any():
-        gap = gap_function(scene.inputs.die, t)(pts)[0]
-    touching = gap <= TOUCH_GAP_MM
-    e_in = pts - np.roll(pts, 1, axis=0)
-    e_out = np.roll(pts, -1, axis=0) - pts
-    turn = np.arctan2(
-        e_in[:, 0] * e_out[:, 1] - e_in[:, 1] * e_out[:, 0], np.sum(e_in * e_out, axis=1)
-    )
-    angle = np.where(free_in & free_out & ~touching, np.degrees(np.pi + turn), np.inf)
-    length = np.linalg.norm(e_out, axis=1)
-    depth = np.minimum(length, np.roll(length, 1))
-    for i in np.nonzero(touching & free_out & ~np.roll(touching, -1))[0]:
-        run, j = [], (i + 1) % n  # the free vertices after the touching vertex i
-        while not touching[j] and free_in[j] and len(run) < n:
-            run.append(j)
-            j = (j + 1) % n
-        if not run or not touching[j] or not free_in[j]:
-            continue  # the run ends off the free surface (axis, mid-plane): no pocket
-        half = 0.5 * sum(length[k] for k in [i, *run])
-        k = max(run, key=lambda m: gap[m])
-        pocket = np.degrees(np.arctan2(gap[k], half))
-        if pocket < angle[k]:
-            angle[k], depth[k] = pocket, 2.0 * half
-    k = int(np.argmin(angle))
-    if not np.isfinite(angle[k]):
-        return 180.0, float("nan"), float("nan"), 0.0
-    return float(angle[k]), float(pts[k, 0]), float(pts[k, 1]), float(depth[k])
-
-
-# a fold that moves farther than this plus twice the stroke between two rows is another
-# fold (mm): the material at a fold moves with the dies
-FOLD_JUMP_MM = 0.1
-
-
-def folds(history: dict, angle_deg: float) -> list[dict]:
-    """Every fold of a run: a run of consecutive rows whose narrowest air wedge (history
-    ``fold_angle_deg``) is below ``angle_deg`` at one place (its point moving less than
-    FOLD_JUMP_MM plus twice the stroke from row to row: a wedge elsewhere becoming the
-    narrowest starts another fold).  Each: its first row, stroke, place and angle there;
-    its last row, angle and depth (``fold_depth_mm``) there; whether it persists to the
-    run's last row."""
-    a = np.asarray(history.get("fold_angle_deg", []))
-    if angle_deg <= 0.0 or not len(a):
-        return []
-    where = np.column_stack([history["fold_r_mm"], history["fold_z_mm"]])
-    depth = np.asarray(history.get("fold_depth_mm", np.zeros(len(a))))
-    stroke = np.asarray(history["stroke_mm"])
-    out, start = [], None
-    for k in range(len(a) + 1):
-        on = k < len(a) and a[k] < angle_deg
-        near = FOLD_JUMP_MM + 2.0 * abs(stroke[min(k, len(a) - 1)] - stroke[k - 1])
-        same = on and start is not None and np.linalg.norm(where[k] - where[k - 1]) < near
-        if start is not None and not same:  # the fold from start ends at row k - 1
-            end = k - 1
-            out.append(dict(row=start, stroke_mm=float(history["stroke_mm"][start]),
-                            r_mm=float(where[start, 0]), z_mm=float(where[start, 1]),
-                            angle_deg=float(a[start]), last_row=end,
-                            end_angle_deg=float(a[end]), depth_mm=float(depth[end]),
-                            persists=end == len(a) - 1))  # fmt: skip
-            start = None
-        if on and start is None:
-            start = k
-    return out
-
-
-def laps(history: dict, angle_deg: float) -> list[dict]:
-    """The laps of a run: the folds (:func:`folds`) that persist to its end.  A wedge of
-    the free surface that closes below ``angle_deg`` and opens again, or that material
-    fills against the die (a pocket whose contact fronts meet), is no lap: the flash
-    scene's run reported four such transient pockets as laps; it has one that persists
-    (an air sliver along the hub's wall)."""
-    return [f for f in folds(history, angle_deg) if f["persists"]]
-
-
 def extra_history(scene, xs: np.ndarray, times: np.ndarray) -> dict[str, np.ndarray]:
     """The history columns a scene adds to every run: its workpiece's
     (:meth:`jaxform.workpieces.Workpiece.extra_history`), for a die scene
-    ``die_overlap_mm`` (:func:`die_overlap`) and the narrowest air wedge of the free
-    surface ``fold_angle_deg`` at ``fold_r_mm``, ``fold_z_mm`` (:func:`fold_angle`), for a
-    closed die ``die_fill`` (0..1),
+    ``die_overlap_mm`` (:func:`die_overlap`) and the free surface's narrowest wedge and
+    pocket (:func:`jaxform.laps.fold_columns`), for a closed die ``die_fill`` (0..1),
     with a part radius ``flash_volume_mm3``, with a temperature field the mean, min and
     max temperature (:func:`temperature_history`)."""
     coords = np.asarray(scene.inputs.coords)
@@ -371,9 +270,7 @@ def extra_history(scene, xs: np.ndarray, times: np.ndarray) -> dict[str, np.ndar
             [halves * material_beyond(scene, p, die.part_radius_mm) for p in pos]
         )
     if die is not None:
-        fold = np.array([fold_angle(scene, p, t) for p, t in zip(pos, times)]).reshape(-1, 4)
-        out.update(fold_angle_deg=fold[:, 0], fold_r_mm=fold[:, 1], fold_z_mm=fold[:, 2],
-                   fold_depth_mm=fold[:, 3])  # fmt: skip
+        out.update(fold_columns(scene, pos, times))
     out.update(temperature_history(scene, xs))
     return out
 

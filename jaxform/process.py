@@ -145,6 +145,10 @@ class ProcessResult:
     def laps(self) -> list:
         return [lap for run in self.runs for lap in run.result.laps]
 
+    @property
+    def pockets(self) -> list:
+        return [p for run in self.runs for p in run.result.pockets]
+
 
 def positions_of(part: PartState) -> np.ndarray:
     """The part's nodal positions (mm)."""

@@ -110,6 +110,8 @@ class Scene:
     grid: tuple[int, int] | None = None  # (nr, nz) of a structured mesh (rezoning needs it)
     adjoint_memory_mb: float = 0.0  # forward factorizations a gradient run may keep (MB)
     dt_growth: float = 1.5  # an easy step lets the next one grow by this factor (to dt)
+    # a Newton solve at the smallest step goes on from its last iterate this many times
+    continuations: int = 0
     # when and how to remesh (element_size_mm resolved); None: never
     remesh: RemeshConfig | None = None
     # the machine that drives the top die (jaxform.presses); None: no die (a membrane)
@@ -626,6 +628,7 @@ def build_scene(cfg: dict | Config, mesh: meshing.Mesh | None = None) -> Scene:
         dt=tm.dt_s,
         t_end=t_end,
         max_cutbacks=so.max_cutbacks,
+        continuations=so.smallest_step_continuations,
         dt_growth=tm.dt_growth,
         chunk=so.chunk_steps,
         symmetric_z=piece.half_height,

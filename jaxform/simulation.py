@@ -33,7 +33,8 @@ from jaxform.chunks import converged_rows, failure_message, host_failure, run_on
 from jaxform.fields import OUTPUT_FIELDS
 from jaxform.forming_outputs import damage_history
 from jaxform.geometry import min_quality
-from jaxform.postprocess import HEAT_COLUMNS, extra_history, laps
+from jaxform.laps import laps, pockets
+from jaxform.postprocess import HEAT_COLUMNS, extra_history
 from jaxform.precision import require_x64
 from jaxform.scenes import Inputs, Scene, analyzed
 from jaxform.status import OK
@@ -102,8 +103,11 @@ class Result:
     segments: list = field(default_factory=list)
     remeshes: list = field(default_factory=list)
     step_programs: int = 1  # distinct compiled step programs (capacity buckets) the run used
-    # laps found (jaxform.postprocess.laps): row, stroke_mm, r_mm, z_mm, angle_deg
+    # the free surface's folds that persist to the end (jaxform.laps): laps (wedges:
+    # row, stroke_mm, r_mm, z_mm, angle_deg, ..., depth_mm) and pockets (air between the
+    # material and a die: ..., gap_mm, length_mm)
     laps: list = field(default_factory=list)
+    pockets: list = field(default_factory=list)
 
     def scene_at(self, row: int) -> Scene:
         """The scene (mesh, sets, reference coordinates) of history row ``row``."""
@@ -292,6 +296,7 @@ def _result(scene: Scene, run: Run, adaptation) -> Result:
         segments=segments,
         step_programs=len(run.programs),
         laps=laps(history, scene.settings.output.lap_angle_deg),
+        pockets=pockets(history, scene.settings.output.lap_angle_deg),
         **reports,
     )
 
@@ -440,6 +445,7 @@ def init(scene: Scene) -> tuple[SimState, StepControl]:
         h=jnp.asarray(scene.dt),
         dt_max=jnp.asarray(scene.dt),
         t_end=jnp.asarray(scene.t_end),
+        continuations=jnp.asarray(scene.continuations),
         thresholds=off(stepper_of(scene).triggers),
     )
     return initial_state(scene.model, scene.inputs), control

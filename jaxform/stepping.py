@@ -3,10 +3,11 @@
 Pure functions of immutable state, all compiled: :func:`solve_step` solves one step by
 Newton (differentiable by the implicit function theorem), :func:`attempt_step` makes one
 converged step of adaptive size (a failed attempt halves the step, down to ``time.dt_s /
-2**solver.max_cutbacks``; an easy step lets the next grow by ``time.dt_growth`` up to
-``time.dt_s``), and :func:`run_chunk` scans a number of them, reporting each step's
-outputs and status code.  The host loop around it (progress, rezoning, the history) is
-:mod:`jaxform.simulation`; this module imports no output code.
+2**solver.max_cutbacks``, where a Newton solve that ran out of iterations goes on from its
+last iterate up to ``solver.smallest_step_continuations`` times; an easy step lets the next
+grow by ``time.dt_growth`` up to ``time.dt_s``), and :func:`run_chunk` scans a number of
+them, reporting each step's outputs and status code.  The host loop around it (progress,
+rezoning, the history) is :mod:`jaxform.simulation`; this module imports no output code.
 
 Scenes are half-height models (symmetry plane z = 0) unless their workpiece says
 otherwise (``Stepper.symmetric_z``): the top die travels d(t) towards the mid-plane,
@@ -45,7 +46,7 @@ from jaxform.kinematics import deviator, safe_norm_eq
 from jaxform.linear import LinearSolver, matvec
 from jaxform.loads import external_forces, total_force
 from jaxform.solver import ImplicitProblem, NewtonSettings, solve_implicit
-from jaxform.status import OK
+from jaxform.status import NEWTON_NOT_CONVERGED, OK
 from jaxform.triggers import AfterStep, Trigger, scene_triggers
 from jaxform.wear import node_wear, station_wear
 from jaxform.xla_options import jit
@@ -382,13 +383,22 @@ def stepper_of(scene, differentiable: bool = False) -> Stepper:
 @dataclass(frozen=True)
 class StepControl:
     """The traced part of the time stepping: the step size to try next, the largest
-    step (``time.dt_s``), the end time, and the thresholds of the stepper's triggers that
-    pause a chunk for the host (in the order of ``Stepper.triggers``; each 0: never;
-    :mod:`jaxform.triggers`)."""
+    step (``time.dt_s``), the end time, how many times a Newton solve at the smallest step
+    goes on from its last iterate (``continuations``), and the thresholds of the stepper's
+    triggers that pause a chunk for the host (in the order of ``Stepper.triggers``; each
+    0: never; :mod:`jaxform.triggers`).
+
+    Continuations: a solve at the smallest step that ran out of iterations without
+    converging (and without an invalid state) goes on from its last iterate before the
+    step fails.  Near the end of a closed-die stroke the contact and friction active sets
+    can take more iterations to settle than one solve allows, and halving the step
+    further does not shorten that.  A run that never fails at its smallest step is not
+    changed by them."""
 
     h: jax.Array  # s
     dt_max: jax.Array  # s
     t_end: jax.Array  # s
+    continuations: jax.Array  # solves at the smallest step that go on
     thresholds: tuple = ()
 
 
@@ -402,8 +412,9 @@ def attempt_step(
 ):
     """One converged step from ``state``: tried with ``control.h`` (the last step snapped to
     end exactly at t_end), halved on failure until it converges or reaches the smallest
-    step.  Returns (state, info dict, fac): info has the step size taken (h_used),
-    iterations and cutbacks of all attempts, the status code, and the Newton history of
+    step (there continued, ``StepControl.continuations``).  Returns (state, info dict, fac):
+    info has the step size taken (h_used), iterations and cutbacks (failed attempts,
+    continuations included) of all attempts, the status code, and the Newton history of
     the last attempt; ``fac`` the factorization modified Newton keeps (None for full Newton)."""
     settings = stepper.newton
     n_hist = settings.max_total_iterations + 1
@@ -420,17 +431,28 @@ def attempt_step(
         # predictor: the last step's rate, extrapolated (exact for steady motion); not
         # after a failure in this step (the rate may be what failed), and never an invalid one
         use_rate = (c["cutbacks"] == 0).astype(st.x.dtype)
-        sol = solve_step(
-            stepper, st, t_new, inp, idx, x_guess=st.x + use_rate * hh * st.x_rate, fac=c["fac"]
-        )
+        guess = st.x + use_rate * hh * st.x_rate
+        # a continuation goes on from the last iterate of the solve before it
+        guess = jnp.where(c["continued"] > 0, c["guess"], guess)
+        sol = solve_step(stepper, st, t_new, inp, idx, x_guess=guess, fac=c["fac"])
         ok = sol.code == OK
         conv = converged_state(stepper.model, st, sol.x, sol.gauss, t_new, inp, sol.cstep, idx)
-        failed = ~ok & (h <= h_min * (1.0 + 1e-9))  # nothing smaller to try
+        smallest = h <= h_min * (1.0 + 1e-9)  # nothing smaller to try
+        go_on = (
+            ~ok
+            & smallest
+            & (sol.code == NEWTON_NOT_CONVERGED)
+            & (c["continued"] < control.continuations)
+            & jnp.isfinite(sol.x).all()
+        )
+        failed = ~ok & smallest & ~go_on
         return dict(
             state=_tree_where(ok, conv, st),
-            h=jnp.where(ok, h, 0.5 * h),
+            h=jnp.where(ok | go_on, h, 0.5 * h),
             h_used=hh,
             done=ok | failed,
+            continued=c["continued"] + go_on.astype(jnp.int32),
+            guess=sol.x,
             iterations=c["iterations"] + sol.iterations,
             last_jacobians=_jacobians(stepper, sol, c["fac"]),
             cutbacks=c["cutbacks"] + (~ok).astype(jnp.int32),
@@ -451,6 +473,8 @@ def attempt_step(
         code=jnp.asarray(OK),
         hist=jnp.full(n_hist, jnp.inf),
         fac=fac,
+        continued=jnp.asarray(0, jnp.int32),
+        guess=state.x,
     )
     out = jax.lax.while_loop(cond, body, init)
     info = {k: out[k] for k in ("iterations", "cutbacks", "code", "hist", "h_used")}

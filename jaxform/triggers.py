@@ -26,8 +26,8 @@ measures:
   facets at an open contact candidate (180 deg on a straight surface, 270 at a square
   corner of the section, 0 where the surface has folded flat onto itself).
 
-The fold angle here sees the candidates only; the history's ``fold_angle_deg``
-(:func:`jaxform.postprocess.fold_angle`) also sees pockets closing on the die.
+The fold angle here sees the candidates only (a wedge); the history
+(:func:`jaxform.laps.fold_columns`) also measures pockets closing on the die.
 """
 
 from __future__ import annotations

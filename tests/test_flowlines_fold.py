@@ -108,7 +108,9 @@ def test_the_boss_folds_over_into_a_lap_and_its_surface_line_folds_there(tmp_pat
     2026-11-26: 0.05 mm and 0.05 mm slack), and the flow lines fold there: only the surface
     line, at the lap's place at the end of the run (the root is a node of the mesh and a
     sample point of the line: 1e-9 mm), by 175 deg (2 deg), its legs side by side over
-    0.25 mm (0.05 mm); no grid line turns by 150 deg."""
+    0.25 mm (0.05 mm); no grid line turns by 150 deg.  The lap's depth (the wedge's shorter
+    flank, jaxform.laps) is 0.21 mm (the run of 2026-11-26: 0.213; 0.05 mm slack), and the
+    run has no pocket."""
     spec = importlib.util.spec_from_file_location(
         "lap_scene", ROOT / "experiments" / "lap_scene.py"
     )
@@ -125,4 +127,5 @@ def test_the_boss_folds_over_into_a_lap_and_its_surface_line_folds_there(tmp_pat
     (fold,) = self_folds(lines, args.spacing)
     assert fold.family == 2 and abs(fold.turn_deg - 175.0) <= 2.0
     assert abs(fold.depth_mm - 0.25) <= 0.05
-    assert np.hypot(fold.r_mm - h["fold_r_mm"][-1], fold.z_mm - h["fold_z_mm"][-1]) <= 1e-9
+    assert np.hypot(fold.r_mm - h["wedge_r_mm"][-1], fold.z_mm - h["wedge_z_mm"][-1]) <= 1e-9
+    assert abs(lap["depth_mm"] - 0.21) <= 0.05 and not res.pockets  # a lap, no pocket

@@ -116,6 +116,7 @@ def _imports(path: Path) -> set[str]:
             ["stepping.py", "solver.py", "assembly.py", "formulations.py", "contact.py"],
             (
                 "jaxform.postprocess",
+                "jaxform.laps",
                 "jaxform.io",
                 "jaxform.plot",
                 "jaxform.simulation",

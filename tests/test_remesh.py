@@ -301,13 +301,13 @@ def test_fold_angle_of_known_wedges():
     (1e-9); an inward
     crease of the side (mid node pulled in by a = 4 h) gives the air wedge 2 atan(1/4) =
     28.07 deg (1e-9) at that node; their depths are the pocket's length along the
-    surface and the crease's shorter edge (1e-12).  The fold list reports each run of
-    rows below output.lap_angle_deg at one place once, with its stroke and place; the
-    lap list only the folds that persist to the run's end (a pocket that closes again is
-    no lap), and a fold that moves farther than 0.1 mm plus twice the stroke between two
-    rows is another one."""
+    surface and the crease's shorter flank (here one edge each: the side's corner and
+    the mid-plane end them) (1e-12).  The fold list reports each run of rows below
+    output.lap_angle_deg at one place once, with its stroke and place; the lap list only
+    the wedge folds (wedge_* columns) that persist to the run's end, and a fold that
+    moves farther than 0.1 mm plus twice the stroke between two rows is another one."""
     from jaxform.config import typed
-    from jaxform.postprocess import fold_angle, laps
+    from jaxform.laps import fold_angle, laps
     from jaxform.scenes import build_scene
 
     scene = build_scene(typed(load_config(SEED, QUIET + ["mesh.nr=2", "mesh.nz=2"])))
@@ -337,15 +337,16 @@ def test_fold_angle_of_known_wedges():
         "fold_r_mm": np.ones(6),
         "fold_z_mm": np.zeros(6),
     }
-    from jaxform.postprocess import folds
+    from jaxform.laps import folds
 
     every = folds(hist, 10.0)
     assert [(f["row"], f["last_row"], f["persists"]) for f in every] == [(2, 3, False),
                                                                        (5, 5, True)]  # fmt: skip
     assert every[0]["angle_deg"] == 8.0 and every[0]["end_angle_deg"] == 6.0
-    found = laps(hist, 10.0)
+    wedges = {k.replace("fold_", "wedge_"): v for k, v in hist.items()}  # laps: wedges
+    found = laps(wedges, 10.0)
     assert [f["row"] for f in found] == [5]
-    assert laps(hist, 0.0) == []
+    assert laps(wedges, 0.0) == [] and laps(hist, 10.0) == []  # no wedge columns: no lap
     moved = dict(
         hist, fold_r_mm=np.array([1.0, 1.0, 1.0, 1.0, 1.0, 1.0]) + [0, 0, 0, 3.0, 3.0, 3.0]
     )

@@ -350,6 +350,8 @@ def test_impossible_scene_stops_with_message_and_state(tmp_path):
             "--set",
             "solver.max_cutbacks=0",
             "--set",
+            "solver.smallest_step_continuations=0",
+            "--set",
             "solver.chunk_steps=4",
             "--set",
             "output.fields=false",
@@ -371,8 +373,29 @@ def test_impossible_scene_stops_with_message_and_state(tmp_path):
                 "solver.chunk_steps=4",
                 "solver.max_newton_iterations=3",
                 "solver.max_cutbacks=0",
+                "solver.smallest_step_continuations=0",
             )
         )
+
+
+def test_newton_goes_on_at_the_smallest_step():
+    """At the smallest step a Newton solve that runs out of iterations goes on from its last
+    iterate (solver.smallest_step_continuations): 3 iterations per solve, no cutback, a
+    stop without continuations; with 6 of them (21 iterations) the run ends, on the same
+    root as one solve of 25 iterations (relative force difference <= 1e-9: both converge to
+    rtol = 1e-10 of the force scale), its continuations counted as failed attempts."""
+    base = ("mesh.nr=3", "mesh.nz=3", "time.dt_s=5.0", "solver.chunk_steps=4",
+            "solver.max_cutbacks=0", "output.fields=false")  # fmt: skip
+    with pytest.raises(SimulationError, match="Newton did not converge"):
+        simulate(scene(*base, "solver.max_newton_iterations=3",
+                       "solver.smallest_step_continuations=0"))  # fmt: skip
+    ref = simulate(scene(*base, "solver.max_newton_iterations=25"))
+    res = simulate(scene(*base, "solver.max_newton_iterations=3",
+                         "solver.smallest_step_continuations=6"))  # fmt: skip
+    f_ref, f = ref.history["force_N"][1:], res.history["force_N"][1:]
+    np.testing.assert_allclose(f, f_ref, rtol=1e-9)
+    assert res.history["cutbacks"].max() >= 1  # some step needed a continuation
+    assert np.array_equal(res.history["time_s"], ref.history["time_s"])
 
 
 def test_bad_config_is_rejected_before_compiling(capsys, tmp_path):

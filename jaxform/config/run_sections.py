@@ -48,6 +48,14 @@ class SolverConfig:
         doc="relative residual tolerance of Newton",
     )
     max_cutbacks: int = key(6, low=0, high=30, doc="times a failed step may be halved")
+    smallest_step_continuations: int = key(
+        3,
+        low=0,
+        high=20,
+        doc="at the smallest step (after max_cutbacks halvings), times a Newton solve that has "
+        "not converged goes on from its last iterate (max_newton_iterations more each) before "
+        "the run stops; runs that never fail at the smallest step are unchanged",
+    )
     line_search: bool = key(True, doc="backtracking line search in Newton")
     linear: str = key(
         "auto",
@@ -123,8 +131,10 @@ class OutputConfig:
         10.0,
         low=0.0,
         high=90.0,
-        doc="report a lap (fold) where the narrowest air wedge of the free surface (history "
-        "fold_angle_deg: against itself or against a die) closes below this (deg; 0 = never)",
+        doc="report a lap where a wedge of the free surface (history wedge_angle_deg: the "
+        "surface folded onto itself) and a pocket where air between the material and a die "
+        "(pocket_angle_deg = atan(gap / half its length)) stays below this to the end (deg; "
+        "0 = never)",
     )
     damage_critical: float = key(
         0.0,

@@ -34,9 +34,9 @@ sets, targets) with ``__call__(traj, inputs) -> scalar`` (``inputs`` = the run's
 * :class:`PressCapacity`    weight x (max(0, F_peak - capacity) / capacity)^2: a
   penalty on the peak ram force above the press's capacity.
 * :class:`LapPenalty`       sum over the free-surface vertices of (max(0, 1 - a / a_lap))^2,
-  a the air-side wedge angle there at the end (the differentiable form of the first
-  kind of :func:`jaxform.postprocess.fold_angle`: 180 deg on a straight side, 0 when the
-  surface has folded onto itself).
+  a the air-side wedge angle there at the end (the differentiable form of the wedge of
+  :mod:`jaxform.laps`, a lap: 180 deg on a straight side, 0 when the surface has folded
+  onto itself; pockets, air between the material and a die, do not enter it).
 * :class:`WeightedSum`      sum of weights x terms (any of the above); ``values`` lists
   each term's value for the report.
 * :class:`TemperatureLimit`  another objective plus a quadratic penalty on the hottest node
