@@ -190,3 +190,33 @@ def test_die_overlap_is_the_sagitta_of_a_convex_corner_between_two_nodes(radius,
     expected = radius - centre
     assert abs(overlap_depth(circle, pos, edges) - expected) <= 1e-12
     assert overlap_depth(circle + np.array([0.0, expected + 1e-6]), pos, edges) == 0.0
+
+
+def test_a_facet_lets_go_of_an_arc_gradually_at_its_node():
+    """A facet lying on a flat die face, its node a crossing the tangent point E where the
+    face runs into a convex edge arc (R = 0.3): the arc's deepest point is E, at the
+    facet's depth (raw gap 0).  Away from the nodes the corner gap is that raw gap (0 to
+    1e-12); within END_SHARE of node a it rises linearly to the facet length, which is
+    the gap of a disengaged facet, so nothing jumps as E crosses the node (the jump made
+    Newton cycle: docs/remeshing.md).  Reference: the closed form
+    g = L (END_SHARE - xi) / END_SHARE for xi = |E - x_a| / L < END_SHARE, to 1e-12."""
+    from jaxform.dies import END_SHARE, corner_gap
+
+    pts = jnp.asarray([[0.0, 1.0], [2.0, 1.0], [2.0, 3.0]])  # flat face, then up: convex
+    radius, length = 0.3, 0.25
+    e_r = 2.0 - radius  # the tangent point on the flat face
+
+    def gap(s):  # facet from x_a = E + s (towards the edge) back along the face
+        xa = jnp.asarray([e_r + s, 1.0])
+        xb = jnp.asarray([e_r + s - length, 1.0])
+        return corner_gap(pts, radius, xa, xb)
+
+    for xi in (0.5, 0.3, END_SHARE + 1e-3):
+        g, engaged = gap(xi * length)
+        assert bool(engaged) and abs(float(g)) <= 1e-12, (xi, g)
+    for xi in (0.075, 0.05, 0.02, 1e-9):
+        g, engaged = gap(xi * length)
+        want = length * (END_SHARE - xi) / END_SHARE
+        assert bool(engaged) and abs(float(g) - want) <= 1e-12, (xi, g, want)
+    g, engaged = gap(-0.01 * length)  # E beyond node a: the facet has let go
+    assert not bool(engaged) and float(g) == pytest.approx(length, abs=1e-12)
