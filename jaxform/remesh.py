@@ -227,7 +227,10 @@ def onto_dies(mesh, polygon: tuple[np.ndarray, np.ndarray], gap_fn, axisymmetric
     sagitta, along a convex one inside it, so the first step on the new mesh begins with
     part of the contact open or overlapping and the die force dips (docs/remeshing.md).
     Each such node moves to its closest point on the die (where it lies within a quarter
-    of its edge's length of it); the volume this adds or cuts is given back by moving the
+    of its edge's length of it), and so does any node an edge placed inside a die (a
+    chord across a convex die corner whose one end is no contact vertex); the axis and
+    the mid-plane are never moved (an axis from the punch to the bottom die joins two
+    contact vertices but is no chord).  The volume this adds or cuts is given back by moving the
     free surface (the boundary nodes off the dies, the axis and the mid-plane) along its
     outward normals by one distance, found by Newton steps (the first exact to first
     order) until the volume is the polygon's to 1e-13.
@@ -246,7 +249,20 @@ def onto_dies(mesh, polygon: tuple[np.ndarray, np.ndarray], gap_fn, axisymmetric
     prev_v = np.where(prev_v < 0, np.nonzero(is_v)[0][-1], prev_v)
     nxt_v = np.minimum.accumulate(np.where(is_v, idx, len(idx))[::-1])[::-1]
     nxt_v = np.where(nxt_v >= len(idx), np.nonzero(is_v)[0][0], nxt_v)
-    on_chord = ~is_v & touching[vertex[prev_v]] & touching[vertex[nxt_v]]
+    # the axis and the mid-plane are held by Dirichlet conditions: never moved (an axis
+    # that runs from the punch to the bottom die joins two contact vertices, but it is
+    # no chord of a die)
+    held = np.zeros(len(loop), dtype=bool)
+    for name in ("axis", "symmetry"):
+        held |= np.isin(loop, np.asarray(mesh.node_sets.get(name, []), dtype=np.int64))
+    gap_all, _ = gap_fn(pos)
+    # a chord of the die between two contact vertices, or a node that an edge of the
+    # polygon placed inside a die (a chord across a convex die corner, the punch's nose)
+    on_chord = (
+        ~is_v
+        & ~held
+        & ((touching[vertex[prev_v]] & touching[vertex[nxt_v]]) | (gap_all < -TOUCH_GAP_MM))
+    )
     if not on_chord.any():
         return mesh
     g, n = gap_fn(pos[on_chord])
@@ -256,12 +272,13 @@ def onto_dies(mesh, polygon: tuple[np.ndarray, np.ndarray], gap_fn, axisymmetric
     moved = loop[on_chord][near]
     coords[moved] -= (g[near])[:, None] * n[near]
     free_gap, _ = gap_fn(coords[loop])
-    free = (free_gap > TOUCH_GAP_MM) & ~np.isin(loop, moved)
-    for name in ("axis", "symmetry"):  # held by Dirichlet conditions: never moved
-        free &= ~np.isin(loop, np.asarray(mesh.node_sets.get(name, []), dtype=np.int64))
+    free = (free_gap > TOUCH_GAP_MM) & ~np.isin(loop, moved) & ~held
     if free.any():
         target = float(np.sum(polygon_measure(mesh.coords[mesh.elements], axisymmetric)))
-        for _ in range(4):  # Newton on the one distance: the first step is exact to first order
+        # Newton on the one distance, its derivative the free surface's share (exact to
+        # first order where the outward normals are the edges'; at a corner of the free
+        # surface it converges linearly)
+        for _ in range(12):
             change = float(np.sum(polygon_measure(coords[mesh.elements], axisymmetric))) - target
             if abs(change) <= 1e-13 * target:
                 break

@@ -533,6 +533,83 @@ def test_nodes_added_along_a_die_arc_are_moved_onto_it_with_the_volume_kept():
         assert np.array_equal(new.coords[held], mesh.coords[held])
 
 
+def _two_dies(gaps_normals):
+    """gap_fn of several dies: the least gap and its die's normal at each point."""
+
+    def gap_fn(p):
+        g, n = zip(*(f(p) for f in gaps_normals))
+        k = np.argmin(np.stack(g), axis=0)
+        return np.stack(g)[k, np.arange(len(p))], np.stack(n)[k, np.arange(len(p))]
+
+    return gap_fn
+
+
+def test_an_axis_from_one_die_to_another_is_no_chord():
+    """The section of the arc test above standing on a flat bottom die (z = 0) too, so
+    its axis runs from a contact vertex on the top die to one on the bottom die (as in
+    a container, configs/backward_extrusion.toml).  The axis is held by its Dirichlet
+    condition and is no chord of a die: its nodes stay where they are (exactly), and the
+    nodes on the top arc's chords still go onto the arc (|x| = 2 to 1e-12).  Before, the
+    axis nodes within a quarter of the axis' length of a die were moved onto it, the
+    moved mesh folded, and onto_dies kept the unmoved mesh: every chord node stayed off
+    its die (inside a convex one by up to 0.17 mm in the backward extrusion)."""
+    from jaxform.remesh import onto_dies
+
+    arc = np.deg2rad(np.arange(40.0, 91.0, 10.0))
+    top = np.column_stack([2.0 * np.cos(arc), 2.0 * np.sin(arc)])
+    pts = np.vstack([[0.0, 0.0], [1.5, 0.0], [1.5, 0.8], top])
+    labels = ["symmetry", "side", "side"] + ["top"] * (len(top) - 1) + ["axis"]
+    touching = np.r_[True, False, False, np.ones(len(top), bool)]  # (0, 0) on the bottom die
+
+    def arc_die(p):
+        r = np.linalg.norm(p, axis=1)
+        return 2.0 - r, -p / np.maximum(r, 1e-300)[:, None]
+
+    def bottom_die(p):
+        return p[:, 1].copy(), np.tile([0.0, -1.0], (len(p), 1))
+
+    mesh = polygon_quads(pts, labels, np.full(len(pts), 0.1))
+    new = onto_dies(mesh, (pts, touching), _two_dies((arc_die, bottom_die)), axisymmetric=True)
+    axis = np.asarray(mesh.node_sets["axis"])
+    assert len(axis) > 10
+    np.testing.assert_array_equal(new.coords[axis], mesh.coords[axis])
+    top_nodes = np.asarray(mesh.node_sets["top"])
+    assert np.abs(np.linalg.norm(mesh.coords[top_nodes], axis=1) - 2.0).max() > 5e-3
+    np.testing.assert_allclose(np.linalg.norm(new.coords[top_nodes], axis=1), 2.0, atol=1e-12)
+
+
+def test_nodes_a_chord_puts_inside_a_convex_die_corner_are_moved_out():
+    """Material outside a convex die corner (a punch's nose: a disc of radius 1 mm about
+    (0, 2)); the polygon's edge from 0.05 mm right of the disc's point at -40 deg (no
+    contact vertex) to (0, 1) (on it) cuts through the disc, and gmsh's nodes on it lie
+    inside the die (down to -0.08 mm).  onto_dies moves every node inside a die onto it (gap 0
+    to 1e-12; the moved nodes keep their side of the die), and the free surface gives the
+    volume back (the polygon's to 1e-12)."""
+    from jaxform.remesh import onto_dies
+
+    a = np.deg2rad(-40.0)
+    pts = np.array([[0.0, 0.0], [3.0, 0.0], [3.0, 2.0 + np.sin(a)],
+                    [np.cos(a) + 0.05, 2.0 + np.sin(a)], [0.0, 1.0]])  # fmt: skip
+    labels = ["symmetry", "outer", "outer", "top", "axis"]
+    touching = np.array([False, False, False, False, True])
+
+    def nose(p):
+        d = p - np.array([0.0, 2.0])
+        r = np.linalg.norm(d, axis=1)
+        return r - 1.0, d / r[:, None]
+
+    mesh = polygon_quads(pts, labels, np.full(len(pts), 0.1))
+    g_old, _ = nose(mesh.coords)
+    assert g_old.min() < -0.07
+    new = onto_dies(mesh, (pts, touching), nose, axisymmetric=True)
+    g_new, _ = nose(new.coords)
+    assert g_new.min() >= -1e-12
+    inside = g_old < -1e-3
+    np.testing.assert_allclose(g_new[inside], 0.0, atol=1e-12)
+    volume = [polygon_measure(m.coords[m.elements], True).sum() for m in (mesh, new)]
+    assert abs(volume[1] - volume[0]) < 1e-12 * volume[0]
+
+
 def test_a_section_gmsh_cannot_quad_mesh_is_tried_again_finer(monkeypatch):
     """Generated closed die 11 stopped at 99.8 % of its stroke: 'remeshing failed: gmsh
     gave no all-quad mesh' (triangles left by every algorithm at the wanted sizes).  The
