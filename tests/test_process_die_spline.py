@@ -146,7 +146,7 @@ def test_bad_die_spline_design_refused_in_one_line(tmp_path, design, needle):
 
 
 def test_two_stage_disk_design_config_is_accepted_and_starts_at_its_die():
-    """configs/two_stage_disk_design.toml passes the process's design check, and its
+    """experiments/two_stage_disk_design.toml passes the process's design check, and its
     blocker's die_spline group starts at the configured die (its flat web face): the
     spline's heights at u = 0 equal the profile's z at every sampled point (1e-12 mm; the
     replay's start design is the forward run's), 9 points sampled (r = 0 .. 4 mm), 4 free
@@ -154,7 +154,7 @@ def test_two_stage_disk_design_config_is_accepted_and_starts_at_its_die():
     from jaxform.design.problem import build_group
     from jaxform.process import forming_scene
 
-    process = load_typed(ROOT / "configs" / "two_stage_disk_design.toml")
+    process = load_typed(ROOT / "experiments" / "two_stage_disk_design.toml")
     check_process_design(process)
     ops = process.operations
     initial = prepare(ops)
