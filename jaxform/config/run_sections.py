@@ -49,7 +49,7 @@ class SolverConfig:
     )
     max_cutbacks: int = key(6, low=0, high=30, doc="times a failed step may be halved")
     smallest_step_continuations: int = key(
-        8,
+        3,
         low=0,
         high=20,
         doc="at the smallest step (after max_cutbacks halvings), times a Newton solve that has "
