@@ -380,11 +380,9 @@ def corner_gap(points, corner_radius, xa, xb, profile=None):
     Where the deepest point nears one of the facet's nodes (within END_SHARE of its
     length) the facet lets go of the arc gradually: g rises linearly to the facet length
     (inactive) at the node.  There the node's own condition holds the die, and a facet
-    condition that switched off as the point crossed the node made the multiplier jump
-    (measured: a facet on a flash land whose node sat on the tangent point of the
-    gutter's edge arc, its Newton iterates cycling with period three at ||R|| / F =
-    2.6e-5 ... 3.8e-5, the multiplier -0.39 N, for 300 iterations).  The arc may then
-    reach past the chord near the node by up to (END_SHARE length)^2 / (2 rho)."""
+    condition that switched off as the point crossed the node made the multiplier jump and
+    Newton cycle (docs/remeshing.md, generated dies).  The arc may then reach past the
+    chord near the node by up to (END_SHARE length)^2 / (2 rho)."""
     pr = rounded_profile(points, corner_radius) if profile is None else profile
     d = xb - xa
     length = jnp.sqrt(jnp.sum(d * d))
