@@ -389,7 +389,7 @@ QUAD_ALGORITHMS = (6, 8, 5)
 QUAD_QUALITY = 0.3
 
 
-def polygon_quads(points, labels, sizes) -> Mesh:
+def polygon_quads(points, labels, sizes, split: bool = False) -> Mesh:
     """All-quadrilateral mesh of a simple polygon by gmsh (2-D algorithms of
     :data:`QUAD_ALGORITHMS` with Blossom recombination), keeping every polygon vertex as a
     node.
@@ -404,20 +404,28 @@ def polygon_quads(points, labels, sizes) -> Mesh:
     Each edge is split into round(length / size) segments (at least one), one more on the
     edge whose segments are longest when the total is odd: Blossom recombination gives an
     all-quad mesh for an even number of boundary segments.  Raises MeshError when no
-    algorithm gives an all-quad mesh."""
+    algorithm gives an all-quad mesh.
+
+    ``split``: mesh at twice the sizes and split every element through its edge midpoints
+    and centre (gmsh's subdivision: a triangle into three quadrilaterals, a quadrilateral
+    into four), so the mesh is all quadrilaterals whatever triangles the recombination
+    leaves (an acute tip of material: a fin a closing pocket leaves along a die, where
+    Blossom leaves a triangle at any size), at the price of the split triangles' corners."""
     pts = np.asarray(points, dtype=float)
     sizes = np.asarray(sizes, dtype=float)
     if polygon_measure(pts[None], axisymmetric=False)[0] <= 0.0:
         raise MeshError("polygon_quads: the polygon must be counter-clockwise")
+    if split:  # each segment is halved: the sizes before the split are twice the wanted
+        sizes = 2.0 * sizes
     length = np.linalg.norm(np.roll(pts, -1, axis=0) - pts, axis=1)
     h_edge = 0.5 * (sizes + np.roll(sizes, -1))
     segments = np.maximum(1, np.round(length / h_edge)).astype(int)
-    if segments.sum() % 2:
+    if segments.sum() % 2 and not split:
         segments[np.argmax(length / segments)] += 1
     best, errors = None, []
     for algorithm in QUAD_ALGORITHMS:
         try:
-            mesh = _gmsh_quads(pts, labels, sizes, segments, algorithm)
+            mesh = _gmsh_quads(pts, labels, sizes, segments, (algorithm, split))
         except MeshError as err:
             errors.append(f"algorithm {algorithm}: {err}")
             continue
@@ -431,8 +439,9 @@ def polygon_quads(points, labels, sizes) -> Mesh:
     return best[1]
 
 
-def _gmsh_quads(pts, labels, sizes, segments, algorithm: int) -> Mesh:
-    """One gmsh run of :func:`polygon_quads` with the 2-D ``algorithm``."""
+def _gmsh_quads(pts, labels, sizes, segments, how: tuple[int, bool]) -> Mesh:
+    """One gmsh run of :func:`polygon_quads`: ``how`` = (the 2-D algorithm, whether every
+    element is split into quadrilaterals)."""
     import gmsh
 
     gmsh.initialize(readConfigFiles=False)
@@ -446,8 +455,9 @@ def _gmsh_quads(pts, labels, sizes, segments, algorithm: int) -> Mesh:
             geo.mesh.setTransfiniteCurve(line, int(k) + 1)
         geo.addPlaneSurface([geo.addCurveLoop(lines)])
         geo.synchronize()
-        options = {"Mesh.RecombineAll": 1, "Mesh.Algorithm": algorithm,
-                   "Mesh.RecombinationAlgorithm": 1, "Mesh.Smoothing": 3}  # fmt: skip
+        options = {"Mesh.RecombineAll": 1, "Mesh.Algorithm": how[0],
+                   "Mesh.RecombinationAlgorithm": 1, "Mesh.Smoothing": 3,
+                   "Mesh.SubdivisionAlgorithm": int(how[1])}  # fmt: skip
         for name, value in options.items():
             gmsh.option.setNumber(name, value)
         gmsh.model.mesh.generate(2)

@@ -15,7 +15,9 @@ replaces the mesh (host NumPy and gmsh, between two converged steps):
 2. **The new mesh** (:func:`jaxform.mesh.polygon_quads`, gmsh): all quadrilaterals, the
    size ``remesh.element_size_mm`` in the bulk and ``remesh.die_size_ratio`` times it at
    the vertices that touch a die (gap <= ``TOUCH_GAP_MM``) and at sharp boundary corners
-   (a turn of more than 30 deg).  The sets are re-derived from the labels.
+   (a turn of more than 30 deg).  The sets are re-derived from the labels.  Where gmsh's
+   recombination leaves triangles, finer sizes are tried, and last every element is
+   split into quadrilaterals (:func:`_quads_of`; the report's ``mesher`` says which).
 3. **The state** (:mod:`jaxform.transfer`): Gauss-point fields (stress, deformation
    resistance, equivalent plastic strain) by patch recovery and interpolation; nodal
    fields besides the displacement (q1q1 pressure, temperature) and the nodal rates of the
@@ -79,6 +81,7 @@ class RemeshReport:
     eqps_integral_after: float
     seconds: float
     trigger: str = ""  # what fired it (jaxform.triggers.causes: 'quality', 'steps', ...)
+    mesher: str = ""  # what the mesher needed beyond its first try (_quads_of), "" none
 
 
 def simplify(points: np.ndarray, labels: list[str], tol: float):
@@ -106,6 +109,50 @@ def simplify(points: np.ndarray, labels: list[str], tol: float):
         kept += keep
     kept = np.asarray(kept)
     return kept, [labels[i] for i in kept]
+
+
+def first_crossing(points: np.ndarray):
+    """(i, j, x) of the first pair of edges i < j of the closed polygon ``points`` that are
+    not neighbours and cross or touch, x the point where they meet; None for a simple
+    polygon.  Edge k runs from points[k] to points[k + 1]."""
+    a, b = points, np.roll(points, -1, axis=0)
+    n = len(a)
+    i, j = np.triu_indices(n, k=2)
+    keep = ~((i == 0) & (j == n - 1))  # the last edge and the first share points[0]
+    i, j = i[keep], j[keep]
+    di, dj, w = b[i] - a[i], b[j] - a[j], a[j] - a[i]
+    den = di[:, 0] * dj[:, 1] - di[:, 1] * dj[:, 0]
+    safe = np.where(den == 0.0, 1.0, den)
+    s = (w[:, 0] * dj[:, 1] - w[:, 1] * dj[:, 0]) / safe
+    t = (w[:, 0] * di[:, 1] - w[:, 1] * di[:, 0]) / safe
+    hit = np.nonzero((den != 0.0) & (s >= 0.0) & (s <= 1.0) & (t >= 0.0) & (t <= 1.0))[0]
+    if hit.size == 0:
+        return None
+    k = hit[0]
+    return int(i[k]), int(j[k]), a[i[k]] + s[k] * di[k]
+
+
+def untangled(points: np.ndarray, labels: list[str]):
+    """(points, labels, area cut (mm^2)) of the closed counter-clockwise polygon with
+    every loop its boundary makes by crossing itself cut off.
+
+    Where a fold of the free surface has been pressed under its neighbour (a fin that a
+    closing pocket leaves along a die, turned over by the next steps) the deformed
+    section's boundary crosses itself, and gmsh, given it, never returns.  At the first
+    crossing, of edges i < j at x, the loop splits into (.., points[i], x, points[j + 1],
+    ..) and (x, points[i + 1], .., points[j]); the one of the larger signed area stays
+    (the other: the fold's tip beyond the neck where its sides crossed, or, turned
+    clockwise, material the fold counts twice), until no edge crosses another.  x takes
+    the labels of both edges it joins."""
+    pts, labs, cut = np.asarray(points, dtype=float), list(labels), 0.0
+    while (crossing := first_crossing(pts)) is not None:
+        i, j, x = crossing
+        outer = (np.vstack([pts[: i + 1], x, pts[j + 1 :]]), labs[: i + 1] + labs[j:])
+        inner = (np.vstack([x, pts[i + 1 : j + 1]]), [labs[i], *labs[i + 1 : j + 1]])
+        area = [float(polygon_measure(p[None], False)[0]) for p, _ in (outer, inner)]
+        keep = int(area[1] > area[0])
+        (pts, labs), cut = (outer, inner)[keep], cut + abs(area[1 - keep])
+    return pts, labs, cut
 
 
 def local_thickness(points: np.ndarray) -> np.ndarray:
@@ -174,26 +221,37 @@ SIZE_RETRIES = (1.0, 0.8, 0.65)
 
 
 def _quads_of(points, labels, sizes):
-    """:func:`jaxform.mesh.polygon_quads`, again with finer sizes (SIZE_RETRIES) where its
-    recombination leaves triangles: a thin flash whose edges split into few, uneven
-    segments can defeat every algorithm at one size and not at another.  Raises the
-    MeshError of the last try, naming the sizes tried."""
+    """(mesh, how): :func:`jaxform.mesh.polygon_quads`, again with finer sizes
+    (SIZE_RETRIES) where its recombination leaves triangles (a thin flash whose edges split
+    into few, uneven segments can defeat every algorithm at one size and not at another),
+    and last at the wanted sizes with every element split into quadrilaterals (``split``:
+    an acute tip of material, the fin a closing pocket leaves along a die, keeps a
+    triangle at every size).  ``how`` says what it took: "" (the first try), "sizes x
+    0.8", ..., or "split" with why.  Raises the MeshError of the last try, naming the
+    tries."""
     errors = []
     for factor in SIZE_RETRIES:
         try:
-            return polygon_quads(points, labels, factor * np.asarray(sizes))
+            mesh = polygon_quads(points, labels, factor * np.asarray(sizes))
+            return mesh, ("" if factor == 1.0 else f"sizes x {factor:g}")
         except MeshError as err:
             errors.append(f"x {factor:g}: {err}")
-    raise MeshError(f"at the wanted sizes {'; '.join(errors)}")
+    try:
+        mesh = polygon_quads(points, labels, np.asarray(sizes), split=True)
+    except MeshError as err:
+        errors.append(f"split: {err}")
+        raise MeshError(f"at the wanted sizes {'; '.join(errors)}") from None
+    tried = ", ".join(f"{f:g}" for f in SIZE_RETRIES)
+    return mesh, f"split (gmsh left triangles at sizes x {tried})"
 
 
 def new_section_mesh(scene, pos: np.ndarray, t: float, settings: RemeshConfig):
-    """The new mesh of the section whose nodes are at ``pos`` (time t).  Raises
-    RemeshError."""
+    """(the new mesh of the section whose nodes are at ``pos`` (time t), what the mesher
+    needed: :func:`_quads_of`).  Raises RemeshError."""
     try:
         points, labels, _ = boundary_polygon(scene.mesh, pos)
         kept, kept_labels = simplify(points, labels, 1e-6 * settings.element_size_mm)
-        pts = points[kept]
+        pts, kept_labels, cut = untangled(points[kept], kept_labels)
         touching = np.zeros(len(pts), dtype=bool)
         if scene.inputs.die is not None:
             touching = gap_function(scene.inputs.die, t)(pts)[0] <= TOUCH_GAP_MM
@@ -201,13 +259,15 @@ def new_section_mesh(scene, pos: np.ndarray, t: float, settings: RemeshConfig):
             pts, kept_labels, touching = densified(pts, kept_labels, touching,
                                                    settings.element_size_mm)  # fmt: skip
         sizes = _sizes(pts, touching, settings)
-        mesh = _quads_of(pts, kept_labels, sizes)
+        mesh, how = _quads_of(pts, kept_labels, sizes)
+        if cut > 0.0:  # what the boundary's crossings took (the report's volume_change)
+            how = "; ".join(filter(None, [f"a fold crossed the boundary: {cut:.3g} mm^2 cut", how]))
     except MeshError as err:
         raise RemeshError(str(err)) from None
     if scene.inputs.die is None or not settings.onto_dies:
-        return mesh
+        return mesh, how
     axi = scene.model.formulation.axisymmetric
-    return onto_dies(mesh, (pts, touching), gap_function(scene.inputs.die, t), axi)
+    return onto_dies(mesh, (pts, touching), gap_function(scene.inputs.die, t), axi), how
 
 
 def _polygon_vertex_of(loop_pos: np.ndarray, vertices: np.ndarray) -> np.ndarray:
@@ -386,7 +446,7 @@ def remesh(scene, state, settings: RemeshConfig) -> Remeshed:
     coords = np.asarray(scene.inputs.coords)
     pos = coords + lay.nodal(host.x)[:, :2]
     t = float(host.t)
-    mesh = new_section_mesh(scene, pos, t, settings)
+    mesh, how = new_section_mesh(scene, pos, t, settings)
     new_scene = scene_on_mesh(scene, mesh)
     elements = np.asarray(scene.mesh.elements)
     move = Transfer(pos, elements, mesh.coords, mesh.elements)
@@ -413,5 +473,6 @@ def remesh(scene, state, settings: RemeshConfig) -> Remeshed:
         eqps_integral_before=eqps_integral(scene, pos, host.gauss.mat.eqps),
         eqps_integral_after=eqps_integral(new_scene, mesh.coords, new_state.gauss.mat.eqps),
         seconds=time.perf_counter() - start,
+        mesher=how,
     )
     return Remeshed(new_scene, new_state, report, transfer)
