@@ -297,12 +297,11 @@ def _run(args) -> int:
     )
     for line in fold_lines(result):
         print(line)
-    helped = [r for r in result.remeshes if r.mesher]
-    if helped:  # gmsh's first try left triangles (jaxform.remesh._quads_of)
-        print(
-            f"note: {len(helped)} of {len(result.remeshes)} remeshes needed the mesher's "
-            f"fallback (first at t = {helped[0].time_s:.4g} s: {helped[0].mesher})"
-        )
+    from jaxform.remesh import mesher_note
+
+    note = mesher_note(result.remeshes)
+    if note:
+        print(note)
     overlap = float(np.max(h["die_overlap_mm"])) if "die_overlap_mm" in h else 0.0
     if overlap > 1e-3:
         print(

@@ -45,9 +45,9 @@ from jaxform.config import TRIGGERS, Config
 from jaxform.dies import make_die
 from jaxform.errors import ConfigError
 from jaxform.geometry import polygon_measure
-from jaxform.mesh import Mesh, MeshError, boundary_polygon, element_areas, polygon_quads
+from jaxform.mesh import Mesh, MeshError, boundary_polygon, element_areas
 from jaxform.process_config import Operation
-from jaxform.remesh import ContactMap, StateMap, simplify
+from jaxform.remesh import ContactMap, StateMap, quads_of, simplify, untangled
 from jaxform.scenes import Scene, bottom_die_profile, build_scene, die_profile, scene_on_mesh
 from jaxform.simulation import PartState, Result, SimulationError, simulate, state_result
 from jaxform.transfer import Transfer
@@ -323,9 +323,9 @@ def trim_part(part: PartState, op: Operation):
         raise ConfigError(f"{op.label}: radius_mm = {radius:g}: {err}") from None
     size = op.keys.element_size_mm or _mean_size(scene.mesh)
     idx, kept_labels = simplify(kept, kept_labels, 1e-9 * size)
-    kept = kept[idx]
-    try:
-        mesh = polygon_quads(kept, kept_labels, np.full(len(kept), size))
+    kept, kept_labels, _ = untangled(kept[idx], kept_labels)  # a fold pressed over: gmsh hangs
+    try:  # gmsh's fallbacks as for a remesh (finer sizes, then split into quads)
+        mesh, _ = quads_of(kept, kept_labels, np.full(len(kept), size))
     except MeshError as err:
         raise ConfigError(f"{op.label}: the kept part could not be meshed: {err}") from None
     new_scene = scene_on_mesh(scene, mesh)

@@ -17,7 +17,7 @@ replaces the mesh (host NumPy and gmsh, between two converged steps):
    the vertices that touch a die (gap <= ``TOUCH_GAP_MM``) and at sharp boundary corners
    (a turn of more than 30 deg).  The sets are re-derived from the labels.  Where gmsh's
    recombination leaves triangles, finer sizes are tried, and last every element is
-   split into quadrilaterals (:func:`_quads_of`; the report's ``mesher`` says which).
+   split into quadrilaterals (:func:`quads_of`; the report's ``mesher`` says which).
 3. **The state** (:mod:`jaxform.transfer`): Gauss-point fields (stress, deformation
    resistance, equivalent plastic strain) by patch recovery and interpolation; nodal
    fields besides the displacement (q1q1 pressure, temperature) and the nodal rates of the
@@ -81,7 +81,7 @@ class RemeshReport:
     eqps_integral_after: float
     seconds: float
     trigger: str = ""  # what fired it (jaxform.triggers.causes: 'quality', 'steps', ...)
-    mesher: str = ""  # what the mesher needed beyond its first try (_quads_of), "" none
+    mesher: str = ""  # what the mesher needed beyond its first try (quads_of), "" none
 
 
 def simplify(points: np.ndarray, labels: list[str], tol: float):
@@ -220,7 +220,7 @@ def _sizes(points: np.ndarray, touching: np.ndarray, settings: RemeshConfig) -> 
 SIZE_RETRIES = (1.0, 0.8, 0.65)
 
 
-def _quads_of(points, labels, sizes):
+def quads_of(points, labels, sizes):
     """(mesh, how): :func:`jaxform.mesh.polygon_quads`, again with finer sizes
     (SIZE_RETRIES) where its recombination leaves triangles (a thin flash whose edges split
     into few, uneven segments can defeat every algorithm at one size and not at another),
@@ -245,9 +245,26 @@ def _quads_of(points, labels, sizes):
     return mesh, f"split (gmsh left triangles at sizes x {tried})"
 
 
+def mesher_note(reports) -> str:
+    """One line saying how many of the remeshes (:class:`RemeshReport`) needed more than
+    the mesher's first try, of each kind, and the first such; "" where none did."""
+    helped = [r for r in reports if r.mesher]
+    if not helped:
+        return ""
+    kinds = {"finer sizes": "sizes x", "split into quads": "split", "a fold cut": "a fold"}
+    parts = [r.mesher.split("; ") for r in helped]  # each part starts with its kind
+    counts = ", ".join(
+        f"{sum(any(x.startswith(k) for x in p) for p in parts)} {name}" for name, k in kinds.items()
+    )
+    return (
+        f"note: {len(helped)} of {len(reports)} remeshes needed more than the mesher's first "
+        f"try ({counts}; first at t = {helped[0].time_s:.4g} s: {helped[0].mesher})"
+    )
+
+
 def new_section_mesh(scene, pos: np.ndarray, t: float, settings: RemeshConfig):
     """(the new mesh of the section whose nodes are at ``pos`` (time t), what the mesher
-    needed: :func:`_quads_of`).  Raises RemeshError."""
+    needed: :func:`quads_of`).  Raises RemeshError."""
     try:
         points, labels, _ = boundary_polygon(scene.mesh, pos)
         kept, kept_labels = simplify(points, labels, 1e-6 * settings.element_size_mm)
@@ -259,7 +276,7 @@ def new_section_mesh(scene, pos: np.ndarray, t: float, settings: RemeshConfig):
             pts, kept_labels, touching = densified(pts, kept_labels, touching,
                                                    settings.element_size_mm)  # fmt: skip
         sizes = _sizes(pts, touching, settings)
-        mesh, how = _quads_of(pts, kept_labels, sizes)
+        mesh, how = quads_of(pts, kept_labels, sizes)
         if cut > 0.0:  # what the boundary's crossings took (the report's volume_change)
             how = "; ".join(filter(None, [f"a fold crossed the boundary: {cut:.3g} mm^2 cut", how]))
     except MeshError as err:

@@ -632,7 +632,7 @@ def test_a_section_gmsh_cannot_quad_mesh_is_tried_again_finer(monkeypatch):
         return real(points, labs, sizes, split)
 
     monkeypatch.setattr(rm, "polygon_quads", flaky)
-    mesh, how = rm._quads_of(pts, labels, np.full(len(pts), 0.3))
+    mesh, how = rm.quads_of(pts, labels, np.full(len(pts), 0.3))
     assert tried == [(0.3, False), (pytest.approx(0.24), False)]
     assert mesh.elements.shape[1] == 4 and how == "sizes x 0.8"
 
@@ -642,7 +642,7 @@ def test_a_section_gmsh_cannot_quad_mesh_is_tried_again_finer(monkeypatch):
     monkeypatch.setattr(rm, "polygon_quads", never)
     with pytest.raises(MeshError, match=r"x 1: no quads; x 0.8: no quads; x 0.65: no quads; "
                                          r"split: no quads"):  # fmt: skip
-        rm._quads_of(pts, labels, np.full(len(pts), 0.3))
+        rm.quads_of(pts, labels, np.full(len(pts), 0.3))
 
 
 def _saved_polygon(name):
@@ -672,7 +672,7 @@ def test_the_finisher_fin_that_gmsh_cannot_quad_mesh_is_split_into_quads():
     for factor in rm.SIZE_RETRIES:
         with pytest.raises(MeshError, match="non-quadrilateral"):
             polygon_quads(pts, labels, factor * sizes)
-    mesh, how = rm._quads_of(pts, labels, sizes)
+    mesh, how = rm.quads_of(pts, labels, sizes)
     assert how.startswith("split") and mesh.elements.shape[1] == 4
     assert 0.1 < min_quality(mesh.coords, mesh.elements) < np.sin(np.deg2rad(21.5))
     area = polygon_measure(mesh.coords[mesh.elements], False).sum()
@@ -734,6 +734,24 @@ def test_the_finisher_fold_that_hung_gmsh_is_untangled_and_meshes():
     whole = polygon_measure(pts[None], False)[0]  # the lobe is counter-clockwise too
     assert polygon_measure(out[None], False)[0] == pytest.approx(whole - cut, rel=1e-12)
     kept_sizes = np.concatenate([sizes[:5], [sizes[4:8].min()], sizes[8:]])
-    mesh, how = rm._quads_of(out, labs, kept_sizes)
+    mesh, how = rm.quads_of(out, labs, kept_sizes)
     assert how == "" and mesh.elements.shape[1] == 4
     assert min_quality(mesh.coords, mesh.elements) > 0.0
+
+
+def test_the_run_notes_what_the_mesher_needed():
+    """The run's note counts the remeshes whose mesher needed finer sizes, the split into
+    quadrilaterals or a fold cut (RemeshReport.mesher as quads_of and new_section_mesh
+    write it), and names the first; no note where every first try worked."""
+    from jaxform.remesh import RemeshReport, mesher_note
+
+    def report(t, mesher):
+        return RemeshReport(t, 1, 1, 1, 1, 0.5, 0.5, 0.0, 0.0, 0.0, 0.0, "quality", mesher)
+
+    hows = ["", "sizes x 0.8", "split (gmsh left triangles at sizes x 1, 0.8, 0.65)",
+            "a fold crossed the boundary: 0.00175 mm^2 cut", ""]  # fmt: skip
+    note = mesher_note([report(0.1 * k, h) for k, h in enumerate(hows)])
+    assert note.startswith("note: 3 of 5 remeshes needed more than the mesher's first try "
+                           "(1 finer sizes, 1 split into quads, 1 a fold cut; first at "
+                           "t = 0.1 s: sizes x 0.8)"), note  # fmt: skip
+    assert mesher_note([report(0.0, "")]) == "" and mesher_note([]) == ""
