@@ -182,6 +182,7 @@ def test_a_run_can_start_on_the_remeshers_own_mesh():
     res = jaxform.run(SEED, over + ["remesh.every_steps=5", "remesh.from_start=true"])
     start = res.segments[0].scene
     assert start.grid is None and start.mesh.n_nodes != plain.scene.mesh.n_nodes
+
     def volume(mesh):
         return polygon_measure(np.asarray(mesh.coords)[mesh.elements], True).sum()
 
