@@ -244,12 +244,15 @@ def solve_step(
     x_guess=None,
     fac=None,
     adjoint_fac=None,
+    give_up=None,
 ) -> StepSolution:
     """One Newton solve from state (at t) to t_new, starting from x_guess (or state.x;
     state.x also when the guess is not a valid state); ``fac``: the factorization
     :class:`jaxform.solver.ModifiedNewton` keeps, or for :class:`jaxform.solver.FullNewton`
     one that each iteration replaces, the last returned; ``adjoint_fac``: a factorization
-    near the root for the reverse pass to reuse (see :func:`jaxform.solver.solve_implicit`).
+    near the root for the reverse pass to reuse (see :func:`jaxform.solver.solve_implicit`);
+    ``give_up`` (traced bool, or None): the solve may stop early where it stalls
+    (:func:`jaxform.solver.stalled`, ``solver.stall_iterations``).
 
     Differentiable (reverse mode) in ``state``, ``t_new`` and ``inp`` by the implicit
     function theorem (:func:`jaxform.solver.solve_implicit`)."""
@@ -271,6 +274,7 @@ def solve_step(
         ctx,
         fac,
         adjoint_fac,
+        give_up,
     )
     return StepSolution(x, g, its, code, hist, ctx.cstep, fac)
 
@@ -412,7 +416,9 @@ def attempt_step(
 ):
     """One converged step from ``state``: tried with ``control.h`` (the last step snapped to
     end exactly at t_end), halved on failure until it converges or reaches the smallest
-    step (there continued, ``StepControl.continuations``).  Returns (state, info dict, fac):
+    step (there continued, ``StepControl.continuations``); a solve that stalls
+    (``solver.stall_iterations``, :func:`jaxform.solver.stalled`) stops early where a
+    smaller step is left to try.  Returns (state, info dict, fac):
     info has the step size taken (h_used), iterations and cutbacks (failed attempts,
     continuations included) of all attempts, the status code, and the Newton history of
     the last attempt; ``fac`` the factorization modified Newton keeps (None for full Newton)."""
@@ -434,10 +440,12 @@ def attempt_step(
         guess = st.x + use_rate * hh * st.x_rate
         # a continuation goes on from the last iterate of the solve before it
         guess = jnp.where(c["continued"] > 0, c["guess"], guess)
-        sol = solve_step(stepper, st, t_new, inp, idx, x_guess=guess, fac=c["fac"])
+        smallest = h <= h_min * (1.0 + 1e-9)  # nothing smaller to try
+        # a solve that stalls stops early where a smaller step is left to try
+        sol = solve_step(stepper, st, t_new, inp, idx, x_guess=guess, fac=c["fac"],
+                         give_up=~smallest)  # fmt: skip
         ok = sol.code == OK
         conv = converged_state(stepper.model, st, sol.x, sol.gauss, t_new, inp, sol.cstep, idx)
-        smallest = h <= h_min * (1.0 + 1e-9)  # nothing smaller to try
         go_on = (
             ~ok
             & smallest
