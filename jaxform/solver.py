@@ -177,7 +177,10 @@ class NewtonSettings:
     up to ``max_backtracks`` halvings.  ``stall_iterations`` (0: off) and ``stall_ratio``:
     a solve that may give up (:func:`stalled`) stops, not converged, once its best
     ||R|| / F has not fallen below ``stall_ratio`` times the best of ``stall_iterations``
-    iterations earlier."""
+    iterations earlier.  ``natural_monotonicity``: full Newton's line search takes a
+    step alpha dx where the Newton correction at the trial point, solved with the same
+    Jacobian, is shorter than (1 - alpha / 4) ||dx|| (Deuflhard's natural monotonicity
+    test: one more solve per trial) instead of where ||R|| falls by 1e-4 alpha."""
 
     max_iterations: int = 25
     rtol: float = 1e-10
@@ -186,6 +189,7 @@ class NewtonSettings:
     variant: NewtonVariant = FullNewton()
     stall_iterations: int = 0
     stall_ratio: float = 0.9
+    natural_monotonicity: bool = False
 
     @property
     def max_total_iterations(self) -> int:
@@ -306,7 +310,10 @@ def newton(
         else:
             fac = kept.factor(vals, fac)
             dx = kept.solve_factored(fac, -r)
-        rnorm = jnp.linalg.norm(r)
+        rnorm, dx_norm = jnp.linalg.norm(r), jnp.linalg.norm(dx)
+
+        def solve_same(b):  # with this iteration's Jacobian
+            return linear_solve(vals, b) if kept is None else kept.solve_factored(fac, b)
 
         def trial(alpha):
             xt = x + alpha * dx
@@ -321,7 +328,11 @@ def newton(
             def ls_body(lc):
                 k, alpha = lc[0], lc[1]
                 xt, rt, auxt, codet, scalet = trial(alpha)
-                bad = (codet != OK) | (jnp.linalg.norm(rt) > (1.0 - 1e-4 * alpha) * rnorm)
+                if s.natural_monotonicity:  # the correction at the trial, same Jacobian
+                    shorter = jnp.linalg.norm(solve_same(-rt)) <= (1.0 - 0.25 * alpha) * dx_norm
+                    bad = (codet != OK) | ~shorter
+                else:
+                    bad = (codet != OK) | (jnp.linalg.norm(rt) > (1.0 - 1e-4 * alpha) * rnorm)
                 done = ~(bad & (k < s.max_backtracks))  # k backtracks done before this trial
                 return (k + 1, 0.5 * alpha, done, xt, rt, auxt, codet, scalet)
 
