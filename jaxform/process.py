@@ -47,8 +47,9 @@ from jaxform.errors import ConfigError
 from jaxform.geometry import polygon_measure
 from jaxform.mesh import Mesh, MeshError, boundary_polygon, element_areas, polygon_quads
 from jaxform.process_config import Operation
-from jaxform.remesh import ContactMap, StateMap, simplify
+from jaxform.remesh import ContactMap, StateMap
 from jaxform.scenes import Scene, bottom_die_profile, build_scene, die_profile, scene_on_mesh
+from jaxform.section_mesh import simplify
 from jaxform.simulation import PartState, Result, SimulationError, simulate, state_result
 from jaxform.transfer import Transfer
 from jaxform.workpieces import workpiece_of

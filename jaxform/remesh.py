@@ -51,9 +51,8 @@ from jaxform.geometry import (
 from jaxform.mesh import MeshError, boundary_edges, boundary_polygon, polygon_quads
 from jaxform.rezone import gap_function
 from jaxform.scenes import scene_on_mesh
+from jaxform.section_mesh import sized_polygon
 from jaxform.transfer import StateMap, Transfer, gauss_weights
-
-_CORNER_TURN = np.deg2rad(30.0)  # a sharper turn of the boundary is refined like die contact
 
 
 class RemeshError(RuntimeError):
@@ -81,94 +80,6 @@ class RemeshReport:
     trigger: str = ""  # what fired it (jaxform.triggers.causes: 'quality', 'steps', ...)
 
 
-def simplify(points: np.ndarray, labels: list[str], tol: float):
-    """The loop without the vertices that lie within ``tol`` (mm) of the chord between the
-    kept vertices around them on the same set: (kept indices, their edge labels).  Every
-    vertex where the set changes stays."""
-    n = len(points)
-    corners = [i for i in range(n) if labels[i - 1] != labels[i]] or [0]
-    kept = []
-    for c0, c1 in zip(corners, corners[1:] + [corners[0] + n]):
-        run = [i % n for i in range(c0, c1 + 1)]  # one set's vertices, both ends included
-        keep = [run[0]]
-        dropped: list[int] = []
-        for k in range(1, len(run) - 1):
-            a, b = points[keep[-1]], points[run[k + 1]]
-            chord = b - a
-            length = max(float(np.hypot(*chord)), 1e-300)
-            test = points[dropped + [run[k]]] - a
-            dist = np.abs(test[:, 0] * chord[1] - test[:, 1] * chord[0]) / length
-            if dist.max() <= tol:
-                dropped.append(run[k])
-            else:
-                keep.append(run[k])
-                dropped = []
-        kept += keep
-    kept = np.asarray(kept)
-    return kept, [labels[i] for i in kept]
-
-
-def local_thickness(points: np.ndarray) -> np.ndarray:
-    """The section's thickness at each vertex of the closed polygon ``points`` (mm): the
-    distance to the nearest part of the boundary that faces it across the material, i.e.
-    to the nearest edge whose distance along the boundary is more than twice its straight
-    distance (the vertex's own sides and the legs of a corner it sits in are not across:
-    along them the boundary is about as long as the straight line).  Where no edge faces
-    it, inf."""
-    a, b = points, np.roll(points, -1, axis=0)
-    d = b - a
-    length = np.linalg.norm(d, axis=1)
-    s = np.einsum("pmi,mi->pm", points[:, None] - a[None], d) / np.maximum(length**2, 1e-300)
-    s = np.clip(s, 0.0, 1.0)
-    dist = np.linalg.norm(points[:, None] - (a[None] + s[..., None] * d[None]), axis=2)
-    arc = np.concatenate([[0.0], np.cumsum(length)])
-    total = arc[-1]
-    along = np.abs(arc[None, :-1] + s * length[None] - arc[:-1, None])
-    along = np.minimum(along, total - along)
-    across = np.where(along > 2.0 * dist, dist, np.inf)
-    return across.min(axis=1)
-
-
-def densified(points: np.ndarray, labels: list[str], touching: np.ndarray, spacing: float):
-    """(points, labels, touching) of the closed polygon with its edges split into equal
-    pieces no longer than ``spacing``: each piece keeps its edge's label, and a point
-    added on an edge between two vertices that touch a die touches it too (it lies on the
-    chord, off a curved die by the sagitta; :func:`onto_dies` moves such nodes on)."""
-    nxt = np.roll(points, -1, axis=0)
-    pieces = np.maximum(1, np.ceil(np.linalg.norm(nxt - points, axis=1) / spacing)).astype(int)
-    both = touching & np.roll(touching, -1)
-    out, out_labels, out_touching = [], [], []
-    for p, q, n, lab, t0, t_edge in zip(points, nxt, pieces, labels, touching, both):
-        f = np.arange(n)[:, None] / n
-        out.append(p + f * (q - p))
-        out_labels += [lab] * n
-        out_touching += [t0] + [t_edge] * (n - 1)
-    return np.vstack(out), out_labels, np.asarray(out_touching, dtype=bool)
-
-
-def _sizes(points: np.ndarray, touching: np.ndarray, settings: RemeshConfig) -> np.ndarray:
-    """The element size wanted at each vertex: fine at die contact and sharp corners, and
-    with ``remesh.elements_across`` > 0 at most the local thickness over that many (a
-    flash or a thin web gets elements across it, not one squeezed element)."""
-    d_in = points - np.roll(points, 1, axis=0)
-    d_out = np.roll(points, -1, axis=0) - points
-    turn = np.abs(
-        np.arctan2(
-            d_in[:, 0] * d_out[:, 1] - d_in[:, 1] * d_out[:, 0], np.sum(d_in * d_out, axis=1)
-        )
-    )
-    fine = touching | (turn > _CORNER_TURN)
-    h = settings.element_size_mm
-    sizes = np.where(fine, settings.die_size_ratio * h, h)
-    if settings.elements_across > 0:
-        # never finer than a quarter of the die size: a gap that closes to nothing (the
-        # flash's last step) must not ask for an unbounded number of elements
-        floor = 0.25 * settings.die_size_ratio * h
-        thin = np.maximum(local_thickness(points) / settings.elements_across, floor)
-        sizes = np.minimum(sizes, thin)
-    return sizes
-
-
 # element sizes tried, as factors of the wanted ones, when gmsh leaves triangles
 SIZE_RETRIES = (1.0, 0.8, 0.65)
 
@@ -191,23 +102,15 @@ def new_section_mesh(scene, pos: np.ndarray, t: float, settings: RemeshConfig):
     """The new mesh of the section whose nodes are at ``pos`` (time t).  Raises
     RemeshError."""
     try:
-        points, labels, _ = boundary_polygon(scene.mesh, pos)
-        kept, kept_labels = simplify(points, labels, 1e-6 * settings.element_size_mm)
-        pts = points[kept]
-        touching = np.zeros(len(pts), dtype=bool)
-        if scene.inputs.die is not None:
-            touching = gap_function(scene.inputs.die, t)(pts)[0] <= TOUCH_GAP_MM
-        if settings.elements_across > 0:  # the thickness is measured along every edge
-            pts, kept_labels, touching = densified(pts, kept_labels, touching,
-                                                   settings.element_size_mm)  # fmt: skip
-        sizes = _sizes(pts, touching, settings)
-        mesh = _quads_of(pts, kept_labels, sizes)
+        gap_fn = None if scene.inputs.die is None else gap_function(scene.inputs.die, t)
+        wanted = sized_polygon(scene.mesh, pos, gap_fn, settings)
+        mesh = _quads_of(wanted.points, wanted.labels, wanted.sizes)
     except MeshError as err:
         raise RemeshError(str(err)) from None
     if scene.inputs.die is None or not settings.onto_dies:
         return mesh
     axi = scene.model.formulation.axisymmetric
-    return onto_dies(mesh, (pts, touching), gap_function(scene.inputs.die, t), axi)
+    return onto_dies(mesh, (wanted.points, wanted.touching), gap_fn, axi)
 
 
 def _polygon_vertex_of(loop_pos: np.ndarray, vertices: np.ndarray) -> np.ndarray:

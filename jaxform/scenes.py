@@ -61,6 +61,8 @@ from jaxform.presses import (
     SpeedPress,
     crank_start_angle,
 )
+from jaxform.rezone import gap_function
+from jaxform.section_mesh import sized_polygon
 from jaxform.solver import NewtonSettings, newton_variant
 from jaxform.wear import WearInputs, die_stations
 from jaxform.workpieces import Workpiece, workpiece_of
@@ -541,6 +543,29 @@ def analyzed(scene: Scene) -> Scene:
     return scene if symbolic is None else replace(scene, idx=replace(idx, lu_symbolic=symbolic))
 
 
+def _remesh_settings(settings: RemeshConfig, mesh: meshing.Mesh) -> RemeshConfig | None:
+    """The scene's [remesh] settings, its bulk element size resolved (0: the mesh's
+    mean), or None where no trigger is set."""
+    if not settings.on:
+        return None
+    size = settings.element_size_mm or float(
+        np.sqrt(np.mean(np.abs(meshing.element_areas(mesh.coords, mesh.elements))))
+    )
+    return replace(settings, element_size_mm=size)
+
+
+def start_mesh(mesh: meshing.Mesh, die, settings: RemeshConfig) -> meshing.Mesh:
+    """The remesher's own mesh of ``mesh``'s section at t = 0 (``remesh.from_start``):
+    the same polygon and sizes a remesh would ask gmsh for (:mod:`jaxform.section_mesh`),
+    finer where a die touches it.  Raises ConfigError where gmsh gives no all-quad mesh."""
+    gap_fn = None if die is None else gap_function(die, 0.0)
+    wanted = sized_polygon(mesh, np.asarray(mesh.coords), gap_fn, settings, split=True)
+    try:
+        return meshing.polygon_quads(wanted.points, wanted.labels, wanted.sizes)
+    except meshing.MeshError as err:
+        raise ConfigError(f"remesh.from_start: no all-quad start mesh ({err})") from None
+
+
 def build_scene(cfg: dict | Config, mesh: meshing.Mesh | None = None) -> Scene:
     """Set-up of a scene from a validated config: mesh, material, die or load, solver.
 
@@ -565,11 +590,15 @@ def build_scene(cfg: dict | Config, mesh: meshing.Mesh | None = None) -> Scene:
     m, tm, so = cfg.mesh, cfg.time, cfg.solver
     axi = m.geometry == "axisymmetric"
     piece = workpiece_of(cfg)
-    grid = piece.grid if mesh is None else None
-    mesh = piece.build_mesh() if mesh is None else mesh
+    own = mesh is None  # the scene starts from its workpiece's own section
+    grid = piece.grid if own else None
+    mesh = piece.build_mesh() if own else mesh
     law, params = load_material(cfg.material.preset)
     form = formulation(m.element, axisymmetric=axi, theta=m.stabilization, alpha=tm.alpha)
     die, load, t_end, press = _die_or_load(cfg, piece, mesh)
+    remesh = _remesh_settings(cfg.remesh, mesh)
+    if remesh is not None and remesh.from_start and own:
+        mesh, grid = start_mesh(mesh, die, remesh), None
     corner = (
         die is not None
         and cfg.die.corner_contact
@@ -585,12 +614,6 @@ def build_scene(cfg: dict | Config, mesh: meshing.Mesh | None = None) -> Scene:
     model = Model(form, law, layout, contact)
     model, idx = model.with_pattern(idx)
     c = _contact_scale(mesh, float(law.shear_modulus(params)), axi)
-    remesh = None
-    if cfg.remesh.on:
-        size = cfg.remesh.element_size_mm or float(
-            np.sqrt(np.mean(np.abs(meshing.element_areas(mesh.coords, mesh.elements))))
-        )
-        remesh = replace(cfg.remesh, element_size_mm=size)
     if m.rezone_quality > 0.0 and grid is None:
         raise ConfigError(
             f"mesh.rezone_quality > 0 needs a billet or ring scene on its "

@@ -22,7 +22,7 @@ from jaxform.contact import Frictionless
 from jaxform.dies import RigidDie
 from jaxform.geometry import min_quality, polygon_measure
 from jaxform.mesh import billet_quarter, boundary_polygon, polygon_quads
-from jaxform.remesh import simplify
+from jaxform.section_mesh import simplify
 from jaxform.solver import ModifiedNewton
 from jaxform.transfer import Transfer, gauss_points, gauss_to_nodes
 from jaxform.triggers import corner_depth_ratio, fold_angle_deg
@@ -168,6 +168,38 @@ def test_forced_remeshes_leave_frictionless_upsetting_unchanged():
     assert h2["stroke_mm"][rows[1]] - h2["stroke_mm"][rows[0]] >= 0.4
     assert h2["stroke_mm"][rows[1] - 1] - h2["stroke_mm"][rows[0]] < 0.4
     assert np.allclose(h2["force_N"], h0["force_N"], rtol=1e-6)
+
+
+def test_a_run_can_start_on_the_remeshers_own_mesh():
+    """remesh.from_start: the seed (frictionless, homogeneous: any mesh carries it
+    exactly) on 4 x 4 to 15 % starts on a gmsh mesh of its section and remeshes every 5
+    steps; its forces equal the structured run's to 1e-6 relative and the start mesh holds
+    the structured mesh's volume to 1e-12.  The flash scene's start mesh is fine (die_size_ratio x
+    the bulk size, to 30 %) along the flange face that touches the billet at t = 0 and
+    coarse (the bulk size, to 30 %) along the top under the hub recess, which does not."""
+    over = QUIET + ["mesh.nr=4", "mesh.nz=4", "die.reduction=0.15"]
+    plain = jaxform.run(SEED, over)
+    res = jaxform.run(SEED, over + ["remesh.every_steps=5", "remesh.from_start=true"])
+    start = res.segments[0].scene
+    assert start.grid is None and start.mesh.n_nodes != plain.scene.mesh.n_nodes
+
+    def volume(mesh):
+        return polygon_measure(np.asarray(mesh.coords)[mesh.elements], True).sum()
+
+    assert volume(start.mesh) == pytest.approx(volume(plain.scene.mesh), rel=1e-12)
+    assert np.allclose(res.history["force_N"], plain.history["force_N"], rtol=1e-6)
+    from jaxform.scenes import build_scene
+
+    scene = build_scene(load_config("configs/closed_die_flash.toml", ["remesh.from_start=true"]))
+    c, top = np.asarray(scene.mesh.coords), scene.mesh.node_sets["top"]
+    rt = np.sort(c[top, 0])
+    gaps = np.diff(rt)
+    mid = 0.5 * (rt[1:] + rt[:-1])
+    fine, bulk = 0.35 * 0.35, 0.35  # die_size_ratio x element_size_mm, element_size_mm
+    assert np.all(np.abs(gaps[(mid > 3.2) & (mid < 4.8)] / fine - 1) < 0.3)
+    assert np.all(np.abs(gaps[mid < 1.5] / bulk - 1) < 0.3)
+    with pytest.raises(ConfigError, match="remesh.from_start"):
+        load_config(SEED, ["remesh.from_start=true"])
 
 
 def test_trigger_measures_of_known_geometry():
@@ -466,7 +498,7 @@ def test_local_thickness_finds_the_flash_and_sizes_elements_across_it():
     and the legs of a corner never count).  With remesh.elements_across = 3 the new mesh
     has at least 3 elements over the flash's thickness (its thickness over the mean
     element size in the flash's middle: measured 3.6); without, fewer than 2 (1.8)."""
-    from jaxform.remesh import _sizes, densified, local_thickness
+    from jaxform.section_mesh import densified, element_sizes, local_thickness
 
     poly = np.array([[0, 0], [5, 0], [5, 0.4], [2, 0.4], [2, 3], [0, 3]], float)
     labels = ["symmetry", "side", "top", "top", "top", "axis"]
@@ -485,7 +517,7 @@ def test_local_thickness_finds_the_flash_and_sizes_elements_across_it():
         settings = SimpleNamespace(element_size_mm=0.5, die_size_ratio=0.5,
                                    elements_across=across)  # fmt: skip
         p, lab = (pts, labs) if across else (poly, labels)
-        mesh = polygon_quads(p, lab, _sizes(p, np.zeros(len(p), bool), settings))
+        mesh = polygon_quads(p, lab, element_sizes(p, np.zeros(len(p), bool), settings))
         centre = mesh.coords[mesh.elements].mean(axis=1)
         flash = (centre[:, 0] > 2.5) & (centre[:, 0] < 4.5)
         area = polygon_measure(mesh.coords[mesh.elements[flash]], False)

@@ -75,8 +75,14 @@ def _wear_rules(cfg: Config) -> None:
 
 
 def _remesh_rules(cfg: Config) -> None:
-    """Remeshing excludes rezoning and a membrane (whose load is per initial edge)."""
+    """Remeshing excludes rezoning and a membrane (whose load is per initial edge); its
+    start mesh needs a trigger."""
     if not cfg.remesh.on:
+        if cfg.remesh.from_start:
+            raise ConfigError(
+                "remesh.from_start = true needs a remesh trigger (e.g. remesh.quality_below "
+                "in (0, 1)): a run that never remeshes keeps its structured mesh"
+            )
         return
     if cfg.mesh.rezone_quality > 0.0:
         raise ConfigError(

@@ -224,8 +224,14 @@ class RemeshConfig:
         low=0,
         high=10,
         doc="the new mesh has at least this many elements across the section's local "
-        "thickness (a flash, a thin web), down to a quarter of the die size (0 = off; "
-        "default 3 for a closed die whose config sets no remesh trigger)",
+        "thickness (a flash, a thin web), down to a quarter of the die size (0 = off)",
+    )
+    from_start: bool = key(
+        False,
+        doc="the run starts on the remesher's own mesh of the workpiece section (gmsh, "
+        "remesh.element_size_mm, finer where a die touches it at t = 0) instead of its "
+        "structured grid, so that a remesh does not change the mesh's resolution; needs "
+        "a remesh trigger",
     )
     onto_dies: bool = key(
         False,
