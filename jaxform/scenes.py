@@ -640,7 +640,6 @@ def build_scene(cfg: dict | Config, mesh: meshing.Mesh | None = None) -> Scene:
             variant=variant,
             stall_iterations=so.stall_iterations,
             stall_ratio=so.stall_ratio,
-            natural_monotonicity=so.natural_monotonicity,
         ),
         inputs=Inputs(
             coords=jax.device_put(np.asarray(mesh.coords, dtype=float)),

@@ -177,10 +177,7 @@ class NewtonSettings:
     up to ``max_backtracks`` halvings.  ``stall_iterations`` (0: off) and ``stall_ratio``:
     a solve that may give up (:func:`stalled`) stops, not converged, once its best
     ||R|| / F has not fallen below ``stall_ratio`` times the best of ``stall_iterations``
-    iterations earlier.  ``natural_monotonicity``: full Newton's line search takes a
-    step alpha dx where the Newton correction at the trial point, solved with the same
-    Jacobian, is shorter than (1 - alpha / 4) ||dx|| (Deuflhard's natural monotonicity
-    test: one more solve per trial) instead of where ||R|| falls by 1e-4 alpha."""
+    iterations earlier."""
 
     max_iterations: int = 25
     rtol: float = 1e-10
@@ -189,7 +186,6 @@ class NewtonSettings:
     variant: NewtonVariant = FullNewton()
     stall_iterations: int = 0
     stall_ratio: float = 0.9
-    natural_monotonicity: bool = False
 
     @property
     def max_total_iterations(self) -> int:
@@ -310,10 +306,7 @@ def newton(
         else:
             fac = kept.factor(vals, fac)
             dx = kept.solve_factored(fac, -r)
-        rnorm, dx_norm = jnp.linalg.norm(r), jnp.linalg.norm(dx)
-
-        def solve_same(b):  # with this iteration's Jacobian
-            return linear_solve(vals, b) if kept is None else kept.solve_factored(fac, b)
+        rnorm = jnp.linalg.norm(r)
 
         def trial(alpha):
             xt = x + alpha * dx
@@ -328,11 +321,7 @@ def newton(
             def ls_body(lc):
                 k, alpha = lc[0], lc[1]
                 xt, rt, auxt, codet, scalet = trial(alpha)
-                if s.natural_monotonicity:  # the correction at the trial, same Jacobian
-                    shorter = jnp.linalg.norm(solve_same(-rt)) <= (1.0 - 0.25 * alpha) * dx_norm
-                    bad = (codet != OK) | ~shorter
-                else:
-                    bad = (codet != OK) | (jnp.linalg.norm(rt) > (1.0 - 1e-4 * alpha) * rnorm)
+                bad = (codet != OK) | (jnp.linalg.norm(rt) > (1.0 - 1e-4 * alpha) * rnorm)
                 done = ~(bad & (k < s.max_backtracks))  # k backtracks done before this trial
                 return (k + 1, 0.5 * alpha, done, xt, rt, auxt, codet, scalet)
 

@@ -66,13 +66,6 @@ class SolverConfig:
         "smaller step is left (0: never; a step that would fail after max_newton_iterations "
         "fails sooner; see jaxform/solver.py stalled)",
     )
-    natural_monotonicity: bool = key(
-        False,
-        doc="full Newton's line search accepts a step where the Newton correction at the trial "
-        "point (solved with the same Jacobian) is shorter than (1 - alpha/4) of the step's, "
-        "instead of where the residual norm falls (one more linear solve per trial; see "
-        "jaxform/solver.py)",
-    )
     stall_ratio: float = key(
         0.9,
         low=0.0,
