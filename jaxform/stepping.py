@@ -244,39 +244,49 @@ def solve_step(
     x_guess=None,
     fac=None,
     adjoint_fac=None,
-    give_up=None,
 ) -> StepSolution:
     """One Newton solve from state (at t) to t_new, starting from x_guess (or state.x;
     state.x also when the guess is not a valid state); ``fac``: the factorization
     :class:`jaxform.solver.ModifiedNewton` keeps, or for :class:`jaxform.solver.FullNewton`
     one that each iteration replaces, the last returned; ``adjoint_fac``: a factorization
-    near the root for the reverse pass to reuse (see :func:`jaxform.solver.solve_implicit`);
-    ``give_up`` (traced bool, or None): the solve may stop early where it stalls
-    (:func:`jaxform.solver.stalled`, ``solver.stall_iterations``).
+    near the root for the reverse pass to reuse (see :func:`jaxform.solver.solve_implicit`).
 
     Differentiable (reverse mode) in ``state``, ``t_new`` and ``inp`` by the implicit
     function theorem (:func:`jaxform.solver.solve_implicit`)."""
+    ctx, x0, x_fallback = _step_start(stepper.model, state, t_new, inp, idx, x_guess)
+    out = solve_implicit(step_problem(stepper), x0, x_fallback, ctx, fac, adjoint_fac)
+    return StepSolution(*out[:5], ctx.cstep, out[5])
+
+
+def step_problem(stepper: Stepper) -> ImplicitProblem:
+    """The static part of a step's Newton solve (:class:`jaxform.solver.ImplicitProblem`)."""
     model = stepper.model
-    ctx = step_context(model, state, inp, idx, t_new, t_new - state.t)
-    x_fallback = jax.lax.stop_gradient(state.x)
-    x0 = x_fallback if x_guess is None else jax.lax.stop_gradient(x_guess)
-    problem = ImplicitProblem(
+    return ImplicitProblem(
         partial(_step_residual, model),
         partial(_step_residual_and_jacobian, model),
         partial(_step_adjoint, model),
         StepLinear(model.layout.n_dofs, stepper.linear),
         stepper.newton,
     )
-    x, g, its, code, hist, fac = solve_implicit(
-        problem,
-        x0,
-        x_fallback,
-        ctx,
-        fac,
-        adjoint_fac,
-        give_up,
-    )
-    return StepSolution(x, g, its, code, hist, ctx.cstep, fac)
+
+
+def _step_start(model: Model, state: SimState, t_new, inp: Inputs, idx: Indices, x_guess):
+    """(the step's context, the start x_guess (state.x where None), the fallback state.x),
+    the starts without derivative."""
+    ctx = step_context(model, state, inp, idx, t_new, t_new - state.t)
+    x_fallback = jax.lax.stop_gradient(state.x)
+    x0 = x_fallback if x_guess is None else jax.lax.stop_gradient(x_guess)
+    return ctx, x0, x_fallback
+
+
+def _attempt_solve(stepper: Stepper, state: SimState, t_new, inp: Inputs, idx: Indices,
+                   x_guess, fac, give_up) -> StepSolution:  # fmt: skip
+    """:func:`solve_step` (no adjoint factorization) for one attempt of
+    :func:`attempt_step`: ``give_up`` (traced bool) lets the solve stop early where it
+    stalls (:func:`jaxform.solver.stalled`, ``solver.stall_iterations``)."""
+    ctx, x0, x_fallback = _step_start(stepper.model, state, t_new, inp, idx, x_guess)
+    out = solve_implicit(step_problem(stepper), x0, x_fallback, ctx, fac, None, give_up)
+    return StepSolution(*out[:5], ctx.cstep, out[5])
 
 
 def converged_state(
@@ -442,8 +452,7 @@ def attempt_step(
         guess = jnp.where(c["continued"] > 0, c["guess"], guess)
         smallest = h <= h_min * (1.0 + 1e-9)  # nothing smaller to try
         # a solve that stalls stops early where a smaller step is left to try
-        sol = solve_step(stepper, st, t_new, inp, idx, x_guess=guess, fac=c["fac"],
-                         give_up=~smallest)  # fmt: skip
+        sol = _attempt_solve(stepper, st, t_new, inp, idx, guess, c["fac"], ~smallest)
         ok = sol.code == OK
         conv = converged_state(stepper.model, st, sol.x, sol.gauss, t_new, inp, sol.cstep, idx)
         go_on = (
