@@ -292,6 +292,9 @@ def main(argv=None) -> int:
                     total_s=total,
                     force_N=float(h["force_N"][-1]),
                     iterations=[int(v) for v in h["newton_iterations"]],
+                    # the last attempt's ||R_k|| / F of each step (None: not reached), to try a
+                    # stall rule on the converged attempts without a run
+                    histories=[[float(v) if np.isfinite(v) else None for v in r] for r in hists],
                     replays={str(k): v for k, v in replays.items()},
                 ),
                 indent=1,
