@@ -638,6 +638,8 @@ def build_scene(cfg: dict | Config, mesh: meshing.Mesh | None = None) -> Scene:
             rtol=so.rtol,
             line_search=so.line_search,
             variant=variant,
+            stall_iterations=so.stall_iterations,
+            stall_ratio=so.stall_ratio,
         ),
         inputs=Inputs(
             coords=jax.device_put(np.asarray(mesh.coords, dtype=float)),

@@ -82,10 +82,12 @@ class FullNewton:
         return None
 
     def solve(self, fns: NewtonFunctions, x0, settings: NewtonSettings, x_fallback=None,
-              kept: Kept | None = None):  # fmt: skip
-        """:func:`newton` (factoring through ``kept`` where given)."""
+              kept: Kept | None = None, give_up=None):  # fmt: skip
+        """:func:`newton` (factoring through ``kept`` where given; stopping early where it
+        stalls and ``give_up``, :func:`stalled`)."""
         residual, jacobian = fns.residual, fns.residual_and_jacobian
-        return newton(residual, jacobian, fns.linear_solve, x0, settings, x_fallback, kept)
+        return newton(residual, jacobian, fns.linear_solve, x0, settings, x_fallback, kept,
+                      give_up)  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -131,10 +133,11 @@ class ModifiedNewton:
         return linear.empty_factorization(n, dtype)
 
     def solve(self, fns: NewtonFunctions, x0, settings: NewtonSettings, x_fallback=None,
-              kept: Kept | None = None):  # fmt: skip
-        """:func:`modified_newton` from the factorization ``kept``."""
+              kept: Kept | None = None, give_up=None):  # fmt: skip
+        """:func:`modified_newton` from the factorization ``kept`` (stopping early where it
+        stalls and ``give_up``, :func:`stalled`)."""
         residual, jacobian = fns.residual, fns.residual_and_jacobian
-        return modified_newton(residual, jacobian, kept, x0, settings, x_fallback)
+        return modified_newton(residual, jacobian, kept, x0, settings, x_fallback, give_up)
 
 
 NewtonVariant = FullNewton | ModifiedNewton
@@ -171,13 +174,18 @@ class NewtonSettings:
     iteration; :class:`ModifiedNewton`, a factorization kept across iterations and load
     steps), ``max_iterations`` bounds the iterations with a new Jacobian (the variant says
     how many a solve may take in all), ``rtol`` the convergence test, ``line_search`` with
-    up to ``max_backtracks`` halvings."""
+    up to ``max_backtracks`` halvings.  ``stall_iterations`` (0: off) and ``stall_ratio``:
+    a solve that may give up (:func:`stalled`) stops, not converged, once its best
+    ||R|| / F has not fallen below ``stall_ratio`` times the best of ``stall_iterations``
+    iterations earlier."""
 
     max_iterations: int = 25
     rtol: float = 1e-10
     line_search: bool = True
     max_backtracks: int = 10
     variant: NewtonVariant = FullNewton()
+    stall_iterations: int = 0
+    stall_ratio: float = 0.9
 
     @property
     def max_total_iterations(self) -> int:
@@ -227,6 +235,24 @@ def _start(residual, x0, x_fallback):
     return x0, r0, aux0, code0, scale0
 
 
+def stalled(hist, it, settings: NewtonSettings, give_up):
+    """Whether a solve at iteration ``it`` (``hist[k]`` = ||R_k|| / F_k, inf where not
+    reached) has stalled: ``give_up`` (traced: the caller can still cut the step) and the
+    least residual so far is above ``settings.stall_ratio`` times the least of the first
+    ``it - settings.stall_iterations + 1`` entries.  A step whose Newton solve crawls at
+    that rate does not converge within its iterations (a line search that cuts most of
+    every step, a residual that a contact switch blocks): stopping hands the step to the
+    caller's cutback ``max_iterations - stall_iterations`` iterations sooner.  Off
+    (False) where ``stall_iterations`` is 0 or ``give_up`` is None."""
+    w = settings.stall_iterations
+    if w <= 0 or give_up is None:
+        return jnp.asarray(False)
+    k = jnp.arange(hist.shape[0])
+    best = jnp.min(jnp.where(k <= it, hist, jnp.inf))
+    before = jnp.min(jnp.where(k <= it - w, hist, jnp.inf))
+    return give_up & (it >= w) & (best > settings.stall_ratio * before)
+
+
 @dataclass(frozen=True)
 class Kept:
     """A factorization Newton keeps: ``factor(vals, old) -> fac`` makes a new one (freeing
@@ -245,6 +271,7 @@ def newton(
     settings: NewtonSettings,
     x_fallback=None,
     kept: Kept | None = None,
+    give_up=None,
 ):
     """Solve R(x) = 0 from x0 (or from x_fallback if x0 is not a valid state, e.g. a
     predictor that inverts an element).
@@ -257,7 +284,8 @@ def newton(
     (the same work as linear_solve), and the factorization of the last iteration is
     returned as ``fac`` (``kept.fac`` if there was none), for the caller to reuse: the
     Jacobian of the iterate before the root, within one Newton step of it.  Without it
-    ``fac`` is None.
+    ``fac`` is None.  ``give_up`` (traced bool, or None): the solve may stop, not
+    converged, where it stalls (:func:`stalled`).
     """
     s = settings
     x0, r0, aux0, code0, scale0 = _start(residual, x0, x_fallback)
@@ -267,7 +295,8 @@ def newton(
 
     def cond(c):
         x, aux, it, code, rn, conv, hist, fac = c
-        return (~conv) & (code == OK) & (it < s.max_iterations)
+        going = (~conv) & (code == OK) & (it < s.max_iterations)
+        return going & ~stalled(hist, it, s, give_up)
 
     def body(c):
         x, aux, it, code, rn, conv, hist, fac = c
@@ -360,6 +389,7 @@ def modified_newton(
     x0,
     settings: NewtonSettings,
     x_fallback=None,
+    give_up=None,
 ):
     """Modified Newton: solve R(x) = 0 with a factorization kept from earlier iterations
     (of this solve or of earlier load steps), refreshed only when it stops working.
@@ -375,7 +405,8 @@ def modified_newton(
     (:func:`_anderson_step`; a refresh starts its memory afresh, and a rejected mixed step
     is retried plainly with the same factorization instead of refreshing).  Convergence and
     failure codes as in :func:`newton`; the converged x is the same root to ``rtol`` (the
-    factorization only changes the path).  Returns (x, aux, iterations, code, history, fac).
+    factorization only changes the path).  ``give_up``: as for :func:`newton`, over all
+    its iterations.  Returns (x, aux, iterations, code, history, fac).
     """
     s, v = settings, settings.variant
     factor, solve_factored, fac0 = kept.factor, kept.solve_factored, kept.fac
@@ -392,6 +423,7 @@ def modified_newton(
             & (c["code"] == OK)
             & (c["it"] < s.max_total_iterations)
             & ((c["fac"].count - count0 < s.max_iterations) | ~c["refresh"])
+            & ~stalled(c["hist"], c["it"], s, give_up)
         )
 
     def body(c):
@@ -576,6 +608,7 @@ def solve_implicit(
     args,
     fac=None,
     adjoint_fac=None,
+    give_up=None,
 ):
     """Newton from x0 (x_fallback if x0 is invalid) on fn(., args) = 0, differentiable in
     ``args`` by the implicit function theorem (x0, x_fallback and the factorizations get no
@@ -596,7 +629,9 @@ def solve_implicit(
     ``adjoint_fac``: a factorization of a Jacobian near this root, which the caller keeps
     alive through the reverse pass; where valid and this solve took no iteration (x0 was
     already the root it was factored near), the reverse pass solves by
-    :func:`adjoint_solve` with it instead of factoring J(x*) again.
+    :func:`adjoint_solve` with it instead of factoring J(x*) again.  ``give_up`` (traced
+    bool or None): the solve may stop early where it stalls (:func:`stalled`; the caller
+    then cuts the step).
 
     Returns (x, aux, iterations, code, history, fac) like :func:`newton`.  The functions
     must be hashable and close over no traced value: everything traced goes through
@@ -617,12 +652,12 @@ def solve_implicit(
         lambda x: fn_jac(x, args),
         lambda vals, b: linear(vals, b, args, False),
     )
-    return settings.variant.solve(fns, x0, settings, x_fallback, kept)
+    return settings.variant.solve(fns, x0, settings, x_fallback, kept, give_up)
 
 
-def _solve_implicit_fwd(problem, x0, x_fallback, args, fac=None, adjoint_fac=None):
-    out = solve_implicit(problem, x0, x_fallback, args, fac, adjoint_fac)
-    return out, (out[0], out[2], args, fac, adjoint_fac)
+def _solve_implicit_fwd(problem, x0, x_fallback, args, fac=None, adjoint_fac=None, give_up=None):
+    out = solve_implicit(problem, x0, x_fallback, args, fac, adjoint_fac, give_up)
+    return out, (out[0], out[2], args, fac, adjoint_fac, give_up)
 
 
 def _solve_implicit_bwd(problem, res, cot):
@@ -635,7 +670,7 @@ def _solve_implicit_bwd(problem, res, cot):
     linearization and one transposition instead of a linearization in (x, args) and two
     transpositions (measured on the seed scene: see experiments/bench_gradient.py)."""
     fn, fn_adj, linear = problem.fn, problem.fn_adj, problem.linear
-    x, its, args, fac, adjoint_fac = res
+    x, its, args, fac, adjoint_fac, give_up = res
     x_bar, aux_bar = cot[0], cot[1]
     vals, xg_bar = fn_adj(x, args, aux_bar)
     use = None if adjoint_fac is None else adjoint_fac.valid & (its == 0)
@@ -653,6 +688,7 @@ def _solve_implicit_bwd(problem, res, cot):
         a_bar,
         _zero_cotangent(fac),
         _zero_cotangent(adjoint_fac),
+        _zero_cotangent(give_up),
     )
 
 

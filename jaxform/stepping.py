@@ -253,26 +253,40 @@ def solve_step(
 
     Differentiable (reverse mode) in ``state``, ``t_new`` and ``inp`` by the implicit
     function theorem (:func:`jaxform.solver.solve_implicit`)."""
+    ctx, x0, x_fallback = _step_start(stepper.model, state, t_new, inp, idx, x_guess)
+    out = solve_implicit(step_problem(stepper), x0, x_fallback, ctx, fac, adjoint_fac)
+    return StepSolution(*out[:5], ctx.cstep, out[5])
+
+
+def step_problem(stepper: Stepper) -> ImplicitProblem:
+    """The static part of a step's Newton solve (:class:`jaxform.solver.ImplicitProblem`)."""
     model = stepper.model
-    ctx = step_context(model, state, inp, idx, t_new, t_new - state.t)
-    x_fallback = jax.lax.stop_gradient(state.x)
-    x0 = x_fallback if x_guess is None else jax.lax.stop_gradient(x_guess)
-    problem = ImplicitProblem(
+    return ImplicitProblem(
         partial(_step_residual, model),
         partial(_step_residual_and_jacobian, model),
         partial(_step_adjoint, model),
         StepLinear(model.layout.n_dofs, stepper.linear),
         stepper.newton,
     )
-    x, g, its, code, hist, fac = solve_implicit(
-        problem,
-        x0,
-        x_fallback,
-        ctx,
-        fac,
-        adjoint_fac,
-    )
-    return StepSolution(x, g, its, code, hist, ctx.cstep, fac)
+
+
+def _step_start(model: Model, state: SimState, t_new, inp: Inputs, idx: Indices, x_guess):
+    """(the step's context, the start x_guess (state.x where None), the fallback state.x),
+    the starts without derivative."""
+    ctx = step_context(model, state, inp, idx, t_new, t_new - state.t)
+    x_fallback = jax.lax.stop_gradient(state.x)
+    x0 = x_fallback if x_guess is None else jax.lax.stop_gradient(x_guess)
+    return ctx, x0, x_fallback
+
+
+def _attempt_solve(stepper: Stepper, state: SimState, t_new, inp: Inputs, idx: Indices,
+                   x_guess, fac, give_up) -> StepSolution:  # fmt: skip
+    """:func:`solve_step` (no adjoint factorization) for one attempt of
+    :func:`attempt_step`: ``give_up`` (traced bool) lets the solve stop early where it
+    stalls (:func:`jaxform.solver.stalled`, ``solver.stall_iterations``)."""
+    ctx, x0, x_fallback = _step_start(stepper.model, state, t_new, inp, idx, x_guess)
+    out = solve_implicit(step_problem(stepper), x0, x_fallback, ctx, fac, None, give_up)
+    return StepSolution(*out[:5], ctx.cstep, out[5])
 
 
 def converged_state(
@@ -412,7 +426,9 @@ def attempt_step(
 ):
     """One converged step from ``state``: tried with ``control.h`` (the last step snapped to
     end exactly at t_end), halved on failure until it converges or reaches the smallest
-    step (there continued, ``StepControl.continuations``).  Returns (state, info dict, fac):
+    step (there continued, ``StepControl.continuations``); a solve that stalls
+    (``solver.stall_iterations``, :func:`jaxform.solver.stalled`) stops early where a
+    smaller step is left to try.  Returns (state, info dict, fac):
     info has the step size taken (h_used), iterations and cutbacks (failed attempts,
     continuations included) of all attempts, the status code, and the Newton history of
     the last attempt; ``fac`` the factorization modified Newton keeps (None for full Newton)."""
@@ -434,10 +450,11 @@ def attempt_step(
         guess = st.x + use_rate * hh * st.x_rate
         # a continuation goes on from the last iterate of the solve before it
         guess = jnp.where(c["continued"] > 0, c["guess"], guess)
-        sol = solve_step(stepper, st, t_new, inp, idx, x_guess=guess, fac=c["fac"])
+        smallest = h <= h_min * (1.0 + 1e-9)  # nothing smaller to try
+        # a solve that stalls stops early where a smaller step is left to try
+        sol = _attempt_solve(stepper, st, t_new, inp, idx, guess, c["fac"], ~smallest)
         ok = sol.code == OK
         conv = converged_state(stepper.model, st, sol.x, sol.gauss, t_new, inp, sol.cstep, idx)
-        smallest = h <= h_min * (1.0 + 1e-9)  # nothing smaller to try
         go_on = (
             ~ok
             & smallest

@@ -57,6 +57,24 @@ class SolverConfig:
         "the run stops; runs that never fail at the smallest step are unchanged",
     )
     line_search: bool = key(True, doc="backtracking line search in Newton")
+    stall_iterations: int = key(
+        0,
+        low=0,
+        high=1000,
+        doc="a Newton solve whose least residual has not fallen below solver.stall_ratio x the "
+        "least of this many iterations earlier stops and the step is cut back, where a "
+        "smaller step is left (0: never; a step that would fail after max_newton_iterations "
+        "fails sooner; see jaxform/solver.py stalled)",
+    )
+    stall_ratio: float = key(
+        0.9,
+        low=0.0,
+        high=1.0,
+        low_open=True,
+        high_open=True,
+        doc="the fall of the least Newton residual over solver.stall_iterations iterations "
+        "below which a solve has stalled",
+    )
     linear: str = key(
         "auto",
         choices=("auto", "dense", "sparse", "jax-sparse"),
