@@ -63,10 +63,12 @@ def probe(scene, state, h: float, edges) -> dict:
 
 
 def identity_mesh(scene, pos, t, settings):
-    """The old mesh at its deformed position, as a 'new' mesh."""
+    """The old mesh at its deformed position, as a 'new' mesh (and what the mesher needed:
+    nothing), as :func:`jaxform.remesh.new_section_mesh` returns it."""
     m = scene.mesh
-    return Mesh(np.asarray(pos, float), np.asarray(m.elements), dict(m.node_sets),
+    mesh = Mesh(np.asarray(pos, float), np.asarray(m.elements), dict(m.node_sets),
                 dict(m.facet_sets))  # fmt: skip
+    return mesh, ""
 
 
 def main() -> None:
