@@ -378,8 +378,9 @@ def _remeshed_trajectory(scene: Scene, inputs: Inputs, times, plan: RemeshPlan) 
         sc = seg.padded.scene
         stepper = stepper_of(sc, differentiable=True)
         state, coords, run_coords, run_state = _enter_mesh(seg, state, coords)
-        part = _segment(stepper, sc.idx, replace(inputs, coords=run_coords),
-                        times[first : first + seg.n_steps], run_state)  # fmt: skip
+        part = mesh_steps(stepper, sc.idx, replace(inputs, coords=run_coords),
+                          times[first : first + seg.n_steps], run_state,
+                          padded=seg.padded is not None)  # fmt: skip
         state = _leave_mesh(seg, part.final_state)
         parts.append(part)
         first += seg.n_steps
@@ -429,6 +430,61 @@ def _segment(stepper: Stepper, idx, inputs: Inputs, times, state0) -> Trajectory
     state has no tangent) and the last (whose final state gets no cotangent) would each
     compile programs of their own."""
     return _trajectory(stepper, inputs, times, state0, idx, 0)
+
+
+CHUNK_STEPS = 8  # the longest run of steps one compiled segment program takes
+
+
+def step_chunks(n_steps: int, longest: int = CHUNK_STEPS) -> tuple[int, ...]:
+    """``n_steps`` as runs of ``longest`` (a power of two) steps, then the powers of two
+    of the rest, largest first: whatever their step counts, the meshes of one capacity
+    bucket run at most log2(longest) + 1 step programs (and as many reverse passes)."""
+    chunks = [longest] * (n_steps // longest)
+    size = longest
+    while size > 1:
+        size //= 2
+        if n_steps % (2 * size) >= size:
+            chunks.append(size)
+    return tuple(chunks)
+
+
+def mesh_steps(stepper: Stepper, idx, inputs: Inputs, times, state0, padded=True) -> Trajectory:
+    """One mesh's steps of a remeshed gradient run (:func:`_segment`), on a mesh
+    ``padded`` to its bucket in the chunks of :func:`step_chunks` (each from the last one's
+    final state; a mesh of its own in one), as one trajectory."""
+    n_steps = times.shape[0]
+    parts, first = [], 0
+    for n in step_chunks(n_steps) if padded else (n_steps,):
+        parts.append(_segment(stepper, idx, inputs, times[first : first + n], state0))
+        state0, first = parts[-1].final_state, first + n
+    return parts[0] if len(parts) == 1 else _chained(tuple(parts))
+
+
+@jit
+def _chained(parts: tuple) -> Trajectory:
+    """The trajectory of consecutive runs of steps on one mesh (rows 1.. of each after
+    the first repeat the row before them): one program, not eager concatenations."""
+
+    def rows(name):
+        later = [getattr(p, name)[1:] for p in parts[1:]]
+        return jnp.concatenate([getattr(parts[0], name), *later])
+
+    def steps(name):
+        return jnp.concatenate([getattr(p, name) for p in parts])
+
+    temps = None if parts[-1].temperature_K is None else rows("temperature_K")
+    return replace(
+        parts[-1],
+        time_s=rows("time_s"),
+        stroke_mm=rows("stroke_mm"),
+        force_N=rows("force_N"),
+        friction_work_Nmm=rows("friction_work_Nmm"),
+        coords=parts[0].coords,
+        codes=steps("codes"),
+        iterations=steps("iterations"),
+        contact_status=steps("contact_status"),
+        temperature_K=temps,
+    )
 
 
 @partial(jit, static_argnums=0)

@@ -57,15 +57,19 @@ def process_problem(process: Process, groups=None, progress=None, announce=None)
     (``groups``, default ``design.variables``; checked by
     :func:`jaxform.process_config.check_process_design`) and ``design.objective`` of
     ``design.objective_operation``."""
-    from jaxform.design.process_problem import build_process_problem, config_objective
-
     where = "design.variables" if groups is None else "--groups"
     check_process_design(process, groups, where)
+    _, plan = forward_plan(process, progress, announce)
+    return problem_of_plan(process, plan, groups)
+
+
+def problem_of_plan(process: Process, plan, groups=None):
+    """:func:`process_problem` on the plan of a forward run already made (checked)."""
+    from jaxform.design.process_problem import build_process_problem, config_objective
+
     d = process.operations[0].config.design
     names = tuple(groups) if groups else (*d.variables, *d.operation_variables)
-    _, plan = forward_plan(process, progress, announce)
-    objective = config_objective(plan, d)
-    return build_process_problem(plan, names, objective, d.operation)
+    return build_process_problem(plan, names, config_objective(plan, d), d.operation)
 
 
 def run_process_taylor(process: Process, groups=None, h=(1.0, 0.5, 0.25, 0.125), progress=None,
@@ -80,19 +84,23 @@ def run_process_taylor(process: Process, groups=None, h=(1.0, 0.5, 0.25, 0.125),
 
 
 def run_process_design(process: Process, out_dir, progress=None, forward_progress=None,
-                       announce=None):  # fmt: skip
-    """Optimize a process's [design] problem; write design_history.csv,
-    design_report.csv (start and best: the objective, each term, each blow's peak force,
-    each constraint), objective.png and config.toml (the process as configured) to
-    ``out_dir``."""
+                       announce=None, problem=None):  # fmt: skip
+    """Optimize a process's [design] problem (``problem``: the one of a forward run made
+    already, :func:`problem_of_plan`); write design_history.csv, design_report.csv (start
+    and best: the objective, each term, each blow's peak force, each constraint),
+    objective.png and config.toml (the process as configured) to ``out_dir``."""
     from jaxform.design import optimize
     from jaxform.driver import design_report, optimizer_settings
     from jaxform.plot import design_objective
 
-    problem = process_problem(process, None, forward_progress, announce)
+    if problem is None:
+        problem = process_problem(process, None, forward_progress, announce)
     d = process.operations[0].config.design
     if announce is not None:
-        announce("  compiling the gradient programs and evaluating the start design")
+        meshes = sum(len(s.segments) for s in problem.plan.stages)
+        programs = problem.plan.step_programs()
+        announce(f"  compiling the gradient programs ({meshes} meshes, {programs} step "
+                 "programs) and evaluating the start design")  # fmt: skip
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     if announce is not None:  # the start design's terms, before a long optimization

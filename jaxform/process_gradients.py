@@ -26,9 +26,9 @@ run's part had its top.  A trim cuts at the forward run's cut (its new mesh's no
 with the old deformed positions through the fixed weights).
 
 Each mesh's steps run the compiled program of its capacity bucket
-(:func:`jaxform.gradients._segment`, shared with single-scene remeshed gradient runs and
-between the operations whose meshes share a bucket); the maps between them run as one
-compiled program each.
+(:func:`jaxform.gradients.mesh_steps`: in runs of 8, 4, 2, 1 steps, shared with
+single-scene remeshed gradient runs and between the operations whose meshes share a
+bucket); the maps between them run as one compiled program each.
 """
 
 from __future__ import annotations
@@ -45,9 +45,10 @@ from jaxform.gradients import (
     Trajectory,
     _enter_mesh,
     _leave_mesh,
-    _segment,
     check,
     joined,
+    mesh_steps,
+    step_chunks,
 )
 from jaxform.remesh import StateMap
 from jaxform.scenes import Inputs, Scene
@@ -120,6 +121,22 @@ class ProcessPlan:
 
     def times(self) -> tuple[np.ndarray, ...]:
         return tuple(np.asarray(s.times) for s in self.stages)
+
+    def step_programs(self, chunked: bool = True) -> int:
+        """The distinct step programs a replay compiles (each twice: the steps with their
+        residuals, and the reverse pass), keyed as jit keys them: the differentiable
+        stepper, the index arrays' shapes, the run's length (``chunked``: the runs of
+        :func:`jaxform.gradients.step_chunks` on a padded mesh; else a mesh's steps in one)."""
+        keys = set()
+        for stage in self.stages:
+            for seg in stage.segments:
+                sc = seg.scene if seg.padded is None else seg.padded.scene
+                shapes = tuple(np.shape(a) for a in jax.tree_util.tree_leaves(sc.idx))
+                key = (stepper_of(sc, differentiable=True), shapes)
+                runs = (step_chunks(seg.n_steps) if chunked and seg.padded is not None
+                        else (seg.n_steps,))  # fmt: skip
+                keys |= {(key, n) for n in runs}
+        return len(keys)
 
     def index(self, name: str) -> int:
         """The stage of the operation named ``name``; ValueError if none is."""
@@ -233,8 +250,9 @@ def _stepped(stage: Stage, inputs: Inputs, times, state, coords) -> Trajectory:
         sc = seg.scene if seg.padded is None else seg.padded.scene
         stepper = stepper_of(sc, differentiable=True)
         state, coords, run_coords, run_state = _enter_mesh(seg, state, coords)
-        part = _segment(stepper, sc.idx, replace(inputs, coords=run_coords),
-                        times[first : first + seg.n_steps], run_state)  # fmt: skip
+        part = mesh_steps(stepper, sc.idx, replace(inputs, coords=run_coords),
+                          times[first : first + seg.n_steps], run_state,
+                          padded=seg.padded is not None)  # fmt: skip
         state = _leave_mesh(seg, part.final_state)
         parts.append(part)
         first += seg.n_steps

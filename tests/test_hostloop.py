@@ -6,8 +6,9 @@ worse; a remesh analyses the pattern it steps, once), and hand-computed threshol
 Nothing here compiles a step program.
 """
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import ClassVar
 
 import jax.numpy as jnp
 import numpy as np
@@ -81,13 +82,48 @@ def test_triggers_of_a_scene_and_the_shared_step_program():
     assert stepper_of(_scene("solver.newton=modified"), True).newton.variant == FullNewton()
 
 
+@dataclass(frozen=True)
+class _RearmedAt90(QualityBelow):
+    """The quality trigger as it was: a new mesh below the trigger waits for 0.9 x its
+    quality."""
+
+    helpless: ClassVar[float] = 0.9
+
+
+def _quality_remeshes(trigger: QualityBelow, n_steps: int) -> list[int]:
+    """The steps at which the quality trigger (0.3) fires on a corner that every new mesh
+    has at quality 0.25 (the remesher cannot do better) and that loses 8 % a step."""
+    sc = _scene("remesh.quality_below=0.3")
+    armed = Armed.of(sc, (trigger,))
+    (threshold,) = armed.thresholds()
+    fired, q = [], 0.35  # the first mesh starts above the trigger
+    for step in range(1, n_steps + 1):
+        q *= 0.92
+        if bool(trigger.fires(q, threshold)):
+            fired.append(step)
+            row = dict(stroke_mm=0.1 * step, pause_cause=QUALITY, mesh_quality=q)
+            q = 0.25  # the new mesh: its worst corner the remesher's best
+            (threshold,) = armed.thresholds(row, quality_after=q)
+    return fired
+
+
+def test_a_corner_no_remesh_improves_is_remeshed_once_its_quality_has_halved():
+    """Reference: by hand.  The first mesh (0.35, -8 % a step) falls under 0.3 at step 2
+    (0.35 x 0.92^2 = 0.296).  Every new mesh has 0.25 < 0.3: re-armed at 0.5 x 0.25 =
+    0.125, which 0.25 x 0.92^k passes at k = 9 (0.118; k = 8: 0.128), so the trigger
+    fires at steps 2, 11, 20, 29 of 36.  Re-armed at 0.9 x 0.25 = 0.225 (the rule before:
+    passed at k = 2, 0.212) it fired every second step: 18 remeshes."""
+    assert _quality_remeshes(QualityBelow(), 36) == [2, 11, 20, 29]
+    assert _quality_remeshes(_RearmedAt90(), 36) == list(range(2, 37, 2))
+
+
 def test_thresholds_arm_and_relax_after_an_adaptation():
     """Reference: the hysteresis rules by hand.  At the start: the configured thresholds
     (the stroke one a stroke from 0).  After a remesh on a row (stroke 2 mm) that fired
     the quality, corner and fold triggers: the new mesh's quality 0.25 below 0.3 waits
-    for 0.9 x 0.25; the corner depth 0.3 for 1.1 x 0.3, the fold 20 deg for 0.9 x 20;
-    the stroke for 2 + 1.5 mm.  A new mesh above 0.3 keeps 0.3; an unfired trigger its own.
-    The steps trigger counts the steps since the last new mesh."""
+    for 0.5 x 0.25 (QualityBelow.helpless); the corner depth 0.3 for 1.1 x 0.3, the fold
+    20 deg for 0.9 x 20; the stroke for 2 + 1.5 mm.  A new mesh above 0.3 keeps 0.3; an
+    unfired trigger its own.  The steps trigger counts the steps since the last new mesh."""
     sc = _scene(
         "remesh.quality_below=0.3",
         "remesh.corner_depth_ratio=0.2",
@@ -104,7 +140,7 @@ def test_thresholds_arm_and_relax_after_an_adaptation():
     row = dict(stroke_mm=2.0, pause_cause=QUALITY | CORNER | FOLD, corner_depth_ratio=0.3,
                free_fold_deg=20.0)  # fmt: skip
     after = [float(h) for h in armed.thresholds(row, quality_after=0.25)]
-    assert after == pytest.approx([0.9 * 0.25, 10.0, 3.5, 1.1 * 0.3, 0.9 * 20.0, 500.0])
+    assert after == pytest.approx([0.5 * 0.25, 10.0, 3.5, 1.1 * 0.3, 0.9 * 20.0, 500.0])
     quiet = dict(row, pause_cause=0)
     assert [float(h) for h in armed.thresholds(quiet, quality_after=0.5)] == pytest.approx(
         [0.3, 10.0, 3.5, 0.2, 30.0, 500.0]

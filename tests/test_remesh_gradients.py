@@ -8,8 +8,8 @@ variables, relative error <= 1e-5), Taylor remainders (rates >= 1.9), and the fo
 run itself (the gradient run's force history equals it to the Newton tolerance).
 
 One small frictional scene (3 x 3 q1p0 billet, Coulomb 0.3, 30 % upset in 20 steps, a new
-mesh every 5 steps: 3 remeshes, every mesh in one capacity bucket, so one compiled
-program) is shared by every test here.
+mesh every 5 steps: 3 remeshes, every mesh in one capacity bucket, so its 5 steps run as
+the bucket's programs of 4 and 1 steps) is shared by every test here.
 """
 
 from dataclasses import replace
@@ -24,7 +24,7 @@ from fd_check import directional_derivatives
 from jaxform.config import ConfigError, check_gradient_run, load_config
 from jaxform.design import OptimizerSettings, build_problem, optimize, taylor_test
 from jaxform.design.objectives import ForceMisfit, ForgingWork
-from jaxform.gradients import _remeshed_trajectory, trajectory
+from jaxform.gradients import _remeshed_trajectory, step_chunks, trajectory
 from jaxform.scenes import build_scene
 from jaxform.simulation import simulate
 
@@ -72,6 +72,21 @@ def test_the_gradient_run_takes_the_forward_runs_meshes():
     assert np.max(np.abs(np.asarray(traj.force_N) - f)) <= 1e-7 * np.max(f)
     # the final fields live on the last mesh
     assert traj.positions.shape == (segs[-1].scene.model.layout.n_nodes, 2)
+
+
+def test_a_meshs_steps_run_in_runs_of_8_4_2_1():
+    """A mesh's steps replay in runs of 8 and then the binary digits of the rest, largest
+    first (reference: the binary expansion): the meshes of one bucket, whatever their
+    step counts (here 1 to 99), run four step programs at most."""
+    assert step_chunks(5) == (4, 1) and step_chunks(21) == (8, 8, 4, 1)
+    assert step_chunks(8) == (8,) and step_chunks(0) == ()
+    lengths = set()
+    for n in range(1, 100):
+        chunks = step_chunks(n)
+        assert sum(chunks) == n and list(chunks) == sorted(chunks, reverse=True)
+        assert len([c for c in chunks if c < 8]) == bin(n % 8).count("1")
+        lengths |= set(chunks)
+    assert lengths == {8, 4, 2, 1}
 
 
 @pytest.mark.parametrize("group", GROUPS)
