@@ -146,7 +146,7 @@ class NoAdaptation:
 class Rezoning:
     """The structured mesh's nodes moved when an element's worst corner quality falls
     below ``mesh.rezone_quality`` (:mod:`jaxform.rezone`); a rezoning that could not raise
-    the quality keeps the mesh and waits until the quality has halved
+    the quality keeps the mesh and waits until the quality has fallen by another 10 %
     (:attr:`jaxform.triggers.QualityBelow.helpless`)."""
 
     reports: ClassVar[str] = "rezones"

@@ -11,9 +11,8 @@ them) that
   order of the stepper's tuple), so that a new threshold compiles nothing;
 * on the host, reads its configured threshold from the scene (:meth:`configured`: its
   config key) and arms the threshold for the steps on a new mesh (:meth:`armed`): a
-  trigger that the new mesh still fires waits until it has become worse (a shape 10 %;
-  a quality that the remesh could not lift above the trigger, half of it), so that a run
-  cannot adapt on every step.
+  trigger that the new mesh still fires waits until it has become 10 % worse, so that a
+  run cannot adapt on every step.
 
 :data:`TRIGGERS` are all of them, each with its bit of the outputs' ``pause_cause``
 (:func:`causes` names them).  The costly ones (a die corner's depth, a fold) are compiled
@@ -126,10 +125,11 @@ class QualityBelow(Trigger):
         return super().configured(scene) if _remeshing(scene) else float(scene.rezone_quality)
 
     # the fraction of a new mesh's worst corner quality at which the trigger fires again
-    # where that mesh is already below the trigger: the remesh could not make a better
-    # corner there (one the boundary fixes: a fin's tip, a flash's front), so another
-    # remesh gains nothing until the element itself has distorted (its quality halved)
-    helpless: ClassVar[float] = 0.5
+    # where that mesh is already below the trigger (the remesher could not make a better
+    # corner there: a fin's tip, a flash's front).  Lower fractions (0.5, 0.7) cut the
+    # remeshes of such a corner but let the two-stage disk's finisher fin distort until
+    # its run failed (docs/processes.md, "Designing the blocker")
+    helpless: ClassVar[float] = 0.9
 
     def armed(self, configured, row, quality_after):
         if quality_after is None or quality_after > configured:

@@ -83,11 +83,11 @@ def test_triggers_of_a_scene_and_the_shared_step_program():
 
 
 @dataclass(frozen=True)
-class _RearmedAt90(QualityBelow):
-    """The quality trigger as it was: a new mesh below the trigger waits for 0.9 x its
-    quality."""
+class _RearmedAtHalf(QualityBelow):
+    """The quality trigger with a new mesh below the trigger re-armed at half its quality
+    (tried on the two-stage disk, docs/processes.md: its finisher's fin then failed)."""
 
-    helpless: ClassVar[float] = 0.9
+    helpless: ClassVar[float] = 0.5
 
 
 def _quality_remeshes(trigger: QualityBelow, n_steps: int) -> list[int]:
@@ -107,21 +107,22 @@ def _quality_remeshes(trigger: QualityBelow, n_steps: int) -> list[int]:
     return fired
 
 
-def test_a_corner_no_remesh_improves_is_remeshed_once_its_quality_has_halved():
+def test_a_corner_no_remesh_improves_is_remeshed_when_its_quality_is_10_percent_worse():
     """Reference: by hand.  The first mesh (0.35, -8 % a step) falls under 0.3 at step 2
-    (0.35 x 0.92^2 = 0.296).  Every new mesh has 0.25 < 0.3: re-armed at 0.5 x 0.25 =
-    0.125, which 0.25 x 0.92^k passes at k = 9 (0.118; k = 8: 0.128), so the trigger
-    fires at steps 2, 11, 20, 29 of 36.  Re-armed at 0.9 x 0.25 = 0.225 (the rule before:
-    passed at k = 2, 0.212) it fired every second step: 18 remeshes."""
-    assert _quality_remeshes(QualityBelow(), 36) == [2, 11, 20, 29]
-    assert _quality_remeshes(_RearmedAt90(), 36) == list(range(2, 37, 2))
+    (0.35 x 0.92^2 = 0.296).  Every new mesh has 0.25 < 0.3: re-armed at 0.9 x 0.25 =
+    0.225 (QualityBelow.helpless), which 0.25 x 0.92^k passes at k = 2 (0.212): a remesh
+    every second step, 18 in 36.  Re-armed at 0.5 x 0.25 = 0.125, passed at k = 9 (0.118;
+    k = 8: 0.128): steps 2, 11, 20, 29."""
+    assert QualityBelow.helpless == 0.9
+    assert _quality_remeshes(QualityBelow(), 36) == list(range(2, 37, 2))
+    assert _quality_remeshes(_RearmedAtHalf(), 36) == [2, 11, 20, 29]
 
 
 def test_thresholds_arm_and_relax_after_an_adaptation():
     """Reference: the hysteresis rules by hand.  At the start: the configured thresholds
     (the stroke one a stroke from 0).  After a remesh on a row (stroke 2 mm) that fired
     the quality, corner and fold triggers: the new mesh's quality 0.25 below 0.3 waits
-    for 0.5 x 0.25 (QualityBelow.helpless); the corner depth 0.3 for 1.1 x 0.3, the fold
+    for 0.9 x 0.25 (QualityBelow.helpless); the corner depth 0.3 for 1.1 x 0.3, the fold
     20 deg for 0.9 x 20; the stroke for 2 + 1.5 mm.  A new mesh above 0.3 keeps 0.3; an
     unfired trigger its own.  The steps trigger counts the steps since the last new mesh."""
     sc = _scene(
@@ -140,7 +141,7 @@ def test_thresholds_arm_and_relax_after_an_adaptation():
     row = dict(stroke_mm=2.0, pause_cause=QUALITY | CORNER | FOLD, corner_depth_ratio=0.3,
                free_fold_deg=20.0)  # fmt: skip
     after = [float(h) for h in armed.thresholds(row, quality_after=0.25)]
-    assert after == pytest.approx([0.5 * 0.25, 10.0, 3.5, 1.1 * 0.3, 0.9 * 20.0, 500.0])
+    assert after == pytest.approx([0.9 * 0.25, 10.0, 3.5, 1.1 * 0.3, 0.9 * 20.0, 500.0])
     quiet = dict(row, pause_cause=0)
     assert [float(h) for h in armed.thresholds(quiet, quality_after=0.5)] == pytest.approx(
         [0.3, 10.0, 3.5, 0.2, 30.0, 500.0]
