@@ -45,16 +45,17 @@ from jaxform.linear import choose_backend
 from jaxform.solver import newton_variant
 
 GROWTH = 1.25  # ratio of successive capacities
+GRADIENT_GROWTH = 2.0  # the same of the buckets a process's gradient replay pads to
 SMALLEST_NODES = 64
 SMALLEST_CONTACTS = 16
 NONZEROS_PER_NODE = 10  # x nf^2: an all-quad mesh averages about 9 (node and its neighbours)
 
 
-def grid_value(n: int, smallest: int) -> int:
-    """The smallest capacity of the grid round(smallest * GROWTH**k / 8) * 8 that is >= n."""
-    k = max(0, math.ceil(math.log(max(n, 1) / smallest) / math.log(GROWTH) - 1e-12))
+def grid_value(n: int, smallest: int, growth: float = GROWTH) -> int:
+    """The smallest capacity of the grid round(smallest * growth**k / 8) * 8 that is >= n."""
+    k = max(0, math.ceil(math.log(max(n, 1) / smallest) / math.log(growth) - 1e-12))
     while True:
-        c = int(round(smallest * GROWTH**k / 8.0)) * 8
+        c = int(round(smallest * growth**k / 8.0)) * 8
         if c >= n:
             return c
         k += 1
@@ -248,6 +249,16 @@ def bucket_of(scene) -> Bucket:
     nodes = grid_value(lay.n_nodes + 8, SMALLEST_NODES)
     contacts = grid_value(lay.n_contact + 2, SMALLEST_CONTACTS)
     return Bucket(nodes, contacts)
+
+
+def coarse_bucket(scene, growth: float = GRADIENT_GROWTH) -> Bucket:
+    """:func:`bucket_of` on a grid of ratio ``growth``: the bucket a gradient replay pads a
+    mesh to (:meth:`jaxform.process_gradients.ProcessPlan.of`), so that a process's many
+    meshes share a few step programs (each compiled twice, with its reverse pass) at the
+    price of more padding per step."""
+    lay = scene.model.layout
+    nodes = grid_value(lay.n_nodes + 8, SMALLEST_NODES, growth)
+    return Bucket(nodes, grid_value(lay.n_contact + 2, SMALLEST_CONTACTS, growth))
 
 
 def padded(scene, bucket: Bucket | None = None) -> Padded:

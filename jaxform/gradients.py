@@ -365,7 +365,9 @@ class RemeshPlan:
         return sum(s.n_steps for s in self.segments)
 
 
-def _remeshed_trajectory(scene: Scene, inputs: Inputs, times, plan: RemeshPlan) -> Trajectory:
+def _remeshed_trajectory(
+    scene: Scene, inputs: Inputs, times, plan: RemeshPlan, chunked: bool = False
+) -> Trajectory:
     """:func:`trajectory` through the meshes of ``plan`` (traced, not under jit).  Between
     two meshes' step programs, the remesh map and the padding to the bucket run as one
     compiled program (and its reverse as one more), not as hundreds of eager operations
@@ -379,8 +381,7 @@ def _remeshed_trajectory(scene: Scene, inputs: Inputs, times, plan: RemeshPlan) 
         stepper = stepper_of(sc, differentiable=True)
         state, coords, run_coords, run_state = _enter_mesh(seg, state, coords)
         part = mesh_steps(stepper, sc.idx, replace(inputs, coords=run_coords),
-                          times[first : first + seg.n_steps], run_state,
-                          padded=seg.padded is not None)  # fmt: skip
+                          times[first : first + seg.n_steps], run_state, chunked)  # fmt: skip
         state = _leave_mesh(seg, part.final_state)
         parts.append(part)
         first += seg.n_steps
@@ -448,13 +449,13 @@ def step_chunks(n_steps: int, longest: int = CHUNK_STEPS) -> tuple[int, ...]:
     return tuple(chunks)
 
 
-def mesh_steps(stepper: Stepper, idx, inputs: Inputs, times, state0, padded=True) -> Trajectory:
-    """One mesh's steps of a remeshed gradient run (:func:`_segment`), on a mesh
-    ``padded`` to its bucket in the chunks of :func:`step_chunks` (each from the last one's
-    final state; a mesh of its own in one), as one trajectory."""
+def mesh_steps(stepper: Stepper, idx, inputs: Inputs, times, state0, chunked=False) -> Trajectory:
+    """One mesh's steps of a remeshed gradient run (:func:`_segment`) as one trajectory:
+    in one run, or ``chunked`` in the runs of :func:`step_chunks`, each from the last
+    one's final state (where a plan's meshes share buckets, fewer programs)."""
     n_steps = times.shape[0]
     parts, first = [], 0
-    for n in step_chunks(n_steps) if padded else (n_steps,):
+    for n in step_chunks(n_steps) if chunked else (n_steps,):
         parts.append(_segment(stepper, idx, inputs, times[first : first + n], state0))
         state0, first = parts[-1].final_state, first + n
     return parts[0] if len(parts) == 1 else _chained(tuple(parts))

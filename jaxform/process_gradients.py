@@ -25,10 +25,11 @@ incoming part); a *flat* die placed on the incoming part's top stands where the 
 run's part had its top.  A trim cuts at the forward run's cut (its new mesh's nodes move
 with the old deformed positions through the fixed weights).
 
-Each mesh's steps run the compiled program of its capacity bucket
-(:func:`jaxform.gradients.mesh_steps`: in runs of 8, 4, 2, 1 steps, shared with
-single-scene remeshed gradient runs and between the operations whose meshes share a
-bucket); the maps between them run as one compiled program each.
+Each mesh's steps run the compiled program of its capacity bucket, a coarser one than the
+forward run's (:func:`jaxform.capacity.coarse_bucket`: a process's meshes share fewer
+programs), shared between the operations whose meshes share a bucket, and, where that
+compiles fewer programs, in runs of 8, 4, 2, 1 steps (:func:`jaxform.gradients.mesh_steps`);
+the maps between them run as one compiled program each.
 """
 
 from __future__ import annotations
@@ -40,6 +41,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxform.capacity import Bucket, Padded, coarse_bucket, padded
 from jaxform.gradients import (
     MeshSegment,
     Trajectory,
@@ -90,6 +92,7 @@ class Stage:
     entry: object
     segments: tuple[MeshSegment, ...]
     times: np.ndarray
+    chunked: bool = False  # a padded mesh's steps in runs of 8, 4, 2, 1 (ProcessPlan.of)
 
     @property
     def name(self) -> str:
@@ -113,7 +116,10 @@ class ProcessPlan:
         """The plan of a :class:`jaxform.process.ProcessResult` that ran to its end."""
         if result.failure:
             raise ValueError(f"ProcessPlan.of: the process run failed: {result.failure}")
-        return cls(tuple(_stage(run) for run in result.runs))
+        plan = cls(tuple(_stage(run) for run in result.runs))
+        if plan.step_programs(chunked=True) >= plan.step_programs(chunked=False):
+            return plan  # few meshes to a bucket: each mesh's steps in one run
+        return cls(tuple(replace(s, chunked=True) for s in plan.stages))
 
     def inputs(self) -> tuple[Inputs, ...]:
         """Each operation's inputs as the forward run had them."""
@@ -122,18 +128,20 @@ class ProcessPlan:
     def times(self) -> tuple[np.ndarray, ...]:
         return tuple(np.asarray(s.times) for s in self.stages)
 
-    def step_programs(self, chunked: bool = True) -> int:
+    def step_programs(self, chunked: bool | None = None) -> int:
         """The distinct step programs a replay compiles (each twice: the steps with their
         residuals, and the reverse pass), keyed as jit keys them: the differentiable
         stepper, the index arrays' shapes, the run's length (``chunked``: the runs of
-        :func:`jaxform.gradients.step_chunks` on a padded mesh; else a mesh's steps in one)."""
+        :func:`jaxform.gradients.step_chunks` on a padded mesh, else a mesh's steps in
+        one; None: as the plan runs them)."""
         keys = set()
         for stage in self.stages:
+            runs_in_chunks = stage.chunked if chunked is None else chunked
             for seg in stage.segments:
                 sc = seg.scene if seg.padded is None else seg.padded.scene
                 shapes = tuple(np.shape(a) for a in jax.tree_util.tree_leaves(sc.idx))
                 key = (stepper_of(sc, differentiable=True), shapes)
-                runs = (step_chunks(seg.n_steps) if chunked and seg.padded is not None
+                runs = (step_chunks(seg.n_steps) if runs_in_chunks and seg.padded is not None
                         else (seg.n_steps,))  # fmt: skip
                 keys |= {(key, n) for n in runs}
         return len(keys)
@@ -145,6 +153,19 @@ class ProcessPlan:
                 return k
         names = ", ".join(s.name for s in self.stages)
         raise ValueError(f"no operation named {name!r}; the process has: {names}")
+
+
+def _coarser(scene: Scene, forward: Padded | None) -> Padded | None:
+    """The padding a replay steps a remeshed operation's mesh in: its
+    :func:`jaxform.capacity.coarse_bucket` (the forward run's where that holds more)."""
+    if forward is None:
+        return None
+    bucket = coarse_bucket(scene)
+    if bucket.nodes <= forward.bucket.nodes and bucket.contacts <= forward.bucket.contacts:
+        return forward
+    bucket = Bucket(max(bucket.nodes, forward.bucket.nodes),
+                    max(bucket.contacts, forward.bucket.contacts))  # fmt: skip
+    return padded(scene, bucket)
 
 
 def _stage(run) -> Stage:
@@ -160,7 +181,7 @@ def _stage(run) -> Stage:
     ends = [s.first_row for s in res.segments[1:]] + [n_rows]
     starts = [1] + ends[:-1]
     segments = tuple(
-        MeshSegment(s.scene, s.padded, end - start, s.transfer)
+        MeshSegment(s.scene, _coarser(s.scene, s.padded), end - start, s.transfer)
         for s, start, end in zip(res.segments, starts, ends)
         if end > start
     )
@@ -252,7 +273,7 @@ def _stepped(stage: Stage, inputs: Inputs, times, state, coords) -> Trajectory:
         state, coords, run_coords, run_state = _enter_mesh(seg, state, coords)
         part = mesh_steps(stepper, sc.idx, replace(inputs, coords=run_coords),
                           times[first : first + seg.n_steps], run_state,
-                          padded=seg.padded is not None)  # fmt: skip
+                          chunked=stage.chunked and seg.padded is not None)  # fmt: skip
         state = _leave_mesh(seg, part.final_state)
         parts.append(part)
         first += seg.n_steps

@@ -299,6 +299,31 @@ def test_padding_to_a_bucket_is_inert_and_shared():
     assert np.allclose(np.asarray(back.gauss.mat.stress), np.asarray(plain.gauss.mat.stress))
 
 
+def test_a_gradient_replay_pads_to_buckets_twice_as_coarse():
+    """Reference: the grids by hand.  The forward run's node capacities grow by 1.25
+    (64, 80, 96, 128, 160, 192, 240, 304, ...), a replay's by 2 (64, 128, 256, 512, 1024),
+    contacts from 16 (16, 32, 64, 128): the two-stage disk's finisher meshes of 250 - 865
+    nodes fall in 2 node capacities instead of 6 (each with room for 8 ghosts, 2 ghost
+    candidates)."""
+    from types import SimpleNamespace
+
+    from jaxform.capacity import Bucket, coarse_bucket, grid_value
+
+    assert [grid_value(n, 64) for n in (65, 81, 97, 249)] == [80, 96, 128, 304]
+    assert [grid_value(n, 64, 2.0) for n in (64, 65, 129, 258, 520, 873)] == [
+        64, 128, 256, 512, 1024, 1024]  # fmt: skip
+
+    def scene(nodes, contacts):
+        layout = SimpleNamespace(n_nodes=nodes, n_contact=contacts)
+        return SimpleNamespace(model=SimpleNamespace(layout=layout))
+
+    assert coarse_bucket(scene(250, 40)) == Bucket(512, 64)
+    assert coarse_bucket(scene(120, 14)) == Bucket(128, 16)
+    fine = {grid_value(n + 8, 64) for n in range(250, 866)}
+    coarse = {coarse_bucket(scene(n, 40)).nodes for n in range(250, 866)}
+    assert len(fine) == 6 and coarse == {512, 1024}
+
+
 def test_ghost_nodes_sit_where_the_die_leaves_them_open():
     """The closed die's cavity reaches down beside the section, where the ghost square
     once sat inside the die (its candidates closed, their multipliers absent from every

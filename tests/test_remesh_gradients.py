@@ -8,8 +8,8 @@ variables, relative error <= 1e-5), Taylor remainders (rates >= 1.9), and the fo
 run itself (the gradient run's force history equals it to the Newton tolerance).
 
 One small frictional scene (3 x 3 q1p0 billet, Coulomb 0.3, 30 % upset in 20 steps, a new
-mesh every 5 steps: 3 remeshes, every mesh in one capacity bucket, so its 5 steps run as
-the bucket's programs of 4 and 1 steps) is shared by every test here.
+mesh every 5 steps: 3 remeshes, every mesh in one capacity bucket, so one compiled
+program) is shared by every test here.
 """
 
 from dataclasses import replace
@@ -76,8 +76,8 @@ def test_the_gradient_run_takes_the_forward_runs_meshes():
 
 def test_a_meshs_steps_run_in_runs_of_8_4_2_1():
     """A mesh's steps replay in runs of 8 and then the binary digits of the rest, largest
-    first (reference: the binary expansion): the meshes of one bucket, whatever their
-    step counts (here 1 to 99), run four step programs at most."""
+    first (reference: the binary expansion): chunked, the meshes of one bucket, whatever
+    their step counts (here 1 to 99), run four step programs at most."""
     assert step_chunks(5) == (4, 1) and step_chunks(21) == (8, 8, 4, 1)
     assert step_chunks(8) == (8,) and step_chunks(0) == ()
     lengths = set()
@@ -87,6 +87,29 @@ def test_a_meshs_steps_run_in_runs_of_8_4_2_1():
         assert len([c for c in chunks if c < 8]) == bin(n % 8).count("1")
         lengths |= set(chunks)
     assert lengths == {8, 4, 2, 1}
+
+
+@pytest.mark.slow  # compiles the bucket's programs of 4 and 1 steps (~3 min on 2 cores)
+def test_a_mesh_replayed_in_runs_of_steps_is_the_mesh_replayed_at_once():
+    """Each mesh's 5 steps as runs of 4 and 1 (chunked, what a process replay does where
+    that compiles fewer programs) against one run of 5: the same forces and final state
+    (1e-9 relative: the same steps, other programs) and the same gradient of the forging
+    work with respect to the step times (1e-8 relative)."""
+    pb = problem()
+    inputs, times = pb.run_inputs(pb.start)
+
+    def work(t, chunked):
+        traj = _remeshed_trajectory(pb.scene, inputs, t, pb.plan, chunked)
+        return jnp.sum(traj.force_N), traj
+
+    (w0, t0), g0 = jax.value_and_grad(work, has_aux=True)(times, False)
+    (w1, t1), g1 = jax.value_and_grad(work, has_aux=True)(times, True)
+    f0, f1 = np.asarray(t0.force_N), np.asarray(t1.force_N)
+    assert f0.shape == f1.shape and np.max(np.abs(f1 - f0)) <= 1e-9 * np.max(np.abs(f0))
+    assert np.allclose(np.asarray(t1.x), np.asarray(t0.x), rtol=1e-9, atol=1e-12)
+    assert np.array_equal(np.asarray(t1.contact_status), np.asarray(t0.contact_status))
+    g0, g1 = np.asarray(g0), np.asarray(g1)
+    assert np.max(np.abs(g1 - g0)) <= 1e-8 * np.max(np.abs(g0)) and np.max(np.abs(g0)) > 0
 
 
 @pytest.mark.parametrize("group", GROUPS)
