@@ -407,7 +407,7 @@ def test_avitzur_upper_bound_reference():
 def test_closed_die_with_flash_fills_and_forms_the_flash():
     """configs/closed_die_flash.toml to the end: die fill >= 0.999 of the part's cavity;
     no candidate inside a die by more than 1e-8 mm at any converged step; the material
-    volume over the whole run (seven remeshes) kept to 1e-3; the flash grows to > 50 mm^3
+    volume over the whole run (fourteen remeshes) kept to 1e-3; the flash grows to > 50 mm^3
     and the force at the end is >= 3 x the force at 90 % fill (the steep rise as the
     flash thins)."""
     from jaxform.postprocess import material_volume, positions
