@@ -51,12 +51,13 @@ def pytest_configure(config):
 # ``--durations=0`` when the files grow.
 GROUP_SECONDS = {
     "test_upsetting": 390.0,
+    "test_friction": 330.0,
     "test_remesh": 170.0,
-    "test_friction": 150.0,
     "test_gradients": 150.0,
     "test_remesh_gradients": 150.0,
     "test_friction_per_die": 140.0,
     "test_verification": 120.0,
+    "test_upsetting::test_compact_point_tangent_equals_the_plain_derivatives": 110.0,
     "test_studies": 100.0,
     "test_materials": 100.0,
     "test_cache": 100.0,
@@ -64,7 +65,6 @@ GROUP_SECONDS = {
     "test_thermal": 100.0,
     "test_batch": 90.0,
     "test_forming_outputs": 90.0,
-    "test_upsetting::test_compact_point_tangent_equals_the_plain_derivatives": 110.0,
     "test_cli": 60.0,
     "test_modified_newton": 60.0,
     "test_layout": 55.0,
