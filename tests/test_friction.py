@@ -9,6 +9,7 @@ friction; central finite differences of the global residual.
 
 from functools import cache
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -174,10 +175,15 @@ def test_sticking_tractions_are_smooth():
         assert pressure_oscillation(sc, f["x"][k]) <= 0.3
 
 
+# a node's gap to the die as one compiled program (eagerly, each of its operations compiled
+# a program of its own, again for each die)
+_gap = jax.jit(lambda die, p, t: die.gap(p, t)[0])
+
+
 def _gaps(sc, res, k):
     pos = positions(sc, res.fields["x"][k])[np.asarray(sc.idx.contact_nodes)]
     t = res.history["time_s"][k]
-    return np.array([float(sc.inputs.die.gap(jnp.asarray(p), t)[0]) for p in pos]), pos
+    return np.array([float(_gap(sc.inputs.die, jnp.asarray(p), t)) for p in pos]), pos
 
 
 def _quadratic_tail(res):
