@@ -1,14 +1,15 @@
-"""The boundary polygon of a workpiece section and the element size wanted along it: what
-gmsh (:func:`jaxform.mesh.polygon_quads`) meshes when a run remeshes
-(:mod:`jaxform.remesh`) or starts on the remesher's own mesh (``remesh.from_start``,
-:func:`jaxform.scenes.build_scene`).
+"""The boundary polygon of a workpiece section, the element size wanted along it, and the
+all-quad mesh gmsh makes of it (:func:`quads_of`, with its fallbacks) when a run remeshes
+(:mod:`jaxform.remesh`), starts on the remesher's own mesh (``remesh.from_start``,
+:func:`jaxform.scenes.build_scene`) or trims its part (:mod:`jaxform.process`).
 
-Host NumPy only: the polygon is the section's boundary loop (:func:`jaxform.mesh.boundary_polygon`)
-with the vertices on straight runs of one set dropped (:func:`simplify`) and any loop it
-makes by crossing itself cut off (:func:`untangled`: a fold pressed over); the size is
-``remesh.element_size_mm`` in the bulk and ``remesh.die_size_ratio`` times it where the
-boundary touches a die and at sharp corners, and with ``remesh.elements_across`` > 0 at
-most the section's local thickness over that many (:func:`element_sizes`).
+Host NumPy and gmsh only: the polygon is the section's boundary loop
+(:func:`jaxform.mesh.boundary_polygon`) with the vertices on straight runs of one set
+dropped (:func:`simplify`) and any loop it makes by crossing itself cut off
+(:func:`untangled`: a fold pressed over); the size is ``remesh.element_size_mm`` in the
+bulk and ``remesh.die_size_ratio`` times it where the boundary touches a die and at
+sharp corners, and with ``remesh.elements_across`` > 0 at most the section's local
+thickness over that many (:func:`element_sizes`).
 """
 
 from __future__ import annotations
