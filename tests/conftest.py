@@ -11,7 +11,7 @@ through ``JAX_COMPILATION_CACHE_DIR`` or ``JAXFORM_CACHE_DIR`` is used instead;
 Scheduling (``--dist loadgroup``, pyproject.toml): each test file is one xdist group (its
 tests share compiled programs through module-level caches), except the tests named in
 :data:`OWN_GROUP`, which compile programs no other test in their file uses and go to
-whichever worker is free.  The groups are handed out longest first (:data:`FILE_SECONDS`,
+whichever worker is free.  The groups are handed out longest first (:data:`GROUP_SECONDS`,
 then by number of tests), so a long file never starts last while the other worker idles.
 """
 
