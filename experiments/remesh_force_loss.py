@@ -26,6 +26,7 @@ import jaxform.remesh as remeshing
 from jaxform.config import load_config
 from jaxform.mesh import Mesh
 from jaxform.scenes import build_scene
+from jaxform.section_mesh import MesherHelp
 from jaxform.simulation import init, simulate, step
 from jaxform.stepping import facet_normal
 
@@ -68,7 +69,7 @@ def identity_mesh(scene, pos, t, settings):
     m = scene.mesh
     mesh = Mesh(np.asarray(pos, float), np.asarray(m.elements), dict(m.node_sets),
                 dict(m.facet_sets))  # fmt: skip
-    return mesh, ""
+    return mesh, MesherHelp()
 
 
 def main() -> None:

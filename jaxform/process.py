@@ -47,9 +47,9 @@ from jaxform.errors import ConfigError
 from jaxform.geometry import polygon_measure
 from jaxform.mesh import Mesh, MeshError, boundary_polygon, element_areas
 from jaxform.process_config import Operation
-from jaxform.remesh import ContactMap, StateMap, quads_of
+from jaxform.remesh import ContactMap, StateMap
 from jaxform.scenes import Scene, bottom_die_profile, build_scene, die_profile, scene_on_mesh
-from jaxform.section_mesh import simplify, untangled
+from jaxform.section_mesh import quads_of, simplify, untangled
 from jaxform.simulation import PartState, Result, SimulationError, simulate, state_result
 from jaxform.transfer import Transfer
 from jaxform.workpieces import workpiece_of

@@ -17,7 +17,8 @@ replaces the mesh (host NumPy and gmsh, between two converged steps):
    the vertices that touch a die (gap <= ``TOUCH_GAP_MM``) and at sharp boundary corners
    (a turn of more than 30 deg).  The sets are re-derived from the labels.  Where gmsh's
    recombination leaves triangles, finer sizes are tried, and last every element is
-   split into quadrilaterals (:func:`quads_of`; the report's ``mesher`` says which).
+   split into quadrilaterals (:func:`jaxform.section_mesh.quads_of`; the report's
+   ``mesher`` says which).
 3. **The state** (:mod:`jaxform.transfer`): Gauss-point fields (stress, deformation
    resistance, equivalent plastic strain) by patch recovery and interpolation; nodal
    fields besides the displacement (q1q1 pressure, temperature) and the nodal rates of the
@@ -50,10 +51,10 @@ from jaxform.geometry import (
     polygon_measure,
     tributary_areas,
 )
-from jaxform.mesh import MeshError, boundary_edges, boundary_polygon, polygon_quads
+from jaxform.mesh import MeshError, boundary_edges, boundary_polygon
 from jaxform.rezone import gap_function
 from jaxform.scenes import scene_on_mesh
-from jaxform.section_mesh import sized_polygon
+from jaxform.section_mesh import MesherHelp, quads_of, sized_polygon
 from jaxform.transfer import StateMap, Transfer, gauss_weights
 
 
@@ -80,36 +81,7 @@ class RemeshReport:
     eqps_integral_after: float
     seconds: float
     trigger: str = ""  # what fired it (jaxform.triggers.causes: 'quality', 'steps', ...)
-    mesher: str = ""  # what the mesher needed beyond its first try (quads_of), "" none
-
-
-# element sizes tried, as factors of the wanted ones, when gmsh leaves triangles
-SIZE_RETRIES = (1.0, 0.8, 0.65)
-
-
-def quads_of(points, labels, sizes):
-    """(mesh, how): :func:`jaxform.mesh.polygon_quads`, again with finer sizes
-    (SIZE_RETRIES) where its recombination leaves triangles (a thin flash whose edges split
-    into few, uneven segments can defeat every algorithm at one size and not at another),
-    and last at the wanted sizes with every element split into quadrilaterals (``split``:
-    an acute tip of material, the fin a closing pocket leaves along a die, keeps a
-    triangle at every size).  ``how`` says what it took: "" (the first try), "sizes x
-    0.8", ..., or "split" with why.  Raises the MeshError of the last try, naming the
-    tries."""
-    errors = []
-    for factor in SIZE_RETRIES:
-        try:
-            mesh = polygon_quads(points, labels, factor * np.asarray(sizes))
-            return mesh, ("" if factor == 1.0 else f"sizes x {factor:g}")
-        except MeshError as err:
-            errors.append(f"x {factor:g}: {err}")
-    try:
-        mesh = polygon_quads(points, labels, np.asarray(sizes), split=True)
-    except MeshError as err:
-        errors.append(f"split: {err}")
-        raise MeshError(f"at the wanted sizes {'; '.join(errors)}") from None
-    tried = ", ".join(f"{f:g}" for f in SIZE_RETRIES)
-    return mesh, f"split (gmsh left triangles at sizes x {tried})"
+    mesher: MesherHelp = MesherHelp()  # what the mesher needed beyond its first try
 
 
 def mesher_note(reports) -> str:
@@ -118,10 +90,9 @@ def mesher_note(reports) -> str:
     helped = [r for r in reports if r.mesher]
     if not helped:
         return ""
-    kinds = {"finer sizes": "sizes x", "split into quads": "split", "a fold cut": "a fold"}
-    parts = [r.mesher.split("; ") for r in helped]  # each part starts with its kind
     counts = ", ".join(
-        f"{sum(any(x.startswith(k) for x in p) for p in parts)} {name}" for name, k in kinds.items()
+        f"{sum(name in r.mesher.kinds() for r in helped)} {name}"
+        for name in ("finer sizes", "split into quads", "a fold cut")
     )
     return (
         f"note: {len(helped)} of {len(reports)} remeshes needed more than the mesher's first "
@@ -136,9 +107,7 @@ def new_section_mesh(scene, pos: np.ndarray, t: float, settings: RemeshConfig):
         gap_fn = None if scene.inputs.die is None else gap_function(scene.inputs.die, t)
         wanted = sized_polygon(scene.mesh, pos, gap_fn, settings)
         mesh, how = quads_of(wanted.points, wanted.labels, wanted.sizes)
-        if wanted.cut > 0.0:  # what the boundary's crossings took (the report's volume_change)
-            fold = f"a fold crossed the boundary: {wanted.cut:.3g} mm^2 cut"
-            how = "; ".join(filter(None, [fold, how]))
+        how = replace(how, fold_cut_mm2=wanted.cut)  # also in the report's volume_change
     except MeshError as err:
         raise RemeshError(str(err)) from None
     if scene.inputs.die is None or not settings.onto_dies:

@@ -62,7 +62,7 @@ from jaxform.presses import (
     crank_start_angle,
 )
 from jaxform.rezone import gap_function
-from jaxform.section_mesh import sized_polygon
+from jaxform.section_mesh import quads_of, sized_polygon
 from jaxform.solver import NewtonSettings, newton_variant
 from jaxform.wear import WearInputs, die_stations
 from jaxform.workpieces import Workpiece, workpiece_of
@@ -560,8 +560,8 @@ def start_mesh(mesh: meshing.Mesh, die, settings: RemeshConfig) -> meshing.Mesh:
     finer where a die touches it.  Raises ConfigError where gmsh gives no all-quad mesh."""
     gap_fn = None if die is None else gap_function(die, 0.0)
     wanted = sized_polygon(mesh, np.asarray(mesh.coords), gap_fn, settings, split=True)
-    try:
-        return meshing.polygon_quads(wanted.points, wanted.labels, wanted.sizes)
+    try:  # gmsh's fallbacks as for a remesh (finer sizes, then split into quads)
+        return quads_of(wanted.points, wanted.labels, wanted.sizes)[0]
     except meshing.MeshError as err:
         raise ConfigError(f"remesh.from_start: no all-quad start mesh ({err})") from None
 

@@ -1,14 +1,15 @@
-"""The boundary polygon of a workpiece section and the element size wanted along it: what
-gmsh (:func:`jaxform.mesh.polygon_quads`) meshes when a run remeshes
-(:mod:`jaxform.remesh`) or starts on the remesher's own mesh (``remesh.from_start``,
-:func:`jaxform.scenes.build_scene`).
+"""The boundary polygon of a workpiece section, the element size wanted along it, and the
+all-quad mesh gmsh makes of it (:func:`quads_of`, with its fallbacks) when a run remeshes
+(:mod:`jaxform.remesh`), starts on the remesher's own mesh (``remesh.from_start``,
+:func:`jaxform.scenes.build_scene`) or trims its part (:mod:`jaxform.process`).
 
-Host NumPy only: the polygon is the section's boundary loop (:func:`jaxform.mesh.boundary_polygon`)
-with the vertices on straight runs of one set dropped (:func:`simplify`) and any loop it
-makes by crossing itself cut off (:func:`untangled`: a fold pressed over); the size is
-``remesh.element_size_mm`` in the bulk and ``remesh.die_size_ratio`` times it where the
-boundary touches a die and at sharp corners, and with ``remesh.elements_across`` > 0 at
-most the section's local thickness over that many (:func:`element_sizes`).
+Host NumPy and gmsh only: the polygon is the section's boundary loop
+(:func:`jaxform.mesh.boundary_polygon`) with the vertices on straight runs of one set
+dropped (:func:`simplify`) and any loop it makes by crossing itself cut off
+(:func:`untangled`: a fold pressed over); the size is ``remesh.element_size_mm`` in the
+bulk and ``remesh.die_size_ratio`` times it where the boundary touches a die and at
+sharp corners, and with ``remesh.elements_across`` > 0 at most the section's local
+thickness over that many (:func:`element_sizes`).
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ import numpy as np
 from jaxform.config import RemeshConfig
 from jaxform.contact import TOUCH_GAP_MM
 from jaxform.geometry import polygon_measure
-from jaxform.mesh import boundary_polygon
+from jaxform.mesh import MeshError, boundary_polygon, polygon_quads
 
 _CORNER_TURN = np.deg2rad(30.0)  # a sharper turn of the boundary is refined like die contact
 
@@ -37,6 +38,60 @@ class SizedPolygon:
     touching: np.ndarray
     sizes: np.ndarray
     cut: float = 0.0
+
+
+@dataclass(frozen=True)
+class MesherHelp:
+    """What gmsh needed beyond its first try at the wanted sizes (:func:`quads_of`) and
+    what the polygon lost where it crossed itself; falsy where nothing was needed."""
+
+    size_factor: float = 1.0  # the factor of the wanted sizes that gave all quads
+    split: bool = False  # every element split into quads (no factor of SIZE_RETRIES did)
+    fold_cut_mm2: float = 0.0  # the area cut off where the boundary crossed itself
+
+    def __bool__(self) -> bool:
+        return self.size_factor != 1.0 or self.split or self.fold_cut_mm2 > 0.0
+
+    def kinds(self) -> tuple[str, ...]:
+        """The kinds of help, as the run's note counts them."""
+        named = (("finer sizes", self.size_factor != 1.0), ("split into quads", self.split),
+                 ("a fold cut", self.fold_cut_mm2 > 0.0))  # fmt: skip
+        return tuple(name for name, needed in named if needed)
+
+    def __str__(self) -> str:
+        tried = ", ".join(f"{f:g}" for f in SIZE_RETRIES)
+        parts = [
+            f"a fold crossed the boundary: {self.fold_cut_mm2:.3g} mm^2 cut"
+            if self.fold_cut_mm2 > 0.0 else "",
+            f"split (gmsh left triangles at sizes x {tried})" if self.split else "",
+            f"sizes x {self.size_factor:g}" if self.size_factor != 1.0 else "",
+        ]  # fmt: skip
+        return "; ".join(filter(None, parts))
+
+
+# element sizes tried, as factors of the wanted ones, when gmsh leaves triangles
+SIZE_RETRIES = (1.0, 0.8, 0.65)
+
+
+def quads_of(points, labels, sizes) -> tuple:
+    """(mesh, :class:`MesherHelp`): :func:`jaxform.mesh.polygon_quads`, again with finer
+    sizes (SIZE_RETRIES) where its recombination leaves triangles (a thin flash whose edges
+    split into few, uneven segments can defeat every algorithm at one size and not at
+    another), and last at the wanted sizes with every element split into quadrilaterals
+    (an acute tip of material, the fin a closing pocket leaves along a die, keeps a
+    triangle at every size).  Raises the MeshError of the last try, naming the tries."""
+    errors = []
+    for factor in SIZE_RETRIES:
+        try:
+            return polygon_quads(points, labels, factor * np.asarray(sizes)), MesherHelp(factor)
+        except MeshError as err:
+            errors.append(f"x {factor:g}: {err}")
+    try:
+        mesh = polygon_quads(points, labels, np.asarray(sizes), split=True)
+    except MeshError as err:
+        errors.append(f"split: {err}")
+        raise MeshError(f"at the wanted sizes {'; '.join(errors)}") from None
+    return mesh, MesherHelp(split=True)
 
 
 def _touching(points: np.ndarray, gap_fn) -> np.ndarray:

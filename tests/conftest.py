@@ -6,12 +6,20 @@ jax/jaxlib/klujax versions, :func:`jaxform.cache.version_tag`), so a program com
 one test file, or by the previous run, is loaded by the next; ``JAXFORM_CACHE_DIR`` is
 set to it for the jaxform processes the tests start.  A cache directory given
 through ``JAX_COMPILATION_CACHE_DIR`` or ``JAXFORM_CACHE_DIR`` is used instead;
-``JAXFORM_CACHE_DIR=off`` disables it (to time cold compiles)."""
+``JAXFORM_CACHE_DIR=off`` disables it (to time cold compiles).
+
+Scheduling (``--dist loadgroup``, pyproject.toml): each test file is one xdist group (its
+tests share compiled programs through module-level caches), except the tests named in
+:data:`OWN_GROUP`, which compile programs no other test in their file uses and go to
+whichever worker is free.  The groups are handed out longest first (:data:`GROUP_SECONDS`,
+then by number of tests), so a long file never starts last while the other worker idles.
+"""
 
 import os
 from pathlib import Path
 
 import jax
+import pytest
 
 import jaxform
 from jaxform.cache import ENV_VAR, MIN_COMPILE_TIME_S, OFF, version_tag
@@ -35,3 +43,66 @@ def pytest_configure(config):
     jax.config.update("jax_compilation_cache_dir", str(path))
     if "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS" not in os.environ:
         jax.config.update("jax_persistent_cache_min_compile_time_secs", MIN_COMPILE_TIME_S)
+
+
+# Seconds of one worker's time per group on a cold cache (a file, or a test of
+# OWN_GROUP): the default suite's run of 2026-11-27 with --durations=0 (2 workers on a
+# 2-core CPU at a load of ~8, so about 3x a quiet machine's; docs/benchmarks.md).  Only
+# the order depends on them: a group missing here counts as short.  Refresh them from
+# such a run when the files grow.
+GROUP_SECONDS = {
+    "test_upsetting": 927.0,
+    "test_remesh_gradients": 631.0,
+    "test_friction": 554.0,
+    "test_verification": 519.0,
+    "test_remesh": 433.0,
+    "test_friction_per_die": 398.0,
+    "test_materials": 384.0,
+    "test_thermal": 349.0,
+    "test_upsetting::test_compact_point_tangent_equals_the_plain_derivatives": 344.0,
+    "test_gradients": 298.0,
+    "test_modified_newton": 291.0,
+    "test_batch": 275.0,
+    "test_forming_outputs": 274.0,
+    "test_layout": 186.0,
+    "test_studies": 177.0,
+    "test_cli": 162.0,
+    "test_cache": 156.0,
+    "test_api": 139.0,
+    "test_process": 122.0,
+    "test_several_dies": 64.0,
+    "test_presses": 58.0,
+    "test_die_geometry": 56.0,
+    "test_program_store": 55.0,
+    "test_container": 49.0,
+}
+
+# Tests that compile programs no other test of their file uses: a group each (named
+# file::test), so the two workers can split a long file.
+OWN_GROUP = ("test_upsetting::test_compact_point_tangent_equals_the_plain_derivatives",)
+
+
+def _group(item) -> str:
+    """The file's stem, or file::test for a test of OWN_GROUP (parameters dropped)."""
+    path, _, rest = item.nodeid.partition("::")
+    stem = path.rsplit("/", 1)[-1].removesuffix(".py")
+    name = f"{stem}::{rest.split('[', 1)[0]}"
+    return name if name in OWN_GROUP else stem
+
+
+@pytest.hookimpl(tryfirst=True)  # before xdist's worker appends the groups to the node ids
+def pytest_collection_modifyitems(config, items):
+    groups = [_group(item) for item in items]
+    count, first = {}, {}
+    for i, g in enumerate(groups):
+        count[g] = count.get(g, 0) + 1
+        first.setdefault(g, i)
+
+    def key(i):
+        g = groups[i]
+        return (-GROUP_SECONDS.get(g, 0.0), -count[g], first[g], i)
+
+    order = sorted(range(len(items)), key=key)
+    items[:] = [items[i] for i in order]
+    for item, i in zip(items, order):
+        item.add_marker(pytest.mark.xdist_group(groups[i]))

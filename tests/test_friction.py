@@ -17,6 +17,7 @@ from fd_check import jacobian_fd_error
 from jaxform.assembly import internal_forces
 from jaxform.config import load_config
 from jaxform.postprocess import contact_profile, positions, pressure_oscillation, zigzag
+from jaxform.rezone import gap_function
 from jaxform.scenes import build_scene
 from jaxform.simulation import simulate
 from jaxform.stepping import step_context
@@ -175,9 +176,10 @@ def test_sticking_tractions_are_smooth():
 
 
 def _gaps(sc, res, k):
+    """The contact nodes' gaps to the die at row k (one batched compiled program:
+    :func:`jaxform.rezone.gap_function`) and their positions."""
     pos = positions(sc, res.fields["x"][k])[np.asarray(sc.idx.contact_nodes)]
-    t = res.history["time_s"][k]
-    return np.array([float(sc.inputs.die.gap(jnp.asarray(p), t)[0]) for p in pos]), pos
+    return gap_function(sc.inputs.die, res.history["time_s"][k])(np.asarray(pos))[0], pos
 
 
 def _quadratic_tail(res):
