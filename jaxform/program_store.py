@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import gc
 import hashlib
 import os
 import pickle
@@ -52,6 +53,14 @@ SUBDIR = "exported"
 ENV_VAR = "JAXFORM_PROGRAM_STORE"  # off / 0 / none / false / no: trace every run
 _loaded: dict[str, tuple] = {}  # key -> (compiled wrapper, output tree) in this process
 _refused: set[str] = set()  # keys whose program could not be exported
+# Each compiled CPU program holds a few memory maps of the process (its code and data
+# sections) for as long as something keeps it; Linux stops a process at vm.max_map_count
+# maps (65530 by default), and XLA aborts when an allocation then fails.  A process that
+# compiles hundreds of programs (a test worker, a design over many meshes) lets them go
+# once it holds this share of the limit (release_if_crowded).
+MAP_SHARE = 0.5
+_MAPS = Path("/proc/self/maps")
+_MAP_LIMIT = Path("/proc/sys/vm/max_map_count")
 
 
 @cache
@@ -72,6 +81,45 @@ def store_dir() -> Path | None:
         return None
     base = jax.config.jax_compilation_cache_dir
     return Path(base) / SUBDIR if base else None
+
+
+@cache
+def _map_limit() -> int | None:
+    try:
+        return int(_MAP_LIMIT.read_text())
+    except (OSError, ValueError):
+        return None  # not Linux: no such limit to watch
+
+
+def map_share() -> float:
+    """The share of the kernel's limit on memory maps (``vm.max_map_count``) that this
+    process uses now; 0.0 where the limit is unknown."""
+    limit = _map_limit()
+    if not limit:
+        return 0.0
+    try:
+        with _MAPS.open("rb") as f:
+            return sum(1 for _ in f) / limit
+    except OSError:
+        return 0.0
+
+
+def release_programs() -> None:
+    """Let go of every compiled program this process keeps: the stored programs loaded
+    here and JAX's in-memory caches (a program needed again comes from the persistent
+    cache, or is compiled again where there is none)."""
+    _loaded.clear()
+    jax.clear_caches()
+    gc.collect()
+
+
+def release_if_crowded(share: float | None = None) -> bool:
+    """:func:`release_programs` when the process holds more than ``share`` (default
+    :data:`MAP_SHARE`) of its memory map limit; True when it did."""
+    if map_share() <= (MAP_SHARE if share is None else share):
+        return False
+    release_programs()
+    return True
 
 
 class NotStorable(Exception):
@@ -203,6 +251,7 @@ def _prepared(key: str, fn, leaves, tree):
     disk, or exported now (and stored)."""
     if key in _loaded:
         return _loaded[key]
+    release_if_crowded()  # before a new program adds its maps
     register_ffi_targets()  # a loaded program calls them without being traced here
     folder = store_dir()
     blob_path, tree_path = folder / f"{key}.bin", folder / f"{key}.tree"

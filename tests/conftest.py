@@ -13,6 +13,12 @@ tests share compiled programs through module-level caches), except the tests nam
 :data:`OWN_GROUP`, which compile programs no other test in their file uses and go to
 whichever worker is free.  The groups are handed out longest first (:data:`GROUP_SECONDS`,
 then by number of tests), so a long file never starts last while the other worker idles.
+
+Memory maps: a worker keeps every program it compiled (JAX's caches, module-level
+programs of the test files, :mod:`jaxform.program_store`), each holding memory maps of the
+process, and XLA aborts the worker once Linux's ``vm.max_map_count`` is reached (the
+default suite crossed it after about 20 minutes).  After each test the worker lets its
+programs go once it holds half the limit (:func:`jaxform.program_store.release_if_crowded`).
 """
 
 import os
@@ -22,6 +28,7 @@ import jax
 import pytest
 
 import jaxform
+from jaxform import program_store
 from jaxform.cache import ENV_VAR, MIN_COMPILE_TIME_S, OFF, version_tag
 
 jaxform.enable_x64()
@@ -106,3 +113,7 @@ def pytest_collection_modifyitems(config, items):
     items[:] = [items[i] for i in order]
     for item, i in zip(items, order):
         item.add_marker(pytest.mark.xdist_group(groups[i]))
+
+
+def pytest_runtest_teardown(item, nextitem):
+    program_store.release_if_crowded()

@@ -32,6 +32,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from jaxform import program_store
 from jaxform.gradients import GradientRunError
 
 
@@ -150,6 +151,7 @@ def gradient_loop(problem, settings: OptimizerSettings, design=None, progress=No
 
     def evaluate(u):
         hist.evaluations += 1
+        program_store.release_if_crowded()  # each design's meshes compile programs of their own
         val, g, _ = problem.value_and_grad(u)
         return float(val), g
 

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import minimize
 
+from jaxform import program_store
 from jaxform.design.optimizers import DesignHistory
 from jaxform.gradients import GradientRunError
 
@@ -76,6 +77,7 @@ class _Runs:
 
     def __call__(self, x: np.ndarray) -> float:
         design = self.box.tree(np.clip(x, self.box.lo, self.box.hi))
+        program_store.release_if_crowded()  # each design's meshes compile programs of their own
         try:
             val = float(self.problem.value(design)[0])
         except GradientRunError:
