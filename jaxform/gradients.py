@@ -51,6 +51,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxform import program_store
 from jaxform.capacity import Padded
 from jaxform.formulations import GaussState
 from jaxform.linear import Factorization
@@ -454,6 +455,9 @@ def mesh_steps(stepper: Stepper, idx, inputs: Inputs, times, state0, chunked=Fal
     in one run, or ``chunked`` in the runs of :func:`step_chunks`, each from the last
     one's final state (where a plan's meshes share buckets, fewer programs)."""
     n_steps = times.shape[0]
+    # a replay through many meshes compiles programs for each (its steps, maps and their
+    # reverse passes): let them go before the process runs out of memory maps
+    program_store.release_if_crowded()
     parts, first = [], 0
     for n in step_chunks(n_steps) if chunked else (n_steps,):
         parts.append(_segment(stepper, idx, inputs, times[first : first + n], state0))
@@ -500,6 +504,7 @@ def _segment_backward(pullback, cotangent):
 
 
 def _segment_bwd(stepper, idx, pullback, cotangent):
+    program_store.release_if_crowded()  # the reverse pass compiles a program per mesh too
     return _segment_backward(pullback, cotangent)
 
 
