@@ -51,6 +51,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxform import program_store
 from jaxform.capacity import Padded
 from jaxform.formulations import GaussState
 from jaxform.linear import Factorization
@@ -377,6 +378,9 @@ def _remeshed_trajectory(scene: Scene, inputs: Inputs, times, plan: RemeshPlan) 
     for seg in plan.segments:
         sc = seg.padded.scene
         stepper = stepper_of(sc, differentiable=True)
+        # each mesh compiles programs of its own (its map, its bucket's steps, their
+        # reverse passes): let them go before the process runs out of memory maps
+        program_store.release_if_crowded()
         state, coords, run_coords, run_state = _enter_mesh(seg, state, coords)
         part = _segment(stepper, sc.idx, replace(inputs, coords=run_coords),
                         times[first : first + seg.n_steps], run_state)  # fmt: skip
@@ -443,6 +447,7 @@ def _segment_backward(pullback, cotangent):
 
 
 def _segment_bwd(stepper, idx, pullback, cotangent):
+    program_store.release_if_crowded()  # the reverse pass compiles a program per mesh too
     return _segment_backward(pullback, cotangent)
 
 
