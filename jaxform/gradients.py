@@ -378,9 +378,6 @@ def _remeshed_trajectory(scene: Scene, inputs: Inputs, times, plan: RemeshPlan) 
     for seg in plan.segments:
         sc = seg.padded.scene
         stepper = stepper_of(sc, differentiable=True)
-        # each mesh compiles programs of its own (its map, its bucket's steps, their
-        # reverse passes): let them go before the process runs out of memory maps
-        program_store.release_if_crowded()
         state, coords, run_coords, run_state = _enter_mesh(seg, state, coords)
         part = _segment(stepper, sc.idx, replace(inputs, coords=run_coords),
                         times[first : first + seg.n_steps], run_state)  # fmt: skip
@@ -454,8 +451,16 @@ def _segment_bwd(stepper, idx, pullback, cotangent):
 _segment.defvjp(_segment_forward, _segment_bwd)
 
 
-@partial(jax.jit, static_argnums=0)  # a segment is hashed by identity: one program each
 def _enter_mesh(seg: MeshSegment, state, coords):
+    """:func:`_entered_mesh`, after letting compiled programs go where the process is
+    crowded with memory maps: each mesh of a replay compiles programs of its own (its map,
+    its bucket's steps, their reverse passes)."""
+    program_store.release_if_crowded()
+    return _entered_mesh(seg, state, coords)
+
+
+@partial(jax.jit, static_argnums=0)  # a segment is hashed by identity: one program each
+def _entered_mesh(seg: MeshSegment, state, coords):
     """(state, coords) on the segment's mesh (through its remesh map, if any), and the
     coordinates and state padded to its capacity bucket."""
     if seg.transfer is not None:

@@ -40,7 +40,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxform import program_store
 from jaxform.gradients import (
     MeshSegment,
     Trajectory,
@@ -233,7 +232,6 @@ def _stepped(stage: Stage, inputs: Inputs, times, state, coords) -> Trajectory:
     for seg in stage.segments:
         sc = seg.scene if seg.padded is None else seg.padded.scene
         stepper = stepper_of(sc, differentiable=True)
-        program_store.release_if_crowded()  # as jaxform.gradients' replay: programs per mesh
         state, coords, run_coords, run_state = _enter_mesh(seg, state, coords)
         part = _segment(stepper, sc.idx, replace(inputs, coords=run_coords),
                         times[first : first + seg.n_steps], run_state)  # fmt: skip
