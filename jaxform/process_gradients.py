@@ -143,7 +143,7 @@ def _stage(run) -> Stage:
     ends = [s.first_row for s in res.segments[1:]] + [n_rows]
     starts = [1] + ends[:-1]
     segments = tuple(
-        MeshSegment(s.scene, s.padded, end - start, s.transfer)
+        MeshSegment.of_rows(res, s, start, end)
         for s, start, end in zip(res.segments, starts, ends)
         if end > start
     )
@@ -234,7 +234,7 @@ def _stepped(stage: Stage, inputs: Inputs, times, state, coords) -> Trajectory:
         stepper = stepper_of(sc, differentiable=True)
         state, coords, run_coords, run_state = _enter_mesh(seg, state, coords)
         part = _segment(stepper, sc.idx, replace(inputs, coords=run_coords),
-                        times[first : first + seg.n_steps], run_state)  # fmt: skip
+                        times[first : first + seg.n_steps], run_state, seg.starts())  # fmt: skip
         state = _leave_mesh(seg, part.final_state)
         parts.append(part)
         first += seg.n_steps
