@@ -37,7 +37,10 @@ Contract
 * A scene with ``[remesh]`` runs through the meshes of its forward run
   (:func:`remeshed_schedule` -> :class:`RemeshPlan`): the same remesh steps, the same
   new meshes, each remesh a fixed map (:class:`jaxform.remesh.StateMap`) differentiated
-  like the steps.  :class:`RemeshPlan` states what that gradient is.
+  like the steps.  :class:`RemeshPlan` states what that gradient is.  Each of its steps
+  starts Newton from the forward run's converged unknowns (:attr:`MeshSegment.converged`),
+  so at the design point it converges at once, also where the forward run needed cutbacks
+  or continued solves.
 """
 
 from __future__ import annotations
@@ -107,15 +110,16 @@ class GradientRunError(RuntimeError):
 
 
 @partial(jit, static_argnums=(0, 5))
-def _trajectory(stepper: Stepper, inputs: Inputs, times, state0, idx, n_kept=0):
+def _trajectory(stepper: Stepper, inputs: Inputs, times, state0, idx, n_kept=0, starts=None):
     model, linear, symmetric_z = stepper.model, stepper.linear, stepper.symmetric_z
     n_steps = times.shape[0]
 
     def step(st: SimState, xs):
-        t_new, keep = xs
-        dt = t_new - st.t
-        guess = st.x + dt * st.x_rate
-        # first attempt from the rate predictor, not differentiated (stop_gradient: no
+        t_new, keep, start = xs
+        # the first Newton start: the forward run's converged unknowns where the replay
+        # has them (``starts``), else the last step's rate
+        guess = st.x + (t_new - st.t) * st.x_rate if start is None else start
+        # first attempt from that start, not differentiated (stop_gradient: no
         # tangent reaches it, so it has no reverse pass); with n_kept, it factors and
         # solves with the factors and returns its last factorization
         sg = jax.lax.stop_gradient
@@ -156,7 +160,7 @@ def _trajectory(stepper: Stepper, inputs: Inputs, times, state0, idx, n_kept=0):
         return new, out
 
     keep_steps = jnp.arange(n_steps) >= n_steps - n_kept  # the last n_kept steps
-    scanned = jax.lax.scan(step, state0, (times, keep_steps))
+    scanned = jax.lax.scan(step, state0, (times, keep_steps, starts))
     final, (t, force, fw, codes, its, status, kept, temps) = scanned
     zero = jnp.zeros((1,), dtype=t.dtype)
     t_all = jnp.concatenate([zero, t])
@@ -319,12 +323,39 @@ class MeshSegment:
     """The steps of a remeshed run on one mesh, as a gradient run takes them: ``scene`` on
     that mesh (the first: the run's own), ``padded`` to its capacity bucket (what the steps
     run: the meshes of one bucket share a compiled program), ``n_steps`` steps, reached
-    from the previous mesh's last state through ``transfer`` (None for the first)."""
+    from the previous mesh's last state through ``transfer`` (None for the first).
+
+    ``converged``: (n_steps, n_dofs) the forward run's converged unknowns of these steps
+    on ``scene`` (None: not recorded).  The replay starts each step's Newton solve there
+    (:meth:`starts`): at the design point the replay's solution is the forward run's, so
+    each step converges at once where the forward run may have needed cutbacks and
+    continued solves that the fixed-step replay does not have.  Where the replay runs with
+    other inputs (a finite-difference neighbour), they are a start near its solution; the
+    gradient does not depend on the start (implicit differentiation)."""
 
     scene: Scene
     padded: Padded
     n_steps: int
     transfer: StateMap | None
+    converged: np.ndarray | None = None
+
+    def starts(self):
+        """The Newton starts of the replay's steps in the layout the steps run (padded to
+        the bucket, ghosts at rest), or None."""
+        if self.converged is None:
+            return None
+        if self.padded is None:
+            return jnp.asarray(self.converged)
+        return jnp.asarray(np.stack([self.padded._pad_x(x) for x in self.converged]))
+
+    @classmethod
+    def of_rows(cls, result, seg, start: int, end: int, padded=None) -> MeshSegment:
+        """The segment of a forward run's rows ``start:end`` (a
+        :class:`jaxform.simulation.Result` and its :class:`jaxform.simulation.Segment`
+        ``seg``), stepped in ``padded`` (default: the forward run's padding)."""
+        converged = np.stack([np.asarray(result.fields["x"][r]) for r in range(start, end)])
+        padded = seg.padded if padded is None else padded
+        return cls(seg.scene, padded, end - start, seg.transfer, converged)
 
 
 @dataclass(frozen=True, eq=False)
@@ -356,7 +387,7 @@ class RemeshPlan:
         starts = [1] + ends[:-1]
         return cls(
             tuple(
-                MeshSegment(s.scene, s.padded, end - start, s.transfer)
+                MeshSegment.of_rows(result, s, start, end)
                 for s, start, end in zip(result.segments, starts, ends)
             )
         )
@@ -382,7 +413,8 @@ def _remeshed_trajectory(
         stepper = stepper_of(sc, differentiable=True)
         state, coords, run_coords, run_state = _enter_mesh(seg, state, coords)
         part = mesh_steps(stepper, sc.idx, replace(inputs, coords=run_coords),
-                          times[first : first + seg.n_steps], run_state, chunked)  # fmt: skip
+                          times[first : first + seg.n_steps], run_state, seg.starts(),
+                          chunked)  # fmt: skip
         state = _leave_mesh(seg, part.final_state)
         parts.append(part)
         first += seg.n_steps
@@ -424,14 +456,16 @@ def joined(segments, parts: tuple, state, coords, temperature_K=None) -> Traject
 
 
 @partial(jax.custom_vjp, nondiff_argnums=(0, 1))
-def _segment(stepper: Stepper, idx, inputs: Inputs, times, state0) -> Trajectory:
+def _segment(stepper: Stepper, idx, inputs: Inputs, times, state0, starts) -> Trajectory:
     """One mesh's steps of a remeshed gradient run, :func:`_trajectory` without kept
     factorizations, differentiated as two compiled programs shared by every mesh of a
     capacity bucket: the steps with their reverse pass's residuals, and the reverse pass.
     Left to JAX's own differentiation of the jitted steps, the first mesh (part of whose
     state has no tangent) and the last (whose final state gets no cotangent) would each
-    compile programs of their own."""
-    return _trajectory(stepper, inputs, times, state0, idx, 0)
+    compile programs of their own.  ``starts``: the steps' Newton starts
+    (:meth:`MeshSegment.starts`) or None (zero cotangent: the solution does not depend
+    on them)."""
+    return _trajectory(stepper, inputs, times, state0, idx, 0, starts)
 
 
 CHUNK_STEPS = 8  # the longest run of steps one compiled segment program takes
@@ -450,17 +484,19 @@ def step_chunks(n_steps: int, longest: int = CHUNK_STEPS) -> tuple[int, ...]:
     return tuple(chunks)
 
 
-def mesh_steps(stepper: Stepper, idx, inputs: Inputs, times, state0, chunked=False) -> Trajectory:
-    """One mesh's steps of a remeshed gradient run (:func:`_segment`) as one trajectory:
-    in one run, or ``chunked`` in the runs of :func:`step_chunks`, each from the last
-    one's final state (where a plan's meshes share buckets, fewer programs)."""
+def mesh_steps(
+    stepper: Stepper, idx, inputs: Inputs, times, state0, starts=None, chunked=False
+) -> Trajectory:
+    """One mesh's steps of a remeshed gradient run (:func:`_segment`, from the Newton
+    ``starts`` of :meth:`MeshSegment.starts`) as one trajectory: in one run, or
+    ``chunked`` in the runs of :func:`step_chunks`, each from the last one's final state
+    (where a plan's meshes share buckets, fewer programs)."""
     n_steps = times.shape[0]
-    # a replay through many meshes compiles programs for each (its steps, maps and their
-    # reverse passes): let them go before the process runs out of memory maps
-    program_store.release_if_crowded()
     parts, first = [], 0
     for n in step_chunks(n_steps) if chunked else (n_steps,):
-        parts.append(_segment(stepper, idx, inputs, times[first : first + n], state0))
+        run = slice(first, first + n)
+        part_starts = None if starts is None else starts[run]
+        parts.append(_segment(stepper, idx, inputs, times[run], state0, part_starts))
         state0, first = parts[-1].final_state, first + n
     return parts[0] if len(parts) == 1 else _chained(tuple(parts))
 
@@ -493,9 +529,10 @@ def _chained(parts: tuple) -> Trajectory:
 
 
 @partial(jit, static_argnums=0)
-def _segment_forward(stepper: Stepper, idx, inputs: Inputs, times, state0):
+def _segment_forward(stepper: Stepper, idx, inputs: Inputs, times, state0, starts):
     """(trajectory, its pullback): every differentiable input gets a cotangent."""
-    return jax.vjp(lambda i, t, s: _trajectory(stepper, i, t, s, idx, 0), inputs, times, state0)
+    return jax.vjp(lambda i, t, s, g: _trajectory(stepper, i, t, s, idx, 0, g),
+                   inputs, times, state0, starts)  # fmt: skip
 
 
 @jit
@@ -511,8 +548,16 @@ def _segment_bwd(stepper, idx, pullback, cotangent):
 _segment.defvjp(_segment_forward, _segment_bwd)
 
 
-@partial(jax.jit, static_argnums=0)  # a segment is hashed by identity: one program each
 def _enter_mesh(seg: MeshSegment, state, coords):
+    """:func:`_entered_mesh`, after letting compiled programs go where the process is
+    crowded with memory maps: each mesh of a replay compiles programs of its own (its map,
+    its bucket's steps, their reverse passes)."""
+    program_store.release_if_crowded()
+    return _entered_mesh(seg, state, coords)
+
+
+@partial(jax.jit, static_argnums=0)  # a segment is hashed by identity: one program each
+def _entered_mesh(seg: MeshSegment, state, coords):
     """(state, coords) on the segment's mesh (through its remesh map, if any), and the
     coordinates and state padded to its capacity bucket."""
     if seg.transfer is not None:

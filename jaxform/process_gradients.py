@@ -181,7 +181,7 @@ def _stage(run) -> Stage:
     ends = [s.first_row for s in res.segments[1:]] + [n_rows]
     starts = [1] + ends[:-1]
     segments = tuple(
-        MeshSegment(s.scene, _coarser(s.scene, s.padded), end - start, s.transfer)
+        MeshSegment.of_rows(res, s, start, end, _coarser(s.scene, s.padded))
         for s, start, end in zip(res.segments, starts, ends)
         if end > start
     )
@@ -272,7 +272,7 @@ def _stepped(stage: Stage, inputs: Inputs, times, state, coords) -> Trajectory:
         stepper = stepper_of(sc, differentiable=True)
         state, coords, run_coords, run_state = _enter_mesh(seg, state, coords)
         part = mesh_steps(stepper, sc.idx, replace(inputs, coords=run_coords),
-                          times[first : first + seg.n_steps], run_state,
+                          times[first : first + seg.n_steps], run_state, seg.starts(),
                           chunked=stage.chunked and seg.padded is not None)  # fmt: skip
         state = _leave_mesh(seg, part.final_state)
         parts.append(part)

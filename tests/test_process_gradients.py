@@ -132,6 +132,32 @@ def test_process_gradient_against_central_differences(group):
     assert abs(exact - fd) <= 1e-4 * abs(exact), (group, exact, fd)
 
 
+def test_a_crowded_replay_lets_its_programs_go_and_keeps_the_gradient(monkeypatch):
+    """Reference: the shared start gradient (the whole replay as one program).  The replay
+    mesh by mesh (separate programs, as a design runs it) with every compiled program let
+    go before each mesh and each mesh's reverse pass (the memory-map share set to 0, as in
+    a process near vm.max_map_count): at least one release per mesh each way, and the
+    same objective and gradient to 1e-9 of each group's largest component."""
+    import jax
+
+    from jaxform import program_store
+
+    released = []
+    real = program_store.release_programs
+    monkeypatch.setattr(program_store, "MAP_SHARE", 0.0)
+    monkeypatch.setattr(program_store, "release_programs", lambda: (released.append(1), real()))
+    _, _, plan = forward()
+    pb = build_process_problem(plan, GROUPS, objective(plan))
+    val, grad, _ = pb.value_and_grad(pb.start)
+    ref_val, ref_grad, _ = start_gradient()
+    meshes = sum(len(s.segments) for s in plan.stages)
+    assert len(released) >= 2 * meshes, (len(released), meshes)
+    assert abs(float(val) - float(ref_val)) <= 1e-9 * abs(float(ref_val))
+    for a, b in zip(jax.tree_util.tree_leaves(grad), jax.tree_util.tree_leaves(ref_grad)):
+        a, b = np.asarray(a), np.asarray(b)
+        assert np.max(np.abs(a - b)) <= 1e-9 * max(np.max(np.abs(b)), 1e-300)
+
+
 def test_process_taylor_rates():
     """Taylor remainders of two groups that act on different operations (the second
     blow's die, the billet's aspect before the first): second-order rates >= 1.9."""
