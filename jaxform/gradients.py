@@ -38,9 +38,9 @@ Contract
   (:func:`remeshed_schedule` -> :class:`RemeshPlan`): the same remesh steps, the same
   new meshes, each remesh a fixed map (:class:`jaxform.remesh.StateMap`) differentiated
   like the steps.  :class:`RemeshPlan` states what that gradient is.  Each of its steps
-  starts Newton from the forward run's converged unknowns (:attr:`MeshSegment.converged`),
-  so at the design point it converges at once, also where the forward run needed cutbacks
-  or continued solves.
+  starts Newton from the forward run's converged unknowns (:attr:`MeshSegment.converged`)
+  where those are closer than the rate predictor, so at the design point it converges at
+  once, also where the forward run needed cutbacks or continued solves.
 """
 
 from __future__ import annotations
@@ -68,6 +68,7 @@ from jaxform.stepping import (
     die_force,
     initial_state,
     solve_step,
+    step_context,
     stepper_of,
 )
 from jaxform.xla_options import jit
@@ -116,13 +117,15 @@ def _trajectory(stepper: Stepper, inputs: Inputs, times, state0, idx, n_kept=0, 
 
     def step(st: SimState, xs):
         t_new, keep, start = xs
-        # the first Newton start: the forward run's converged unknowns where the replay
-        # has them (``starts``), else the last step's rate
-        guess = st.x + (t_new - st.t) * st.x_rate if start is None else start
+        sg = jax.lax.stop_gradient
+        # the first Newton start: the last step's rate, or the forward run's converged
+        # unknowns of the step (``starts``) where their residual is the smaller
+        guess = st.x + (t_new - st.t) * st.x_rate
+        if start is not None:
+            guess = _closer(model, sg(st), sg(t_new), sg(inputs), idx, (start, sg(guess)))
         # first attempt from that start, not differentiated (stop_gradient: no
         # tangent reaches it, so it has no reverse pass); with n_kept, it factors and
         # solves with the factors and returns its last factorization
-        sg = jax.lax.stop_gradient
         fac0 = linear.empty_factorization(st.x.shape[0], st.x.dtype) if n_kept else None
         first = solve_step(stepper, sg(st), sg(t_new), sg(inputs), idx, x_guess=guess, fac=fac0)
         x1, its1, code1, fac1 = first.x, first.iterations, first.code, first.fac
@@ -186,6 +189,22 @@ def _trajectory(stepper: Stepper, inputs: Inputs, times, state0, idx, n_kept=0, 
         ),
         final_state=final,
     )
+
+
+def _closer(model, state: SimState, t_new, inputs: Inputs, idx, candidates: tuple):
+    """Of the Newton starts ``candidates`` of the step from ``state`` to t_new, the one of
+    the smallest scaled residual (an invalid state's: inf): at the design point the
+    forward run's solution (residual at the tolerance), at a design far from it (a
+    replay through a fixed plan at another design) the rate predictor where that is
+    closer."""
+    ctx = step_context(model, state, inputs, idx, t_new, t_new - state.t)
+
+    def size(x):
+        r, _, code, scale = model.residual(x, ctx)
+        return jnp.where(code == OK, jnp.linalg.norm(r) / scale, jnp.inf)
+
+    best = jnp.argmin(jnp.stack([size(x) for x in candidates]))
+    return jnp.stack(candidates)[best]
 
 
 def trajectory(
@@ -327,11 +346,13 @@ class MeshSegment:
 
     ``converged``: (n_steps, n_dofs) the forward run's converged unknowns of these steps
     on ``scene`` (None: not recorded).  The replay starts each step's Newton solve there
-    (:meth:`starts`): at the design point the replay's solution is the forward run's, so
-    each step converges at once where the forward run may have needed cutbacks and
-    continued solves that the fixed-step replay does not have.  Where the replay runs with
-    other inputs (a finite-difference neighbour), they are a start near its solution; the
-    gradient does not depend on the start (implicit differentiation)."""
+    (:meth:`starts`) or from the last step's rate, whichever has the smaller residual: at
+    the design point the replay's solution is the forward run's, so each step converges
+    at once where the forward run may have needed cutbacks and continued solves that the
+    fixed-step replay does not have; a replay through the plan at another design (a
+    finite-difference neighbour: near; an optimizer's next design: maybe far) takes the
+    closer start.  The gradient does not depend on the start (implicit
+    differentiation)."""
 
     scene: Scene
     padded: Padded
