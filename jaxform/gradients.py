@@ -47,7 +47,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, replace
-from functools import partial
+from functools import cached_property, partial
 from typing import Any
 
 import jax
@@ -346,7 +346,7 @@ class MeshSegment:
 
     ``converged``: (n_steps, n_dofs) the forward run's converged unknowns of these steps
     on ``scene`` (None: not recorded).  The replay starts each step's Newton solve there
-    (:meth:`starts`) or from the last step's rate, whichever has the smaller residual: at
+    (:attr:`starts`) or from the last step's rate, whichever has the smaller residual: at
     the design point the replay's solution is the forward run's, so each step converges
     at once where the forward run may have needed cutbacks and continued solves that the
     fixed-step replay does not have; a replay through the plan at another design (a
@@ -360,9 +360,10 @@ class MeshSegment:
     transfer: StateMap | None
     converged: np.ndarray | None = None
 
+    @cached_property
     def starts(self):
         """The Newton starts of the replay's steps in the layout the steps run (padded to
-        the bucket, ghosts at rest), or None."""
+        the bucket, ghosts at rest), or None (padded once, on the host)."""
         if self.converged is None:
             return None
         if self.padded is None:
@@ -428,18 +429,28 @@ def _remeshed_trajectory(
     if times.shape[0] != plan.n_steps:
         raise ValueError(f"trajectory: {times.shape[0]} step times for a plan of {plan.n_steps}")
     state, coords = initial_state(scene.model, inputs), inputs.coords
+    parts, state, coords = through_meshes(plan.segments, inputs, times, state, coords, chunked)
+    return joined(plan.segments, parts, state, coords)
+
+
+def through_meshes(segments, inputs: Inputs, times, state, coords, chunked: bool = False):
+    """(the parts of each mesh, the last state, its reference coordinates): the steps of
+    ``segments`` (:class:`MeshSegment`) from (state, coords) before the first one's map,
+    each mesh entered through its map and padding, stepped by :func:`mesh_steps` from its
+    Newton starts (``chunked``: a padded mesh's steps in runs), and left without the
+    padding.  The one loop of a remeshed scene's and a process operation's replay."""
     parts, first = [], 0
-    for seg in plan.segments:
-        sc = seg.padded.scene
+    for seg in segments:
+        sc = seg.scene if seg.padded is None else seg.padded.scene
         stepper = stepper_of(sc, differentiable=True)
         state, coords, run_coords, run_state = _enter_mesh(seg, state, coords)
         part = mesh_steps(stepper, sc.idx, replace(inputs, coords=run_coords),
-                          times[first : first + seg.n_steps], run_state, seg.starts(),
-                          chunked)  # fmt: skip
+                          times[first : first + seg.n_steps], run_state, seg.starts,
+                          chunked and seg.padded is not None)  # fmt: skip
         state = _leave_mesh(seg, part.final_state)
         parts.append(part)
         first += seg.n_steps
-    return joined(plan.segments, tuple(parts), state, coords)
+    return tuple(parts), state, coords
 
 
 def joined(segments, parts: tuple, state, coords, temperature_K=None) -> Trajectory:
@@ -484,7 +495,7 @@ def _segment(stepper: Stepper, idx, inputs: Inputs, times, state0, starts) -> Tr
     Left to JAX's own differentiation of the jitted steps, the first mesh (part of whose
     state has no tangent) and the last (whose final state gets no cotangent) would each
     compile programs of their own.  ``starts``: the steps' Newton starts
-    (:meth:`MeshSegment.starts`) or None (zero cotangent: the solution does not depend
+    (:attr:`MeshSegment.starts`) or None (zero cotangent: the solution does not depend
     on them)."""
     return _trajectory(stepper, inputs, times, state0, idx, 0, starts)
 

@@ -45,12 +45,10 @@ from jaxform.capacity import Bucket, Padded, coarse_bucket, padded
 from jaxform.gradients import (
     MeshSegment,
     Trajectory,
-    _enter_mesh,
-    _leave_mesh,
     check,
     joined,
-    mesh_steps,
     step_chunks,
+    through_meshes,
 )
 from jaxform.remesh import StateMap
 from jaxform.scenes import Inputs, Scene
@@ -266,18 +264,9 @@ def _still(stage: Stage, state, coords, inputs: Inputs):
 
 def _stepped(stage: Stage, inputs: Inputs, times, state, coords) -> Trajectory:
     """The operation's steps through its meshes from (state, coords) on its first mesh."""
-    parts, first = [], 0
-    for seg in stage.segments:
-        sc = seg.scene if seg.padded is None else seg.padded.scene
-        stepper = stepper_of(sc, differentiable=True)
-        state, coords, run_coords, run_state = _enter_mesh(seg, state, coords)
-        part = mesh_steps(stepper, sc.idx, replace(inputs, coords=run_coords),
-                          times[first : first + seg.n_steps], run_state, seg.starts(),
-                          chunked=stage.chunked and seg.padded is not None)  # fmt: skip
-        state = _leave_mesh(seg, part.final_state)
-        parts.append(part)
-        first += seg.n_steps
-    return _joined(stage, tuple(parts), state, coords)
+    parts, state, coords = through_meshes(stage.segments, inputs, times, state, coords,
+                                          stage.chunked)  # fmt: skip
+    return _joined(stage, parts, state, coords)
 
 
 @partial(jax.jit, static_argnums=0)
