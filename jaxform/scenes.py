@@ -114,6 +114,8 @@ class Scene:
     dt_growth: float = 1.5  # an easy step lets the next one grow by this factor (to dt)
     # a Newton solve at the smallest step goes on from its last iterate this many times
     continuations: int = 0
+    # a converged step whose element corner quality falls by more is cut back (0: no limit)
+    max_quality_drop: float = 0.0
     # when and how to remesh (element_size_mm resolved); None: never
     remesh: RemeshConfig | None = None
     # the machine that drives the top die (jaxform.presses); None: no die (a membrane)
@@ -654,6 +656,7 @@ def build_scene(cfg: dict | Config, mesh: meshing.Mesh | None = None) -> Scene:
         t_end=t_end,
         max_cutbacks=so.max_cutbacks,
         continuations=so.smallest_step_continuations,
+        max_quality_drop=so.max_quality_drop,
         dt_growth=tm.dt_growth,
         chunk=so.chunk_steps,
         symmetric_z=piece.half_height,

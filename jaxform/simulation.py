@@ -446,6 +446,7 @@ def init(scene: Scene) -> tuple[SimState, StepControl]:
         dt_max=jnp.asarray(scene.dt),
         t_end=jnp.asarray(scene.t_end),
         continuations=jnp.asarray(scene.continuations),
+        max_quality_drop=jnp.asarray(scene.max_quality_drop),
         thresholds=off(stepper_of(scene).triggers),
     )
     return initial_state(scene.model, scene.inputs), control

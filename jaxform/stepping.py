@@ -41,7 +41,7 @@ from jaxform.damage import increment as damage_increment
 from jaxform.damage import initial_damage
 from jaxform.fields import CANDIDATE, ELEMENT, GAUSS, RATES, SCALAR, STATUS, UNKNOWNS, over
 from jaxform.formulations import GaussState, initial_gauss_state
-from jaxform.geometry import tributary_areas
+from jaxform.geometry import corner_qualities, tributary_areas
 from jaxform.kinematics import deviator, safe_norm_eq
 from jaxform.linear import LinearSolver, matvec
 from jaxform.loads import external_forces, total_force
@@ -413,6 +413,9 @@ class StepControl:
     dt_max: jax.Array  # s
     t_end: jax.Array  # s
     continuations: jax.Array  # solves at the smallest step that go on
+    # a converged attempt in which an element corner's quality falls by more is halved like
+    # a failed one while a smaller step is left (:func:`distorted`; 0: no limit)
+    max_quality_drop: jax.Array
     thresholds: tuple = ()
 
 
@@ -453,7 +456,8 @@ def attempt_step(
         smallest = h <= h_min * (1.0 + 1e-9)  # nothing smaller to try
         # a solve that stalls stops early where a smaller step is left to try
         sol = _attempt_solve(stepper, st, t_new, inp, idx, guess, c["fac"], ~smallest)
-        ok = sol.code == OK
+        jump = distorted(stepper.model, st.x, sol.x, inp, idx, control.max_quality_drop)
+        ok = (sol.code == OK) & ~(~smallest & jump)
         conv = converged_state(stepper.model, st, sol.x, sol.gauss, t_new, inp, sol.cstep, idx)
         go_on = (
             ~ok
@@ -499,6 +503,19 @@ def attempt_step(
         out["h_used"], out["last_jacobians"], out["cutbacks"], control.dt_max
     )
     return out["state"], info, out["fac"]
+
+
+def distorted(model: Model, x_old, x_new, inp: Inputs, idx: Indices, max_drop):
+    """Whether a step from unknowns ``x_old`` to ``x_new`` lowered some element corner's
+    quality (:func:`jaxform.geometry.corner_qualities`) by more than ``max_drop`` (traced;
+    never where it is 0: ``solver.max_quality_drop``).
+
+    The contact and friction conditions are nonsmooth, and a large step can converge to a
+    root of them that is not the forming path (a corner rolled over at once, a fraction of
+    the ram force); halved steps follow the path (docs/robustness.md)."""
+    before = corner_qualities(model.nodal_positions(x_old, inp.coords, idx), idx.elements)
+    after = corner_qualities(model.nodal_positions(x_new, inp.coords, idx), idx.elements)
+    return (max_drop > 0.0) & (jnp.max(before - after) > max_drop)
 
 
 def applied_forces(model: Model, inp: Inputs, t, idx: Indices):
