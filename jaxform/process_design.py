@@ -17,21 +17,31 @@ from __future__ import annotations
 
 import csv
 import time
+from dataclasses import dataclass, field, replace
 from pathlib import Path
+
+import jax.numpy as jnp
+import numpy as np
 
 from jaxform.cache import enable_compilation_cache
 from jaxform.config import dump_config
 from jaxform.io import write_csv
 from jaxform.precision import require_x64
 from jaxform.process_config import Process, check_process_design, process_document
-from jaxform.simulation import simulate
+from jaxform.simulation import SimulationError, simulate
 
 
-def forward_plan(process: Process, progress=None, announce=None):
+def forward_plan(process: Process, progress=None, announce=None, at=None):
     """The forward process run (adaptive steps, remeshes, trims) and its
     :class:`jaxform.process_gradients.ProcessPlan`; ``progress`` is each operation's
     step callback (:func:`jaxform.simulation.simulate`), ``announce`` gets a line as each
-    operation starts.  Raises ConfigError, SimulationError."""
+    operation starts.  ``at`` (``(problem, design)``: a
+    :class:`jaxform.design.process_problem.ProcessDesignProblem` of this process and a
+    design of it): the run at that design, each operation's scene with the problem's
+    groups applied as it starts (its time step and end scaled where a speed or dwell
+    group scales its times); the plan's operations keep the inputs and times as
+    configured, so that the problem's groups apply to them as to the first plan's
+    (:func:`designed_plan`).  Raises ConfigError, SimulationError."""
     from jaxform.process import prepare, run_process
     from jaxform.process_gradients import ProcessPlan
 
@@ -41,15 +51,110 @@ def forward_plan(process: Process, progress=None, announce=None):
     enable_compilation_cache(ops[0].config.solver.compilation_cache_dir)
     labels = iter(op.label for op in ops if op.forming or getattr(op.keys, "time_s", None))
     t0 = time.perf_counter()
+    designed = _Designed(*at) if at is not None else None
 
     def stepped(scene, step_progress, start=None):
         if announce is not None:
             took = time.perf_counter() - t0
             announce(f"  forward run of {next(labels, 'an operation')} ({took:.1f} s)")
+        if designed is not None:
+            scene = designed.scene(scene)
         return simulate(scene, step_progress, start)
 
     result = run_process(ops, initial, progress, simulate_fn=stepped)
-    return result, ProcessPlan.of(result)
+    plan = ProcessPlan.of(result)
+    return result, plan if designed is None else designed.as_configured(plan)
+
+
+@dataclass
+class _Designed:
+    """A design applied to each stepped operation's scene as the forward run starts it
+    (the k-th call: the k-th stage that takes steps in ``problem``'s plan), and the
+    configured inputs and time scale of each kept to undo it in the plan."""
+
+    problem: object
+    design: dict
+    kept: dict = field(default_factory=dict)  # stage -> (configured inputs, time factor)
+
+    def scene(self, scene):
+        stepped = [k for k, s in enumerate(self.problem.plan.stages) if s.stepped]
+        k = stepped[len(self.kept)]
+        one = jnp.ones(1, dtype=jnp.asarray(scene.inputs.coords).dtype)
+        inputs, factor = self.problem.on_stage(self.design, k, scene.inputs, one)
+        f = float(factor[0])
+        self.kept[k] = (scene.inputs, f)
+        return replace(scene, inputs=inputs, dt=scene.dt * f, t_end=scene.t_end * f)
+
+    def as_configured(self, plan):
+        stages = list(plan.stages)
+        for k, (inputs, f) in self.kept.items():
+            st = stages[k]
+            stages[k] = replace(st, scene=replace(st.scene, inputs=inputs),
+                                times=np.asarray(st.times) / f)  # fmt: skip
+        return replace(plan, stages=tuple(stages))
+
+
+class Replanning:
+    """A process's design problem whose plan follows the design: where the replay of the
+    current plan (the steps, meshes and maps of the forward run at the design it was made
+    at) fails at a design, the forward process runs again at that design
+    (:func:`forward_plan` with ``at``) and the design is evaluated on its plan.
+
+    A replay solves each step by full Newton from the forward run's solution, with no
+    cutback: a design far enough from the plan's (another contact path, another remesh)
+    can fail where its own forward run, with its own steps and meshes, goes through.  The
+    groups, bounds and start are the first problem's (they act on the inputs as
+    configured, which every plan keeps); the objective is rebuilt on each plan's final
+    meshes (``objective_of(plan)``; default design.objective of the process's config).
+    Where the forward run at a design fails too or refuses an operation (its die overlaps
+    the part the operation before left), the evaluation raises
+    :class:`jaxform.gradients.GradientRunError` (the optimizer rejects the trial)."""
+
+    def __init__(self, process: Process, problem, announce=None, objective_of=None):
+        from jaxform.design.process_problem import config_objective
+
+        d = process.operations[0].config.design
+        self.process, self.first, self.current = process, problem, problem
+        self.announce = announce
+        self.objective_of = objective_of or (lambda plan: config_objective(plan, d))
+        self.replans = 0
+
+    start = property(lambda self: self.first.start)
+    groups = property(lambda self: self.first.groups)
+    plan = property(lambda self: self.current.plan)
+    objective = property(lambda self: self.current.objective)
+
+    def bounds(self):
+        return self.first.bounds()
+
+    def physical(self, design) -> dict:
+        return self.first.physical(design)
+
+    def value(self, design):
+        return self._on_a_plan(lambda pb: pb.value(design), design)
+
+    def value_and_grad(self, design):
+        return self._on_a_plan(lambda pb: pb.value_and_grad(design), design)
+
+    def report(self, design) -> dict:
+        return self._on_a_plan(lambda pb: pb.report(design), design)
+
+    def _on_a_plan(self, evaluate, design):
+        from jaxform.gradients import GradientRunError
+        from jaxform.process import OperationRefused
+
+        try:
+            return evaluate(self.current)
+        except GradientRunError as err:
+            if self.announce is not None:
+                self.announce(f"  the replay failed ({err}): the forward process at this design")
+        try:
+            _, plan = forward_plan(self.process, at=(self.first, design))
+        except (SimulationError, OperationRefused) as err:  # no process at this design
+            raise GradientRunError(f"the forward process at this design failed: {err}") from None
+        self.current = replace(self.first, plan=plan, objective=self.objective_of(plan))
+        self.replans += 1
+        return evaluate(self.current)
 
 
 def process_problem(process: Process, groups=None, progress=None, announce=None):
@@ -86,7 +191,8 @@ def run_process_taylor(process: Process, groups=None, h=(1.0, 0.5, 0.25, 0.125),
 def run_process_design(process: Process, out_dir, progress=None, forward_progress=None,
                        announce=None, problem=None):  # fmt: skip
     """Optimize a process's [design] problem (``problem``: the one of a forward run made
-    already, :func:`problem_of_plan`); write design_history.csv, design_report.csv (start
+    already, :func:`problem_of_plan`), re-running the forward process at a design whose
+    replay fails (:class:`Replanning`); write design_history.csv, design_report.csv (start
     and best: the objective, each term, each blow's peak force, each constraint),
     objective.png and config.toml (the process as configured) to ``out_dir``."""
     from jaxform.design import optimize
@@ -95,6 +201,7 @@ def run_process_design(process: Process, out_dir, progress=None, forward_progres
 
     if problem is None:
         problem = process_problem(process, None, forward_progress, announce)
+    problem = Replanning(process, problem, announce)
     d = process.operations[0].config.design
     if announce is not None:
         meshes = sum(len(s.segments) for s in problem.plan.stages)
@@ -108,6 +215,8 @@ def run_process_design(process: Process, out_dir, progress=None, forward_progres
         terms = ", ".join(f"{k} {v:.6g}" for k, v in start.items() if k != "constraints")
         announce(f"  start design: {terms}")
     hist = optimize(problem, optimizer_settings(d), progress=progress)
+    if announce is not None and problem.replans:
+        announce(f"  {problem.replans} forward runs at designs whose replay failed")
     dump_config(process_document(process.document), out / "config.toml")
     write_csv(out / "design_history.csv", hist.columns(problem))
     rows = design_report(problem, hist)

@@ -132,6 +132,53 @@ def test_process_gradient_against_central_differences(group):
     assert abs(exact - fd) <= 1e-4 * abs(exact), (group, exact, fd)
 
 
+def test_a_plan_made_at_a_design_replays_that_designs_forward_run():
+    """The forward process run at a design that moves every group 5 % of the way to a bound
+    (the billet, the material, the heat, both blows' dies, friction and the second's speed,
+    the dwell's time) and its plan, which keeps each operation's inputs and times as
+    configured: the problem's groups applied to them replay that run (steps 1e-12
+    relative, forces 1e-7 of the peak, positions 1e-9 mm), which differs from the start
+    design's (the first blow's peak force by > 0.1 %).  A problem whose replay fails
+    (made to) runs the forward process at the design and evaluates it on that plan:
+    the same value (1e-12)."""
+    from dataclasses import replace
+
+    from jaxform.gradients import GradientRunError
+    from jaxform.process_design import Replanning, forward_plan
+
+    process, start_result, _ = forward()
+    pb = problem()
+    lo, hi = pb.bounds()
+    # toward each lower bound (a shorter billet, lower dies, less friction, a slower blow,
+    # a shorter dwell), the second blow's die toward its upper one: a second die that
+    # starts where the part the first left lies under it (the check of the forward run)
+    design = {k: v + 0.05 * ((hi if k == "second.die" else lo)[k] - v) for k, v in pb.start.items()}
+    result, plan = forward_plan(process, at=(pb, design))
+    at = replace(pb, plan=plan, objective=objective(plan))
+    ptraj = process_trajectory(plan, *at.run_inputs(design))
+    for run, traj in zip(result.runs, ptraj.operations):
+        h = run.result.history
+        np.testing.assert_allclose(np.asarray(traj.time_s)[-1], h["time_s"][-1], rtol=1e-12)
+        f = np.asarray(traj.force_N)
+        assert np.max(np.abs(f - h["force_N"])) <= 1e-7 * max(np.max(np.abs(f)), 1.0)
+        sc = run.result.final_scene
+        pos = np.asarray(sc.inputs.coords) + sc.model.layout.nodal(
+            np.asarray(run.result.final_state.x))[:, :2]  # fmt: skip
+        np.testing.assert_allclose(np.asarray(traj.positions), pos, rtol=0, atol=1e-9)
+    peak, peak0 = (np.max(r.runs[0].result.history["force_N"]) for r in (result, start_result))
+    assert abs(peak / peak0 - 1.0) > 1e-3, (peak, peak0)
+
+    class Fails:
+        def value(self, design):
+            raise GradientRunError("made to fail")
+
+    replanning = Replanning(process, pb, objective_of=objective)
+    replanning.current = Fails()
+    value, _ = replanning.value(design)
+    assert replanning.replans == 1
+    assert float(value) == pytest.approx(float(at.value(design)[0]), rel=1e-12)
+
+
 def test_a_crowded_replay_lets_its_programs_go_and_keeps_the_gradient(monkeypatch):
     """Reference: the shared start gradient (the whole replay as one program).  The replay
     mesh by mesh (separate programs, as a design runs it) with every compiled program let

@@ -256,14 +256,27 @@ class ProcessDesignProblem:
     start: dict
     single_program: bool = False
 
+    def _ordered(self):
+        """The groups in the order they apply: the billet's groups, which lift the first
+        top die with the billet's top, after those that set its heights (a die spline)."""
+        return sorted(self.groups, key=lambda g: getattr(g.inner, "lifts_the_die", False))
+
     def run_inputs(self, design):
-        """(inputs, step times) of every operation at ``design``; the billet's groups,
-        which lift the first top die with the billet's top, after those that set its
-        heights (a die spline)."""
+        """(inputs, step times) of every operation at ``design``."""
         inputs = self.plan.inputs()
         times = tuple(jnp.asarray(t) for t in self.plan.times())
-        for g in sorted(self.groups, key=lambda g: getattr(g.inner, "lifts_the_die", False)):
+        for g in self._ordered():
             inputs, times = g.apply(design[g.name], inputs, times)
+        return inputs, times
+
+    def on_stage(self, design, k: int, inputs, times):
+        """One operation's (inputs, times) at ``design``: the groups that act on stage
+        ``k`` applied to ``inputs`` (any mesh's: the groups set dies, coefficients and
+        speeds, and the first stage's coordinates) and ``times`` (the speed and dwell
+        groups scale them)."""
+        for g in self._ordered():
+            if k in g.stages:
+                inputs, times = g.inner.apply(design[g.name], inputs, times)
         return inputs, times
 
     @cached_property
