@@ -50,6 +50,9 @@ RING = {
     "die": {"speed_mm_s": 1.0, "reduction": 0.3},
     "friction": {"model": "coulomb", "mu": 0.3},
     "time": {"dt_s": 0.5},
+    # a step that rolls a corner over at once is cut back (without it, 4 of 20 die speeds
+    # within 1e-3 of this one stop, CI's machine among them; docs/theory.md)
+    "solver": {"max_quality_drop": 0.25},
     "output": {"plots": False, "fields": False},
 }
 # a fixed mandrel in the bore (radius 7.5 mm) with 0.5 mm clearance.  The platens need
@@ -284,8 +287,8 @@ def test_a_step_that_rolls_a_corner_over_at_once_is_cut_back():
     first step of 0.5 s fails and the step of 0.25 s converges, to a root of the contact and
     friction conditions with the outer corner rolled over (worst corner quality 0.96 to 0.62
     in that step) and 5632 N against 11890 N for the halved steps.  With that root taken
-    (solver.max_quality_drop = 0) the ram force at 0.45 mm is 7950 N and the run folds at
-    0.48 s; the default (0.25) cuts that step back, and the force at 0.45 mm is the
+    (solver.max_quality_drop = 0, the default) the ram force at 0.45 mm is 7950 N and the
+    run folds at 0.48 s; the ring's 0.25 cuts that step back, and the force at 0.45 mm is the
     unperturbed run's within 0.1 % (the speed's own effect on the rate-dependent flow
     stress is 2e-5)."""
     short = ("side_die.friction.model=shear", "side_die.friction.m=0.5", "die.reduction=0.045")

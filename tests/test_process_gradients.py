@@ -91,6 +91,21 @@ def start_gradient():
     return pb.value_and_grad(pb.start)
 
 
+def assert_replays(result, ptraj):
+    """Each operation of ``ptraj`` is that of the forward process run ``result``: its last
+    step's time (1e-12 relative), its forces (1e-7 of the peak) and final positions
+    (1e-9 mm)."""
+    for run, traj in zip(result.runs, ptraj.operations):
+        h = run.result.history
+        np.testing.assert_allclose(np.asarray(traj.time_s)[-1], h["time_s"][-1], rtol=1e-12)
+        f = np.asarray(traj.force_N)
+        assert np.max(np.abs(f - h["force_N"])) <= 1e-7 * max(np.max(np.abs(f)), 1.0)
+        sc = run.result.final_scene
+        lay = sc.model.layout
+        pos = np.asarray(sc.inputs.coords) + lay.nodal(np.asarray(run.result.final_state.x))[:, :2]
+        np.testing.assert_allclose(np.asarray(traj.positions), pos, rtol=0, atol=1e-9)
+
+
 def test_the_replay_takes_the_forward_runs_steps_and_maps():
     """Each operation of the differentiable run equals the forward process run: the same
     steps (time 1e-12), forces and final positions to the Newton tolerance (1e-7 of the
@@ -101,15 +116,7 @@ def test_the_replay_takes_the_forward_runs_steps_and_maps():
     assert kinds == ["NoneType", "Carry", "Carry", "StateMap"]
     assert [len(s.segments) for s in plan.stages] == [1, 1, 1, 0]
     ptraj = process_trajectory(plan)
-    for run, traj in zip(result.runs, ptraj.operations):
-        h = run.result.history
-        np.testing.assert_allclose(np.asarray(traj.time_s)[-1], h["time_s"][-1], rtol=1e-12)
-        f = np.asarray(traj.force_N)
-        assert np.max(np.abs(f - h["force_N"])) <= 1e-7 * max(np.max(np.abs(f)), 1.0)
-        sc = run.result.final_scene
-        lay = sc.model.layout
-        pos = np.asarray(sc.inputs.coords) + lay.nodal(np.asarray(run.result.final_state.x))[:, :2]
-        np.testing.assert_allclose(np.asarray(traj.positions), pos, rtol=0, atol=1e-9)
+    assert_replays(result, ptraj)
     air = result.runs[1].result.history
     temps = np.asarray(ptraj.operations[1].temperature_K)  # (rows, nodes)
     np.testing.assert_allclose(temps.min(axis=1), air["min_temperature_K"], rtol=0, atol=1e-6)
@@ -155,16 +162,7 @@ def test_a_plan_made_at_a_design_replays_that_designs_forward_run():
     design = {k: v + 0.05 * ((hi if k == "second.die" else lo)[k] - v) for k, v in pb.start.items()}
     result, plan = forward_plan(process, at=(pb, design))
     at = replace(pb, plan=plan, objective=objective(plan))
-    ptraj = process_trajectory(plan, *at.run_inputs(design))
-    for run, traj in zip(result.runs, ptraj.operations):
-        h = run.result.history
-        np.testing.assert_allclose(np.asarray(traj.time_s)[-1], h["time_s"][-1], rtol=1e-12)
-        f = np.asarray(traj.force_N)
-        assert np.max(np.abs(f - h["force_N"])) <= 1e-7 * max(np.max(np.abs(f)), 1.0)
-        sc = run.result.final_scene
-        pos = np.asarray(sc.inputs.coords) + sc.model.layout.nodal(
-            np.asarray(run.result.final_state.x))[:, :2]  # fmt: skip
-        np.testing.assert_allclose(np.asarray(traj.positions), pos, rtol=0, atol=1e-9)
+    assert_replays(result, process_trajectory(plan, *at.run_inputs(design)))
     peak, peak0 = (np.max(r.runs[0].result.history["force_N"]) for r in (result, start_result))
     assert abs(peak / peak0 - 1.0) > 1e-3, (peak, peak0)
 

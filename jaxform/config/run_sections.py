@@ -58,14 +58,14 @@ class SolverConfig:
     )
     line_search: bool = key(True, doc="backtracking line search in Newton")
     max_quality_drop: float = key(
-        0.25,
+        0.0,
         low=0.0,
         high=2.0,
         doc="the most an element corner's quality (1 square, 0 degenerate) may fall in one "
         "converged step before the step is cut back where a smaller step is left (0: no "
-        "limit); a converged step that distorts the mesh this much at once is a spurious "
-        "root of the contact and friction equations, not the forming path (see "
-        "jaxform/stepping.py attempt_step)",
+        "limit; 0.25 keeps a large step off a spurious root of the contact and friction "
+        "conditions, a corner rolled over at once; off by default: it changes the steps of "
+        "scenes that need none, see docs/theory.md)",
     )
     stall_iterations: int = key(
         0,
