@@ -41,7 +41,7 @@ def forward_plan(process: Process, progress=None, announce=None, at=None):
     groups applied as it starts (its time step and end scaled where a speed or dwell
     group scales its times); the plan's operations keep the inputs and times as
     configured, so that the problem's groups apply to them as to the first plan's
-    (:func:`designed_plan`).  Raises ConfigError, SimulationError."""
+    (:class:`_Designed`).  Raises ConfigError, SimulationError."""
     from jaxform.process import prepare, run_process
     from jaxform.process_gradients import ProcessPlan
 
@@ -77,8 +77,7 @@ class _Designed:
     kept: dict = field(default_factory=dict)  # stage -> (configured inputs, time factor)
 
     def scene(self, scene):
-        stepped = [k for k, s in enumerate(self.problem.plan.stages) if s.stepped]
-        k = stepped[len(self.kept)]
+        k = [k for k, s in enumerate(self.problem.plan.stages) if s.stepped][len(self.kept)]
         one = jnp.ones(1, dtype=jnp.asarray(scene.inputs.coords).dtype)
         inputs, factor = self.problem.on_stage(self.design, k, scene.inputs, one)
         f = float(factor[0])

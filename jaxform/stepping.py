@@ -512,7 +512,7 @@ def distorted(model: Model, x_old, x_new, inp: Inputs, idx: Indices, max_drop):
 
     The contact and friction conditions are nonsmooth, and a large step can converge to a
     root of them that is not the forming path (a corner rolled over at once, a fraction of
-    the ram force); halved steps follow the path (docs/robustness.md)."""
+    the ram force); halved steps follow the path (docs/theory.md)."""
     before = corner_qualities(model.nodal_positions(x_old, inp.coords, idx), idx.elements)
     after = corner_qualities(model.nodal_positions(x_new, inp.coords, idx), idx.elements)
     return (max_drop > 0.0) & (jnp.max(before - after) > max_drop)
