@@ -7,7 +7,9 @@ counts one).
         [--out out/design_comparison] [--iterations N] [--budget N] [--seed S]
 
 CONFIG is any config with a [design] section (its groups, objective, bounds; the problem
-comes from :func:`jaxform.driver.design_problem`, the entry point of ``jaxform design``).
+comes from :func:`jaxform.driver.design_problem`, the entry point of ``jaxform design``),
+a scene's or a process's (evaluated on plans that follow the design, as ``jaxform
+design`` does: :class:`jaxform.process_design.Replanning`).
 L-BFGS runs design.iterations iterations (or --iterations); LHS-RSM
 design.samples_per_variable runs per variable and design.rsm_rounds verifications;
 CMA-ES design.population per generation up to --budget runs (default
@@ -32,6 +34,8 @@ import jaxform
 from jaxform.design import CmaEs, LhsRsm, OptimizerSettings, optimize
 from jaxform.driver import design_problem
 from jaxform.plot import design_comparison
+from jaxform.process_config import Process, load_typed
+from jaxform.process_design import Replanning, process_problem, robust
 
 
 def optimizers(d, args) -> dict:
@@ -42,6 +46,21 @@ def optimizers(d, args) -> dict:
         "LHS-RSM": LhsRsm(d.samples_per_variable, d.rsm_rounds, d.max_simulations, args.seed),
         "CMA-ES": CmaEs(d.population, d.cmaes_sigma, budget, args.seed),
     }
+
+
+def design_of(config, overrides):
+    """([design], the design problem, its steps) of a scene config (jaxform design's
+    problem) or of a process config (its problem on plans that follow the design, as
+    `jaxform design` builds it; robust where design.robust says so)."""
+    loaded = load_typed(config, overrides)
+    if not isinstance(loaded, Process):
+        cfg, problem = design_problem(loaded)
+        return cfg.design, problem, len(problem.times)
+    d = loaded.operations[0].config.design
+    problem = process_problem(loaded)
+    steps = sum(len(s.times) for s in problem.plan.stages if s.stepped)
+    wrapped = robust(loaded, problem) if d.robust else Replanning(loaded, problem)
+    return d, wrapped, steps
 
 
 def main(argv=None) -> int:
@@ -58,12 +77,12 @@ def main(argv=None) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    cfg, problem = design_problem(args.config, args.overrides)
+    d, problem, steps = design_of(args.config, args.overrides)
     sizes = {k: int(np.size(v)) for k, v in problem.start.items()}
-    print(f"problem: {len(problem.times)} steps, variables {sizes}, objective "
-          f"{cfg.design.objective} ({time.perf_counter() - t0:.1f} s)", flush=True)  # fmt: skip
+    print(f"problem: {steps} steps, variables {sizes}, objective "
+          f"{d.objective} ({time.perf_counter() - t0:.1f} s)", flush=True)  # fmt: skip
     runs, rows, best_rows = {}, [], []
-    chosen = optimizers(cfg.design, args)
+    chosen = optimizers(d, args)
     if args.only:
         chosen = {k: v for k, v in chosen.items() if any(w in k for w in args.only.split(","))}
     for label, settings in chosen.items():

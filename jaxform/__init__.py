@@ -13,7 +13,8 @@ The entry points a script needs, one import away (see ``examples/tutorial.py``):
   for all three and the output files;
 * gradients: :func:`trajectory` (a differentiable run), :func:`build_problem` (a design
   problem: groups, objective, compiled value and gradient), :func:`optimize` with
-  :class:`OptimizerSettings`, :func:`taylor_test`.
+  :class:`OptimizerSettings`, :func:`taylor_test`; :func:`run_design` for a config's
+  [design] (a scene's or a process's, ``examples/process_design.py``) with its files.
 
 Beside :func:`simulate` (the host loop, progress and rezoning included), the caller may own
 the loop: :func:`init` and :func:`step` advance a scene one converged step at a time.
@@ -30,6 +31,7 @@ _EXPORTS = {
     "enable_x64": "jaxform.precision",
     "require_x64": "jaxform.precision",
     "run": "jaxform.driver",
+    "run_design": "jaxform.driver",
     "load_config": "jaxform.config",
     "build_scene": "jaxform.scenes",
     "simulate": "jaxform.simulation",
@@ -51,6 +53,7 @@ __all__ = [
     "optimize",
     "require_x64",
     "run",
+    "run_design",
     "simulate",
     "init",
     "step",

@@ -397,18 +397,22 @@ def run_design(
         config: the path of a TOML scene or a nested dict, or its typed Config;
             overrides: ``section.key=value``.
         out_dir: folder for design_history.csv, design_report.csv, objective.png,
-            shapes.png, config.toml.
+            shapes.png, config.toml (as configured), designed.toml (at the best design)
+            and, where a group moves a die, die_profiles.csv and .png
+            (:func:`jaxform.designed_config.write_design_files`).
         progress: called after each optimizer iteration (iteration, objective,
             projected gradient norm, design), by a sampling optimizer after each run (runs,
             objective, best objective so far, design).
         forward_progress: the progress callback of the forward run that fixes the step
             schedule (:func:`jaxform.simulation.simulate`).
-        announce: a process's lines as each operation's forward run starts
-            (:mod:`jaxform.process_design`: a config with [[process.operation]] tables).
+        announce: a line as each operation's forward run starts (a config with
+            [[process.operation]] tables, :mod:`jaxform.process_design`) and where the
+            designed config went.
 
     Returns:
         (the design problem, its optimization history)."""
     from jaxform.design import optimize
+    from jaxform.designed_config import write_design_files
     from jaxform.plot import design_objective, design_shapes
 
     require_x64()
@@ -424,6 +428,7 @@ def run_design(
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     dump_config(cfg.to_dict(), out / "config.toml")
+    write_design_files(cfg, problem, hist, out, announce)
     cols = hist.columns(problem)
     write_csv(out / "design_history.csv", cols)
     rows = design_report(problem, hist)

@@ -354,6 +354,25 @@ def design_comparison(curves: dict, path: Path, title: str, unit: str):
     return _finish_curve(fig, ax, path, title, "simulations", f"best objective [{unit}]")
 
 
+def die_profiles(rows: list[dict], path: Path):
+    """Each designed die's profile at the start (dashed) and at the best design (solid),
+    one panel per operation (``rows``: operation, r_mm, z_start_mm, z_designed_mm)."""
+    names = list(dict.fromkeys(r["operation"] for r in rows))
+    fig, axes = _figure(1, len(names), figsize=(5.2 * len(names), 3.8), squeeze=False)
+    for ax, name in zip(axes[0], names):
+        own = [r for r in rows if r["operation"] == name]
+        r = np.array([row["r_mm"] for row in own])
+        ax.plot(r, [row["z_start_mm"] for row in own], "k--", marker=".", label="start")
+        ax.plot(r, [row["z_designed_mm"] for row in own], "C3-", marker="o", ms=3,
+                label="designed")  # fmt: skip
+        ax.set_title(f"{name}: top die")
+        ax.set_xlabel("r [mm]")
+        ax.set_ylabel("z [mm]")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    return _save(fig, path)
+
+
 def _outline(coords, elements):
     """Boundary edges of a quad mesh (edges used by one element only)."""
     e = np.asarray(elements)

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 from os import PathLike
 from typing import Any
 
+from jaxform.config.die_sections import FRICTION_COEFFICIENT
 from jaxform.config.document import Config, typed
 from jaxform.config.loading import load_config, parse_override, read_toml
 from jaxform.config.schema import check_value, key, schema_of
@@ -433,6 +434,8 @@ def check_process_design(process: Process, groups=None, where: str = "design.var
     first_forming = next(op for op in ops if op.forming)
     for g in groups:
         _check_process_group(g, by_name, by_name.get(d.operation, first_forming), shown)
+    if d.robust:
+        _check_robust(d, [op for op in ops if op.forming])
     target = by_name[d.objective_operation] if d.objective_operation else None
     target = target or [op for op in ops if op.forming][-1]
     if d.objective == requirements.PROCESS_WEIGHTED_SUM:
@@ -445,6 +448,33 @@ def check_process_design(process: Process, groups=None, where: str = "design.var
             "design.objective_operation)"
         )
     _check_process_objective(d.objective, target, f"design.objective = {d.objective!r}")
+
+
+def _check_robust(d, forming: list[Operation]) -> None:
+    """A robust design needs scenarios, coupled heat for die temperatures and a friction
+    coefficient to set for friction factors."""
+    where = f"design.robust = {d.robust!r}"
+    if not d.robust_friction and not d.robust_die_temperature_K:
+        raise ConfigError(
+            f"{where}: give the scenarios, design.robust_friction and/or "
+            "design.robust_die_temperature_K"
+        )
+    if d.robust_die_temperature_K:
+        cold = [op for op in forming if op.config.thermal.model != "coupled"]
+        if cold:
+            raise ConfigError(
+                f"design.robust_die_temperature_K: {cold[0].label} has no coupled heat "
+                '(thermal.model = "coupled")'
+            )
+    if d.robust_friction and not any(
+        FRICTION_COEFFICIENT.get(op.config.friction_of(die).model)
+        for op in forming
+        for die in op.config.die_sections()
+    ):
+        raise ConfigError(
+            "design.robust_friction: no die of a forming operation has a friction "
+            "coefficient (friction.model = 'coulomb' or 'shear')"
+        )
 
 
 def _check_process_objective(name: str, target: Operation, what: str) -> None:

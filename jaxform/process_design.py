@@ -25,6 +25,7 @@ import numpy as np
 
 from jaxform.cache import enable_compilation_cache
 from jaxform.config import dump_config
+from jaxform.designed_config import write_design_files
 from jaxform.io import write_csv
 from jaxform.precision import require_x64
 from jaxform.process_config import Process, check_process_design, process_document
@@ -176,6 +177,28 @@ def problem_of_plan(process: Process, plan, groups=None):
     return build_process_problem(plan, names, config_objective(plan, d), d.operation)
 
 
+def robust(process: Process, problem, announce=None):
+    """design.robust: ``problem`` (its design groups) over the scenarios of
+    design.robust_friction x design.robust_die_temperature_K, each forming operation's
+    friction and die temperature fixed per scenario (:class:`jaxform.design.robust.Scenarios`
+    around a :class:`Replanning` problem that has those groups too)."""
+    from jaxform.design.process_problem import scenario_designs, uncertain_groups, with_groups
+    from jaxform.design.robust import Scenarios
+
+    d = process.operations[0].config.design
+    extra = uncertain_groups(problem.plan, bool(d.robust_friction),
+                             bool(d.robust_die_temperature_K))  # fmt: skip
+    scenarios = scenario_designs(extra, d.robust_friction, d.robust_die_temperature_K)
+    if announce is not None:
+        temps = d.robust_die_temperature_K
+        announce(f"  robust design ({d.robust}) over {len(scenarios)} scenarios: friction "
+                 f"{list(d.robust_friction) or 'as configured'}, die temperature "
+                 f"{f'{list(temps)} K' if temps else 'as configured'}")  # fmt: skip
+    names = tuple(g.name for g in problem.groups)
+    inner = Replanning(process, with_groups(problem, extra), announce)
+    return Scenarios(inner, names, scenarios, d.robust)
+
+
 def run_process_taylor(process: Process, groups=None, h=(1.0, 0.5, 0.25, 0.125), progress=None,
                        forward_progress=None, announce=None):  # fmt: skip
     """Taylor test of each group (default: design.variables) of a process's problem."""
@@ -193,15 +216,19 @@ def run_process_design(process: Process, out_dir, progress=None, forward_progres
     already, :func:`problem_of_plan`), re-running the forward process at a design whose
     replay fails (:class:`Replanning`); write design_history.csv, design_report.csv (start
     and best: the objective, each term, each blow's peak force, each constraint),
-    objective.png and config.toml (the process as configured) to ``out_dir``."""
+    objective.png, config.toml (the process as configured), designed.toml (the process at
+    the best design) and the designed dies' profiles (die_profiles.csv, .png;
+    :func:`jaxform.designed_config.write_design_files`) to ``out_dir``."""
     from jaxform.design import optimize
     from jaxform.driver import design_report, optimizer_settings
     from jaxform.plot import design_objective
 
     if problem is None:
         problem = process_problem(process, None, forward_progress, announce)
-    problem = Replanning(process, problem, announce)
     d = process.operations[0].config.design
+    problem = (
+        robust(process, problem, announce) if d.robust else Replanning(process, problem, announce)
+    )
     if announce is not None:
         meshes = sum(len(s.segments) for s in problem.plan.stages)
         programs = problem.plan.step_programs()
@@ -217,6 +244,7 @@ def run_process_design(process: Process, out_dir, progress=None, forward_progres
     if announce is not None and problem.replans:
         announce(f"  {problem.replans} forward runs at designs whose replay failed")
     dump_config(process_document(process.document), out / "config.toml")
+    write_design_files(process, problem, hist, out, announce)
     write_csv(out / "design_history.csv", hist.columns(problem))
     rows = design_report(problem, hist)
     with open(out / "design_report.csv", "w", newline="") as fh:

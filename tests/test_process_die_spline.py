@@ -170,7 +170,8 @@ def test_two_stage_disk_design_config_is_accepted_and_starts_at_its_die():
 def test_design_command_on_a_process(tmp_path, capsys):
     """`jaxform design` of the tiny process (1 L-BFGS iteration): exit 0, the start
     design's terms on one line, design_report.csv with the start objective equal to the
-    problem's (relative 1e-9), each term, each blow's peak force and the splines' rows."""
+    problem's (relative 1e-9), each term, each blow's peak force and the splines' rows;
+    designed.toml (a valid process config) and die_profiles.csv / .png of both blows."""
     import csv
 
     import tomli_w
@@ -198,6 +199,12 @@ def test_design_command_on_a_process(tmp_path, capsys):
     capacity = pb.plan.stages[0].scene.settings.design.press_capacity_N
     assert float(rows["first.peak_force_N"]["start"]) > capacity
     assert (out / "design_history.csv").is_file() and (out / "config.toml").is_file()
+    # the best design as a config, and each designed die before and after
+    assert "jaxform run reproduces the design" in text
+    assert load_typed(out / "designed.toml").operations[1].name == "second"
+    with open(out / "die_profiles.csv", newline="") as fh:
+        ops = {r["operation"] for r in csv.DictReader(fh)}
+    assert ops == {"first", "second"} and (out / "die_profiles.png").is_file()
 
 
 @pytest.mark.slow  # shares the problem above

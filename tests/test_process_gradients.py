@@ -256,7 +256,7 @@ def test_billet_aspect_keeps_the_volume_and_the_die_on_the_top():
     inputs = plan.stages[0].scene.inputs
     elements = np.asarray(plan.stages[0].scene.mesh.elements)
     top = float(np.max(np.asarray(inputs.coords)[:, 1]))
-    group = BilletAspect(top, True)
+    group = BilletAspect(True)
     moved, _ = group.apply(jnp.log(jnp.asarray([1.1])), inputs, jnp.zeros(1))
     v0 = float(workpiece_volume(inputs.coords, elements, True))
     assert abs(float(workpiece_volume(moved.coords, elements, True)) - v0) <= 1e-12 * v0

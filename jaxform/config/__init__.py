@@ -49,6 +49,7 @@ from jaxform.config.loading import (
     given_sections,
     load_config,
     read_document,
+    toml_form,
 )
 from jaxform.config.requirements import (
     GRADIENT_GROUPS,
@@ -98,6 +99,7 @@ __all__ = [
     "SCHEMA",
     "load_config",
     "dump_config",
+    "toml_form",
     "describe_schema",
     "check_design_run",
     "check_gradient_run",

@@ -249,16 +249,21 @@ def read_document(path: str | PathLike) -> dict:
     return read_toml(path)
 
 
-def dump_config(cfg: dict, path: str | PathLike) -> None:
-    """Write a (resolved) config as TOML (keys whose value is unset are left out; a die's
-    friction table as its sub-table [die.friction], where it sets a key)."""
+def toml_form(cfg: dict) -> dict:
+    """A (resolved) config as its TOML file holds it: keys whose value is unset left out,
+    a die's friction table as its sub-table [die.friction] where it sets a key."""
     clean = {s: {k: v for k, v in t.items() if v is not None} for s, t in cfg.items()}
     for name in [s for s in clean if "." in s]:
         table = clean.pop(name)
         if table:
             die = name.split(".")[0]
             clean[die] = {**clean.get(die, {}), "friction": table}
-    Path(path).write_bytes(tomli_w.dumps(clean).encode())
+    return clean
+
+
+def dump_config(cfg: dict, path: str | PathLike) -> None:
+    """Write a (resolved) config as TOML (:func:`toml_form`)."""
+    Path(path).write_bytes(tomli_w.dumps(toml_form(cfg)).encode())
 
 
 def describe_schema() -> str:

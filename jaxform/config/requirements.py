@@ -8,6 +8,7 @@ from collections.abc import Iterable
 
 from jaxform.config.document import Config, typed
 from jaxform.design import requirements
+from jaxform.errors import ConfigError
 
 # every design group and the objectives with a gradient through remeshes
 GRADIENT_GROUPS = tuple(requirements.GROUPS)
@@ -28,4 +29,9 @@ def check_gradient_run(
 def check_design_run(cfg: dict | Config) -> None:
     """:func:`check_gradient_run` for ``jaxform design``: the groups of design.variables."""
     c = cfg if isinstance(cfg, Config) else typed(cfg)
+    if c.design.robust:
+        raise ConfigError(
+            f"design.robust = {c.design.robust!r}: a robust design is a process's so far (a "
+            "config with [[process.operation]] tables)"
+        )
     requirements.check_gradient_run(c, c.design.variables, "design.variables")

@@ -409,6 +409,25 @@ class DesignConfig:
     learning_rate: float = key(
         0.05, low=0.0, low_open=True, doc="Adam step size in the scaled design variables"
     )
+    robust: str = key(
+        "",
+        choices=("", "mean", "worst"),
+        doc="a process: design for the mean or the worst objective over the scenarios of "
+        "design.robust_friction x design.robust_die_temperature_K ('' = the nominal inputs)",
+    )
+    robust_friction: tuple[float, ...] = key(
+        [],
+        low=0.0,
+        doc="design.robust: the friction coefficients (mu or m, of every die of every "
+        "forming operation) of the scenarios ([] = as configured)",
+    )
+    robust_die_temperature_K: tuple[float, ...] = key(
+        [],
+        low=1.0,
+        high=5000.0,
+        doc="design.robust: the die temperatures (K, of every forming operation) of the "
+        "scenarios ([] = as configured; coupled heat)",
+    )
 
 
 STUDY_PLANS = ("latin_hypercube", "sobol", "monte_carlo", "factorial")

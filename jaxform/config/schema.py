@@ -173,6 +173,9 @@ def _check_list(name: str, f: Field, value: Any) -> list:
         if not all(_is_num(v) for v in value):
             raise ConfigError(f"{name} = {value!r}: must be a list of finite numbers")
         _check_lengths(name, value)
+        for v in value:  # each entry within the field's range, where it has one
+            if f.low is not None or f.high is not None:
+                check_value(f"{name}: entry", replace(f, kind="float"), v)
         return [float(v) for v in value]
     if f.kind == "strs":
         if not all(isinstance(v, str) for v in value):

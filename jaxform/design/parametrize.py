@@ -301,10 +301,10 @@ class BilletAspect:
     """The billet's height against its diameter at fixed volume: u = log(H / H0), every
     node's z times e^u about the mid-plane (or the bottom, z = 0), its r times e^(-u/2)
     (axisymmetric; plane strain e^(-u)), so the volume stays exactly that of the mesh;
-    the top die moves with the billet's top (``top_mm``: its z at u = 0), so it starts
-    where it started and closes by the same stroke."""
+    the top die moves with the billet's top (the mesh's highest z as the group finds it,
+    so that with the volume group too it follows the product of both scalings), so it
+    starts where it started and closes by the same stroke."""
 
-    top_mm: float
     axisymmetric: bool = True
     bound_log: float = float(np.log(1.25))
     name: str = "billet"
@@ -320,7 +320,7 @@ class BilletAspect:
         tall = jnp.exp(u[0])
         thin = jnp.exp(-0.5 * u[0]) if self.axisymmetric else 1.0 / tall
         coords = jnp.asarray(inputs.coords) * jnp.stack([thin, tall])[None, :]
-        lift = (tall - 1.0) * self.top_mm
+        lift = (tall - 1.0) * jnp.max(jnp.asarray(inputs.coords)[:, 1])
 
         def move(d):
             return replace(d, points=d.points.at[:, 1].add(lift))
@@ -337,10 +337,9 @@ class BilletAspect:
 class BilletVolume:
     """The billet's volume at fixed aspect: u = log(V / V0), every node's r and z times
     e^(u/3) (axisymmetric; plane strain e^(u/2)) about the axis and the mid-plane (or the
-    bottom, z = 0); the top die moves with the billet's top (``top_mm``: its z at u = 0),
-    so it starts where it started and closes by the same stroke."""
+    bottom, z = 0); the top die moves with the billet's top (its highest z as the group
+    finds it), so it starts where it started and closes by the same stroke."""
 
-    top_mm: float
     axisymmetric: bool = True
     bound_log: float = float(np.log(1.25))
     name: str = "billet_volume"
@@ -355,7 +354,7 @@ class BilletVolume:
     def apply(self, u, inputs, times):
         grow = jnp.exp(u[0] / (3.0 if self.axisymmetric else 2.0))
         coords = jnp.asarray(inputs.coords) * grow
-        lift = (grow - 1.0) * self.top_mm
+        lift = (grow - 1.0) * jnp.max(jnp.asarray(inputs.coords)[:, 1])
 
         def move(d):
             return replace(d, points=d.points.at[:, 1].add(lift))

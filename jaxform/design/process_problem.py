@@ -108,10 +108,9 @@ def build_process_group(plan: ProcessPlan, spec: str, default_operation: str = "
         if group in ("preform", "nodes"):
             return OnStages(build_group(first, group), (0,))
         if group in ("billet", "billet_volume"):
-            top = float(np.max(np.asarray(first.inputs.coords)[:, 1]))
             axi = first.model.formulation.axisymmetric
             kind = par.BilletAspect if group == "billet" else par.BilletVolume
-            return OnStages(kind(top, axi), (0,))
+            return OnStages(kind(axi), (0,))
         return OnStages(build_group(first, group), every)  # material, thermal
     if group not in OPERATION_GROUPS:
         allowed = ", ".join([*PROCESS_GROUPS, *(f"<operation>.{g}" for g in OPERATION_GROUPS)])
@@ -141,6 +140,52 @@ def build_process_group(plan: ProcessPlan, spec: str, default_operation: str = "
     if group == "friction":
         return OnStages(par.Friction(friction_variables(stage.scene)), (k,), op_name)
     return OnStages(build_group(stage.scene, group), (k,), op_name)  # die, die_spline, speed
+
+
+def uncertain_groups(plan: ProcessPlan, friction: bool, die_temperature: bool) -> tuple:
+    """The groups a robust design fixes per scenario: each forming operation's friction
+    coefficients (``<operation>.friction``) and its die temperature
+    (``<operation>.die_temperature``: u = (T - T_configured) / 100 K)."""
+    out = []
+    for k, stage in enumerate(plan.stages):
+        if not stage.operation.forming:
+            continue
+        if friction:
+            out.append(OnStages(par.Friction(friction_variables(stage.scene)), (k,), stage.name))
+        if die_temperature:
+            t0 = float(stage.scene.settings.thermal.die_temperature_K)
+            inner = par.Thermal(("die_temperature_K",), (t0,), name="die_temperature")
+            out.append(OnStages(inner, (k,), stage.name))
+    return tuple(out)
+
+
+def scenario_designs(groups, friction=(), die_temperature_K=()) -> tuple[dict, ...]:
+    """Every combination of the friction coefficients and die temperatures (K) given, as
+    the variables of ``groups`` (:func:`uncertain_groups`): a friction group's every
+    coefficient at the value, a die temperature group at (T - T0) / 100 K."""
+    out = []
+    for m in friction or (None,):
+        for t in die_temperature_K or (None,):
+            scenario = {}
+            for g in groups:
+                if isinstance(g.inner, par.Friction) and m is not None:
+                    scenario[g.name] = jnp.full(len(g.inner.variables), float(m))
+                elif isinstance(g.inner, par.Thermal) and t is not None:
+                    t0 = g.inner.start[0]
+                    scenario[g.name] = jnp.asarray([(float(t) - t0) / g.inner.KELVIN_PER_UNIT])
+            out.append(scenario)
+    return tuple(out)
+
+
+def with_groups(problem: ProcessDesignProblem, extra: tuple) -> ProcessDesignProblem:
+    """``problem`` with the groups ``extra`` added (at their start values)."""
+    groups = (*problem.groups, *extra)
+    names = [g.name for g in groups]
+    if len(set(names)) != len(names):
+        raise ValueError(f"design groups {names}: each may be named once")
+    start = {**problem.start, **par.initial_design(extra)}
+    return ProcessDesignProblem(problem.plan, groups, problem.objective, start,
+                                problem.single_program)  # fmt: skip
 
 
 @dataclass(frozen=True, eq=False)

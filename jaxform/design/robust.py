@@ -1,0 +1,110 @@
+"""A design under uncertain inputs: the objective over a few scenarios (each a value of
+the uncertain groups, e.g. the friction factor and the die temperature), their mean or
+their worst, with its exact gradient.
+
+    DesignProblem / ProcessDesignProblem (design groups + uncertain groups)
+        --Scenarios(problem, design names, scenarios, aggregate)--> a problem with the
+          optimizers' interface over the design groups alone
+
+The uncertain groups are groups of the inner problem like any other; a scenario fixes
+their variables (``{group name: u}``), the design leaves them alone.  ``worst``: the
+largest scenario objective and its gradient (a subgradient where two scenarios tie);
+``mean``: the mean of the scenario objectives and of their gradients.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+AGGREGATES = ("mean", "worst")
+
+
+@dataclass(eq=False)
+class Scenarios:
+    problem: object  # the inner problem: every group, design and uncertain
+    names: tuple[str, ...]  # the design groups (the optimizer's variables)
+    scenarios: tuple[dict, ...]  # each {uncertain group name: u}
+    aggregate: str = "worst"
+
+    def __post_init__(self):
+        if self.aggregate not in AGGREGATES:
+            raise ValueError(f"aggregate {self.aggregate!r}: one of {', '.join(AGGREGATES)}")
+        if not self.scenarios:
+            raise ValueError("a robust design needs at least one scenario")
+
+    @property
+    def start(self) -> dict:
+        return {k: self.problem.start[k] for k in self.names}
+
+    @property
+    def groups(self) -> tuple:
+        return tuple(g for g in self.problem.groups if g.name in self.names)
+
+    @property
+    def first(self):
+        """The problem whose groups act on the inputs (a Replanning problem's first)."""
+        return getattr(self.problem, "first", self.problem)
+
+    @property
+    def plan(self):
+        return self.problem.plan
+
+    @property
+    def objective(self):
+        return self.problem.objective
+
+    @property
+    def replans(self) -> int:
+        """The inner problem's new plans (a Replanning problem's), else 0."""
+        return getattr(self.problem, "replans", 0)
+
+    def bounds(self):
+        lo, hi = self.problem.bounds()
+        return {k: lo[k] for k in self.names}, {k: hi[k] for k in self.names}
+
+    def physical(self, design) -> dict:
+        out = {}
+        for g in self.groups:
+            out.update(g.physical(np.asarray(design[g.name])))
+        return out
+
+    def _full(self, design, k: int) -> dict:
+        return {**design, **self.scenarios[k]}
+
+    def scenario_values(self, design) -> list[float]:
+        """The objective in each scenario (one run each)."""
+        return [float(self.problem.value(self._full(design, k))[0])
+                for k in range(len(self.scenarios))]  # fmt: skip
+
+    def value(self, design):
+        runs = [self.problem.value(self._full(design, k)) for k in range(len(self.scenarios))]
+        vals = [float(v) for v, _ in runs]
+        if self.aggregate == "mean":
+            return float(np.mean(vals)), runs[int(np.argmax(vals))][1]
+        k = int(np.argmax(vals))
+        return runs[k]
+
+    def value_and_grad(self, design):
+        runs = [self.problem.value_and_grad(self._full(design, k))
+                for k in range(len(self.scenarios))]  # fmt: skip
+        vals = np.array([float(v) for v, _, _ in runs])
+        worst = int(np.argmax(vals))
+        if self.aggregate == "worst":
+            v, g, traj = runs[worst]
+            return v, {k: g[k] for k in self.names}, traj
+        grad = {k: sum(g[k] for _, g, _ in runs) / len(runs) for k in self.names}
+        return float(vals.mean()), grad, runs[worst][2]
+
+    def report(self, design) -> dict:
+        """The inner report in the worst scenario (its terms, forces, constraints), the
+        aggregate as ``objective`` and each scenario's objective (``scenario<i>``)."""
+        vals = self.scenario_values(design)
+        worst = int(np.argmax(vals))
+        out = dict(self.problem.report(self._full(design, worst)))
+        out["objective"] = max(vals) if self.aggregate == "worst" else float(np.mean(vals))
+        constraints = out.pop("constraints", [])
+        out.update({f"scenario{k}": v for k, v in enumerate(vals)})
+        out["constraints"] = constraints
+        return out
