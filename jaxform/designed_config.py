@@ -262,7 +262,7 @@ def write_designed(loaded: Config | Process, problem, design, out_dir,
     if announce is not None and refused:
         announce(f"  the best design's config: {target}, which a run refuses: {refused}")
     elif announce is not None:
-        announce(f"  the best design's config: {target} (jaxform run reproduces the design)")
+        announce(f"  the best design's config: {target} (jaxform run runs the design)")
     return target
 
 

@@ -139,6 +139,13 @@ class Replanning:
     def report(self, design) -> dict:
         return self._on_a_plan(lambda pb: pb.report(design), design)
 
+    def forward_value(self, design) -> float:
+        """The objective at ``design`` on the plan of its own forward run (what `jaxform
+        run` of the design's config gives), without adopting that plan."""
+        _, plan = forward_plan(self.process, at=(self.first, design))
+        own = replace(self.first, plan=plan, objective=self.objective_of(plan))
+        return float(own.value(design)[0])
+
     def _on_a_plan(self, evaluate, design):
         from jaxform.gradients import GradientRunError
         from jaxform.process import OperationRefused
@@ -181,8 +188,14 @@ def robust(process: Process, problem, announce=None):
     """design.robust: ``problem`` (its design groups) over the scenarios of
     design.robust_friction x design.robust_die_temperature_K, each forming operation's
     friction and die temperature fixed per scenario (:class:`jaxform.design.robust.Scenarios`
-    around a :class:`Replanning` problem that has those groups too)."""
-    from jaxform.design.process_problem import scenario_designs, uncertain_groups, with_groups
+    of one :class:`Replanning` problem per scenario, each on the plan of the forward run
+    at the start design and that scenario's inputs: its own steps)."""
+    from jaxform.design.process_problem import (
+        config_objective,
+        scenario_designs,
+        uncertain_groups,
+        with_groups,
+    )
     from jaxform.design.robust import Scenarios
 
     d = process.operations[0].config.design
@@ -193,10 +206,28 @@ def robust(process: Process, problem, announce=None):
         temps = d.robust_die_temperature_K
         announce(f"  robust design ({d.robust}) over {len(scenarios)} scenarios: friction "
                  f"{list(d.robust_friction) or 'as configured'}, die temperature "
-                 f"{f'{list(temps)} K' if temps else 'as configured'}")  # fmt: skip
+                 f"{f'{list(temps)} K' if temps else 'as configured'} (each evaluation "
+                 f"replays the process {len(scenarios)} times)")  # fmt: skip
     names = tuple(g.name for g in problem.groups)
-    inner = Replanning(process, with_groups(problem, extra), announce)
-    return Scenarios(inner, names, scenarios, d.robust)
+    full = with_groups(problem, extra)
+    problems = []
+    for k, scenario in enumerate(scenarios):
+        if announce is not None:
+            announce(f"  the forward process of scenario {k}")
+        _, plan = forward_plan(process, at=(full, {**full.start, **scenario}))
+        own = replace(full, plan=plan, objective=config_objective(plan, d))
+        problems.append(Replanning(process, own, announce))
+    return Scenarios(tuple(problems), names, scenarios, d.robust)
+
+
+def forward_value(problem, design) -> float:
+    """The objective at ``design`` from the forward process at that design (each scenario's
+    for a robust problem, aggregated as it aggregates them)."""
+    scenarios = getattr(problem, "scenarios", None)
+    if scenarios is None:
+        return problem.forward_value(design)
+    values = [p.forward_value({**design, **s}) for p, s in zip(problem.problems, scenarios)]
+    return max(values) if problem.aggregate == "worst" else float(np.mean(values))
 
 
 def run_process_taylor(process: Process, groups=None, h=(1.0, 0.5, 0.25, 0.125), progress=None,
@@ -243,6 +274,14 @@ def run_process_design(process: Process, out_dir, progress=None, forward_progres
     hist = optimize(problem, optimizer_settings(d), progress=progress)
     if announce is not None and problem.replans:
         announce(f"  {problem.replans} forward runs at designs whose replay failed")
+    if announce is not None:  # the best design as `jaxform run` of its config runs it
+        own = forward_value(problem, hist.designs[hist.best])
+        best = float(hist.objective[hist.best])
+        differs = abs(own - best) > 1e-6 * max(abs(best), 1e-12)
+        note = (" (they differ: the forward run took other steps, or its Newton solves found "
+                "another solution of the contact conditions)") if differs else ""  # fmt: skip
+        announce(f"  the best design's own forward run: objective {own:.8g}, its replay "
+                 f"{best:.8g}{note}")  # fmt: skip
     dump_config(process_document(process.document), out / "config.toml")
     write_design_files(process, problem, hist, out, announce)
     write_csv(out / "design_history.csv", hist.columns(problem))

@@ -121,6 +121,8 @@ def test_process_design_tutorial_runs_quick(capsys, monkeypatch):
     ns = runpy.run_path(str(ROOT / "examples" / "process_design.py"), run_name="__main__")
     printed = capsys.readouterr().out
     assert "designed.toml: flash" in printed
+    assert "the best design's own forward run: objective" in printed
+    assert "they differ" not in printed  # its forward run is its replay's run here
     hist, report = ns["hist"], ns["report"]
     assert hist.objective[hist.best] <= 0.5 * hist.objective[0], hist.objective
     fin = ns["designed"]["finisher"]

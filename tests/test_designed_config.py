@@ -67,7 +67,7 @@ def test_a_designed_process_config_runs_the_design(tmp_path):
     at_design, _ = forward_plan(process, at=(pb, design))
     lines = []
     path = write_designed(process, pb, design, tmp_path, lines.append)
-    assert path == tmp_path / "designed.toml" and "jaxform run reproduces" in lines[0]
+    assert path == tmp_path / "designed.toml" and "jaxform run runs the design" in lines[0]
     assert (tmp_path / "designed_material.toml").is_file()
     again = load_typed(path)
     rerun = run_process(again.operations, prepare(again.operations))

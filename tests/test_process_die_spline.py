@@ -200,7 +200,8 @@ def test_design_command_on_a_process(tmp_path, capsys):
     assert float(rows["first.peak_force_N"]["start"]) > capacity
     assert (out / "design_history.csv").is_file() and (out / "config.toml").is_file()
     # the best design as a config, and each designed die before and after
-    assert "jaxform run reproduces the design" in text
+    assert "jaxform run runs the design" in text
+    assert "the best design's own forward run: objective" in text
     assert load_typed(out / "designed.toml").operations[1].name == "second"
     with open(out / "die_profiles.csv", newline="") as fh:
         ops = {r["operation"] for r in csv.DictReader(fh)}

@@ -58,7 +58,7 @@ SCENARIOS = ({"m": np.array([0.0])}, {"m": np.array([1.0])}, {"m": np.array([3.0
 def test_scenarios_aggregate_and_gradient_are_the_closed_forms(aggregate):
     """At x = 1: J = 1, 1, 7 (m = 0, 1, 3); the mean 3 with gradient (2 + 0 - 4) / 3; the
     worst 7 (m = 3) with its gradient -4.  Only the design group is a variable."""
-    pb = Scenarios(_Quadratic(), ("x",), SCENARIOS, aggregate)
+    pb = Scenarios((_Quadratic(),) * 3, ("x",), SCENARIOS, aggregate)
     assert set(pb.start) == {"x"} and set(pb.bounds()[0]) == {"x"}
     val, grad, _ = pb.value_and_grad({"x": np.array([1.0])})
     want = (3.0, -2.0 / 3.0) if aggregate == "mean" else (7.0, -4.0)
@@ -75,7 +75,7 @@ def test_worst_design_minimizes_the_largest_scenario():
     i.e. x* = 2 (J = 4), not the nominal m = 0 design x = 0 (J_worst = 12)."""
     from jaxform.design import OptimizerSettings, optimize
 
-    pb = Scenarios(_Quadratic(), ("x",), SCENARIOS, "worst")
+    pb = Scenarios((_Quadratic(),) * 3, ("x",), SCENARIOS, "worst")
     hist = optimize(pb, OptimizerSettings("lbfgs", 40))
     best = float(np.asarray(hist.designs[hist.best]["x"])[0])
     assert abs(best - 2.0) <= 1e-3 and abs(hist.objective[hist.best] - 4.0) <= 1e-2
@@ -110,8 +110,8 @@ def test_robust_process_scenarios_are_the_processes_at_those_inputs():
     """experiments/two_blow_design.toml with design.robust = worst over friction 0.2 and
     0.4: each scenario's objective at the start design equals that of the process
     configured with that friction factor (its own forward run and problem; relative
-    1e-9: the replay of the m = 0.3 plan and the run at m = 0.2 / 0.4 solve each step to
-    Newton's tolerance); the robust value is the larger; its gradient (the worst
+    1e-9: each scenario replays the plan of its own forward run, to Newton's
+    tolerance); the robust value is the larger; its gradient (the worst
     scenario's, in the design groups only) equals central differences of the robust
     objective (h = 1e-4 along a unit direction, relative 1e-4)."""
     from fd_check import directional_derivatives

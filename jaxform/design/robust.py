@@ -2,12 +2,14 @@
 the uncertain groups, e.g. the friction factor and the die temperature), their mean or
 their worst, with its exact gradient.
 
-    DesignProblem / ProcessDesignProblem (design groups + uncertain groups)
-        --Scenarios(problem, design names, scenarios, aggregate)--> a problem with the
-          optimizers' interface over the design groups alone
+    DesignProblem / ProcessDesignProblem (design groups + uncertain groups), one per
+    scenario --Scenarios(problems, design names, scenarios, aggregate)--> a problem with
+          the optimizers' interface over the design groups alone
 
-The uncertain groups are groups of the inner problem like any other; a scenario fixes
-their variables (``{group name: u}``), the design leaves them alone.  ``worst``: the
+The uncertain groups are groups of the inner problems like any other; a scenario fixes
+their variables (``{group name: u}``), the design leaves them alone.  Scenario k is
+evaluated by ``problems[k]`` (the same problem for all, or each its own: a process's plan
+made at that scenario's inputs, whose steps its forward run took).  ``worst``: the
 largest scenario objective and its gradient (a subgradient where two scenarios tie);
 ``mean``: the mean of the scenario objectives and of their gradients.
 """
@@ -23,7 +25,7 @@ AGGREGATES = ("mean", "worst")
 
 @dataclass(eq=False)
 class Scenarios:
-    problem: object  # the inner problem: every group, design and uncertain
+    problems: tuple  # the inner problem of each scenario: every group, design and uncertain
     names: tuple[str, ...]  # the design groups (the optimizer's variables)
     scenarios: tuple[dict, ...]  # each {uncertain group name: u}
     aggregate: str = "worst"
@@ -31,8 +33,13 @@ class Scenarios:
     def __post_init__(self):
         if self.aggregate not in AGGREGATES:
             raise ValueError(f"aggregate {self.aggregate!r}: one of {', '.join(AGGREGATES)}")
-        if not self.scenarios:
-            raise ValueError("a robust design needs at least one scenario")
+        if not self.scenarios or len(self.problems) != len(self.scenarios):
+            raise ValueError("a robust design needs one problem per scenario, at least one")
+
+    @property
+    def problem(self):
+        """The first scenario's problem (the groups, bounds and start of all)."""
+        return self.problems[0]
 
     @property
     def start(self) -> dict:
@@ -57,8 +64,8 @@ class Scenarios:
 
     @property
     def replans(self) -> int:
-        """The inner problem's new plans (a Replanning problem's), else 0."""
-        return getattr(self.problem, "replans", 0)
+        """The inner problems' new plans (Replanning problems'), else 0."""
+        return sum(getattr(p, "replans", 0) for p in self.problems)
 
     def bounds(self):
         lo, hi = self.problem.bounds()
@@ -75,11 +82,11 @@ class Scenarios:
 
     def scenario_values(self, design) -> list[float]:
         """The objective in each scenario (one run each)."""
-        return [float(self.problem.value(self._full(design, k))[0])
-                for k in range(len(self.scenarios))]  # fmt: skip
+        return [float(p.value(self._full(design, k))[0])
+                for k, p in enumerate(self.problems)]  # fmt: skip
 
     def value(self, design):
-        runs = [self.problem.value(self._full(design, k)) for k in range(len(self.scenarios))]
+        runs = [p.value(self._full(design, k)) for k, p in enumerate(self.problems)]
         vals = [float(v) for v, _ in runs]
         if self.aggregate == "mean":
             return float(np.mean(vals)), runs[int(np.argmax(vals))][1]
@@ -87,8 +94,7 @@ class Scenarios:
         return runs[k]
 
     def value_and_grad(self, design):
-        runs = [self.problem.value_and_grad(self._full(design, k))
-                for k in range(len(self.scenarios))]  # fmt: skip
+        runs = [p.value_and_grad(self._full(design, k)) for k, p in enumerate(self.problems)]
         vals = np.array([float(v) for v, _, _ in runs])
         worst = int(np.argmax(vals))
         if self.aggregate == "worst":
@@ -102,7 +108,7 @@ class Scenarios:
         aggregate as ``objective`` and each scenario's objective (``scenario<i>``)."""
         vals = self.scenario_values(design)
         worst = int(np.argmax(vals))
-        out = dict(self.problem.report(self._full(design, worst)))
+        out = dict(self.problems[worst].report(self._full(design, worst)))
         out["objective"] = max(vals) if self.aggregate == "worst" else float(np.mean(vals))
         constraints = out.pop("constraints", [])
         out.update({f"scenario{k}": v for k, v in enumerate(vals)})
