@@ -59,7 +59,10 @@ def design_of(config, overrides):
     d = loaded.operations[0].config.design
     problem = process_problem(loaded)
     steps = sum(len(s.times) for s in problem.plan.stages if s.stepped)
-    wrapped = robust(loaded, problem) if d.robust else Replanning(loaded, problem)
+    if d.robust:
+        wrapped = robust(loaded, problem)
+    else:
+        wrapped = Replanning(loaded, problem, replan_distance=d.replan_distance)
     return d, wrapped, steps
 
 

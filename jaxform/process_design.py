@@ -108,9 +108,16 @@ class Replanning:
     meshes (``objective_of(plan)``; default design.objective of the process's config).
     Where the forward run at a design fails too or refuses an operation (its die overlaps
     the part the operation before left), the evaluation raises
-    :class:`jaxform.gradients.GradientRunError` (the optimizer rejects the trial)."""
+    :class:`jaxform.gradients.GradientRunError` (the optimizer rejects the trial).
 
-    def __init__(self, process: Process, problem, announce=None, objective_of=None):
+    ``replan_distance`` (design.replan_distance; 0: off): a design farther than that from
+    the design the current plan was made at (``made_at``, default the start), in any
+    variable as a fraction of its bound box, gets a new plan before it is evaluated, so
+    that the values the optimizer sees stay those of forward runs near their own plans
+    (far from it a replay may converge to another solution of the contact conditions)."""
+
+    def __init__(self, process: Process, problem, announce=None, objective_of=None,
+                 replan_distance: float = 0.0, made_at: dict | None = None):  # fmt: skip
         from jaxform.design.process_problem import config_objective
 
         d = process.operations[0].config.design
@@ -118,6 +125,8 @@ class Replanning:
         self.announce = announce
         self.objective_of = objective_of or (lambda plan: config_objective(plan, d))
         self.replans = 0
+        self.replan_distance = float(replan_distance)
+        self.made_at = {k: np.asarray(v) for k, v in (made_at or problem.start).items()}
 
     start = property(lambda self: self.first.start)
     groups = property(lambda self: self.first.groups)
@@ -150,18 +159,33 @@ class Replanning:
         from jaxform.gradients import GradientRunError
         from jaxform.process import OperationRefused
 
-        try:
-            return evaluate(self.current)
-        except GradientRunError as err:
-            if self.announce is not None:
-                self.announce(f"  the replay failed ({err}): the forward process at this design")
+        if not self._far(design):
+            try:
+                return evaluate(self.current)
+            except GradientRunError as err:
+                if self.announce is not None:
+                    self.announce(f"  the replay failed ({err}): the forward process at this "
+                                  "design")  # fmt: skip
         try:
             _, plan = forward_plan(self.process, at=(self.first, design))
         except (SimulationError, OperationRefused) as err:  # no process at this design
             raise GradientRunError(f"the forward process at this design failed: {err}") from None
         self.current = replace(self.first, plan=plan, objective=self.objective_of(plan))
+        self.made_at = {k: np.asarray(v) for k, v in design.items()}
         self.replans += 1
         return evaluate(self.current)
+
+    def _far(self, design) -> bool:
+        """Whether ``design`` lies farther than replan_distance from the current plan's."""
+        if self.replan_distance <= 0.0:
+            return False
+        lo, hi = self.first.bounds()
+        for k, v in design.items():
+            box = np.asarray(hi[k]) - np.asarray(lo[k])
+            step = np.abs(np.asarray(v) - self.made_at[k])
+            if np.any(step > self.replan_distance * np.where(np.isfinite(box), box, np.inf)):
+                return True
+        return False
 
 
 def process_problem(process: Process, groups=None, progress=None, announce=None):
@@ -216,7 +240,8 @@ def robust(process: Process, problem, announce=None):
             announce(f"  the forward process of scenario {k}")
         _, plan = forward_plan(process, at=(full, {**full.start, **scenario}))
         own = replace(full, plan=plan, objective=config_objective(plan, d))
-        problems.append(Replanning(process, own, announce))
+        problems.append(Replanning(process, own, announce, replan_distance=d.replan_distance,
+                                   made_at={**full.start, **scenario}))  # fmt: skip
     return Scenarios(tuple(problems), names, scenarios, d.robust)
 
 
@@ -257,9 +282,10 @@ def run_process_design(process: Process, out_dir, progress=None, forward_progres
     if problem is None:
         problem = process_problem(process, None, forward_progress, announce)
     d = process.operations[0].config.design
-    problem = (
-        robust(process, problem, announce) if d.robust else Replanning(process, problem, announce)
-    )
+    if d.robust:
+        problem = robust(process, problem, announce)
+    else:
+        problem = Replanning(process, problem, announce, replan_distance=d.replan_distance)
     if announce is not None:
         meshes = sum(len(s.segments) for s in problem.plan.stages)
         programs = problem.plan.step_programs()
@@ -273,7 +299,8 @@ def run_process_design(process: Process, out_dir, progress=None, forward_progres
         announce(f"  start design: {terms}")
     hist = optimize(problem, optimizer_settings(d), progress=progress)
     if announce is not None and problem.replans:
-        announce(f"  {problem.replans} forward runs at designs whose replay failed")
+        announce(f"  {problem.replans} new plans (forward runs at designs whose replay failed "
+                 "or that lay beyond design.replan_distance of their plan)")  # fmt: skip
     if announce is not None:  # the best design as `jaxform run` of its config runs it
         own = forward_value(problem, hist.designs[hist.best])
         best = float(hist.objective[hist.best])

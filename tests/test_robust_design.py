@@ -133,3 +133,30 @@ def test_robust_process_scenarios_are_the_processes_at_those_inputs():
     for group in pb.start:
         exact, fd = directional_derivatives(pb, grad, group)
         assert abs(exact - fd) <= 1e-4 * abs(exact), (group, exact, fd)
+
+
+@pytest.mark.slow  # shares the two-blow process's programs with the test above
+def test_a_design_far_from_its_plan_is_evaluated_on_a_new_plan():
+    """design.replan_distance = 0.02: a design 1 % of the bound box from the start is
+    evaluated on the start's plan (no new plan), one 5 % away on the plan of its own
+    forward run (one new plan), whose value is that forward run's objective
+    (forward_value, relative 1e-9)."""
+    import jax.numpy as jnp
+
+    from jaxform.process_design import Replanning, process_problem
+
+    process = load_typed(TWO_BLOW)
+    pb = Replanning(process, process_problem(process), replan_distance=0.02)
+    lo, hi = pb.bounds()
+
+    def moved(frac):
+        return {k: jnp.asarray(v + frac * (hi[k] - lo[k])) if k == "billet_volume" else v
+                for k, v in pb.start.items()}  # fmt: skip
+
+    pb.value(moved(-0.01))
+    assert pb.replans == 0
+    far = moved(-0.05)
+    val = float(pb.value(far)[0])
+    assert pb.replans == 1
+    want = pb.forward_value(far)
+    assert abs(val - want) <= 1e-9 * abs(want), (val, want)

@@ -409,6 +409,14 @@ class DesignConfig:
     learning_rate: float = key(
         0.05, low=0.0, low_open=True, doc="Adam step size in the scaled design variables"
     )
+    replan_distance: float = key(
+        0.0,
+        low=0.0,
+        high=1.0,
+        doc="a process: a design farther than this from the design the current plan (steps, "
+        "meshes) was made at, in any variable as a fraction of its bound box, is evaluated "
+        "on a new forward run's plan (0: a new plan only where the replay fails)",
+    )
     robust: str = key(
         "",
         choices=("", "mean", "worst"),
