@@ -108,7 +108,10 @@ class Replanning:
     meshes (``objective_of(plan)``; default design.objective of the process's config).
     Where the forward run at a design fails too or refuses an operation (its die overlaps
     the part the operation before left), the evaluation raises
-    :class:`jaxform.gradients.GradientRunError` (the optimizer rejects the trial).
+    :class:`jaxform.gradients.GradientRunError` (the optimizer rejects the trial); so does
+    a design whose run starts a forming operation's top die inside the part it receives
+    (:class:`jaxform.design.process_problem.DieIntoPart`, no new plan tried), which a run
+    of its config would refuse.
 
     ``replan_distance`` (design.replan_distance; 0: off): a design farther than that from
     the design the current plan was made at (``made_at``, default the start), in any
@@ -140,10 +143,20 @@ class Replanning:
         return self.first.physical(design)
 
     def value(self, design):
-        return self._on_a_plan(lambda pb: pb.value(design), design)
+        return self._on_a_plan(lambda pb: self._clear(pb, design, pb.value(design)), design)
 
     def value_and_grad(self, design):
-        return self._on_a_plan(lambda pb: pb.value_and_grad(design), design)
+        return self._on_a_plan(
+            lambda pb: self._clear(pb, design, pb.value_and_grad(design)), design
+        )
+
+    @staticmethod
+    def _clear(pb, design, out):
+        """``out`` (its last item the run) where every die of the design starts clear of
+        the part it receives, as `jaxform run` of its config requires; else
+        :class:`jaxform.design.process_problem.DieIntoPart` (the optimizer rejects it)."""
+        pb.check_dies_clear(design, out[-1])
+        return out
 
     def report(self, design) -> dict:
         return self._on_a_plan(lambda pb: pb.report(design), design)
@@ -156,12 +169,15 @@ class Replanning:
         return float(own.value(design)[0])
 
     def _on_a_plan(self, evaluate, design):
+        from jaxform.design.process_problem import DieIntoPart
         from jaxform.gradients import GradientRunError
         from jaxform.process import OperationRefused
 
         if not self._far(design):
             try:
                 return evaluate(self.current)
+            except DieIntoPart:  # its forward run would start the same way: no new plan
+                raise
             except GradientRunError as err:
                 if self.announce is not None:
                     self.announce(f"  the replay failed ({err}): the forward process at this "

@@ -140,8 +140,9 @@ def test_process_gradient_against_central_differences(group):
 
 
 def test_a_plan_made_at_a_design_replays_that_designs_forward_run():
-    """The forward process run at a design that moves every group 5 % of the way to a bound
-    (the billet, the material, the heat, both blows' dies, friction and the second's speed,
+    """The forward process run at a design that moves every group but the first blow's die
+    (on the billet) 5 % of the way to a bound (the billet, the material, the heat, the
+    second blow's die, friction and its speed,
     the dwell's time) and its plan, which keeps each operation's inputs and times as
     configured: the problem's groups applied to them replay that run (steps 1e-12
     relative, forces 1e-7 of the peak, positions 1e-9 mm), which differs from the start
@@ -156,10 +157,12 @@ def test_a_plan_made_at_a_design_replays_that_designs_forward_run():
     process, start_result, _ = forward()
     pb = problem()
     lo, hi = pb.bounds()
-    # toward each lower bound (a shorter billet, lower dies, less friction, a slower blow,
-    # a shorter dwell), the second blow's die toward its upper one: a second die that
-    # starts where the part the first left lies under it (the check of the forward run)
+    # toward each lower bound (a shorter billet, less friction, a slower blow, a shorter
+    # dwell), the second blow's die toward its upper one, the first's where it starts (on
+    # the billet): each die starts clear of the part it receives (lower, the first would
+    # start inside the billet, which a design rejects as the config check would)
     design = {k: v + 0.05 * ((hi if k == "second.die" else lo)[k] - v) for k, v in pb.start.items()}
+    design["first.die"] = pb.start["first.die"]
     result, plan = forward_plan(process, at=(pb, design))
     at = replace(pb, plan=plan, objective=objective(plan))
     assert_replays(result, process_trajectory(plan, *at.run_inputs(design)))

@@ -160,3 +160,23 @@ def test_a_design_far_from_its_plan_is_evaluated_on_a_new_plan():
     assert pb.replans == 1
     want = pb.forward_value(far)
     assert abs(val - want) <= 1e-9 * abs(want), (val, want)
+
+
+@pytest.mark.slow  # shares the two-blow process's programs with the tests above
+def test_a_design_that_starts_a_die_inside_the_part_is_rejected():
+    """The billet 22 % larger (billet_volume near its bound): the preform die follows the
+    billet's top and ends 0.28 mm higher, above the finisher die's start (z = 3.38 mm at
+    the axis): the design's evaluation raises DieIntoPart naming the finisher (as `jaxform
+    run` of its config would refuse it), without a new plan; the start passes."""
+    import jax.numpy as jnp
+
+    from jaxform.design.process_problem import DieIntoPart
+    from jaxform.process_design import Replanning, process_problem
+
+    process = load_typed(TWO_BLOW)
+    pb = Replanning(process, process_problem(process))
+    pb.value(pb.start)
+    big = dict(pb.start, billet_volume=jnp.asarray([0.2]))
+    with pytest.raises(DieIntoPart, match=r"operation\[2\] \(finisher\)"):
+        pb.value(big)
+    assert pb.replans == 0

@@ -36,6 +36,8 @@ from jaxform.design.requirements import (
     PROCESS_OBJECTIVES,
     PROCESS_WEIGHTED_SUM,
 )
+from jaxform.dies import DieError, check_clearance
+from jaxform.gradients import GradientRunError
 from jaxform.process_gradients import ProcessPlan, check_process, process_trajectory
 
 # the thermal inputs of one operation (the billet temperature is the process's): a
@@ -288,6 +290,37 @@ def config_objective(plan: ProcessPlan, d):
     return obj.WeightedSum(names, tuple(terms), tuple(float(w) for w in d.term_weights))
 
 
+class DieIntoPart(GradientRunError):
+    """A design that starts a forming operation's top die inside the part it receives (a
+    run of its config is refused): no forward run at it can help."""
+
+
+def check_dies_clear(plan: ProcessPlan, inputs: tuple, ptraj) -> None:
+    """Raise :class:`DieIntoPart` naming the operation where a forming operation's top die
+    at its start (``inputs``: each operation's at the design) lies inside the part it
+    receives (the first: the designed billet; the others: the operation before it as it
+    left the part, ``ptraj``), by the config's own test (every facet of the part at 9
+    points; 1e-9 of the part's size)."""
+    for k, stage in enumerate(plan.stages):
+        if not stage.operation.forming:
+            continue
+        if k == 0:
+            mesh, coords = stage.scene.mesh, np.asarray(inputs[0].coords)
+        else:
+            mesh = plan.stages[k - 1].final_scene.mesh
+            coords = np.asarray(ptraj.operations[k - 1].positions)
+        facets = np.concatenate(list(mesh.facet_sets.values()))
+        s = np.linspace(0.0, 1.0, 9)[None, :, None]
+        a, b = coords[facets[:, 0]][:, None], coords[facets[:, 1]][:, None]
+        boundary = (a + s * (b - a)).reshape(-1, 2)
+        die = np.asarray(inputs[k].die.members[0].points)
+        tol = 1e-9 * float(np.ptp(coords, axis=0).max())
+        try:
+            check_clearance(die, boundary, stage.operation.label, tol)
+        except DieError as err:
+            raise DieIntoPart(f"the design starts the top die inside the part: {err}") from None
+
+
 @dataclass(frozen=True, eq=False)
 class ProcessDesignProblem:
     """A process's design problem: its forward run's plan, the groups, the objective
@@ -350,6 +383,10 @@ class ProcessDesignProblem:
         (val, ptraj), grad = jax.value_and_grad(self._j, has_aux=True)(design)
         check_process(self.plan, ptraj)
         return val, grad, ptraj
+
+    def check_dies_clear(self, design, ptraj) -> None:
+        """:func:`check_dies_clear` at ``design`` (its run ``ptraj``)."""
+        check_dies_clear(self.plan, self._inputs(design)[0], ptraj)
 
     def bounds(self):
         return par.design_bounds(self.groups)
