@@ -466,6 +466,15 @@ def _check_robust(d, forming: list[Operation]) -> None:
                 f"design.robust_die_temperature_K: {cold[0].label} has no coupled heat "
                 '(thermal.model = "coupled")'
             )
+    for values, kind in ((d.robust_friction, "friction"),
+                         (d.robust_die_temperature_K, "thermal")):  # fmt: skip
+        both = [g for g in (*d.variables, *d.operation_variables)
+                if values and g.rpartition(".")[2] == kind]  # fmt: skip
+        if both:
+            raise ConfigError(
+                f"design.robust: {both[0]!r} would be both designed and uncertain (its "
+                f"scenarios set it): drop it from the design or from the scenarios"
+            )
     if d.robust_friction and not any(
         FRICTION_COEFFICIENT.get(op.config.friction_of(die).model)
         for op in forming

@@ -9,6 +9,7 @@ alone (1e-12), and the robust design fills the cavity in every scenario.
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -90,6 +91,8 @@ def test_worst_design_minimizes_the_largest_scenario():
          "no die of a forming operation has a friction coefficient"),
         (["design.robust=median"], "design.robust"),
         (["design.robust=worst", "design.robust_friction=[-0.1]"], "design.robust_friction"),
+        (["design.robust=worst", "design.robust_friction=[0.2]",
+          "design.operation_variables=['finisher.friction']"], "both designed and uncertain"),
     ],
 )  # fmt: skip
 def test_bad_robust_design_refused_in_one_line(overrides, needle):
@@ -180,3 +183,39 @@ def test_a_design_that_starts_a_die_inside_the_part_is_rejected():
     with pytest.raises(DieIntoPart, match=r"operation\[2\] \(finisher\)"):
         pb.value(big)
     assert pb.replans == 0
+
+
+def test_scenarios_set_each_forming_operations_friction_and_die_temperature():
+    """On the tiny coupled process (test_designed_config's): the uncertain groups are each
+    forming operation's friction and die temperature; a scenario of m = 0.25 and 523 K
+    sets every coefficient to 0.25 and every die temperature to 523 K in the inputs the
+    problem runs (1e-12), and the grid of 2 x 2 values gives 4 scenarios."""
+    import jax.numpy as jnp
+
+    from jaxform.design.process_problem import (
+        build_process_problem,
+        scenario_designs,
+        uncertain_groups,
+        with_groups,
+    )
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from test_designed_config import problem as coupled
+
+    _, designed = coupled()
+    pb = build_process_problem(designed.plan, ("billet",), designed.objective)
+    extra = uncertain_groups(pb.plan, True, True)
+    names = {g.name for g in extra}
+    assert names == {"first.friction", "first.die_temperature", "second.friction",
+                     "second.die_temperature"}  # fmt: skip
+    assert len(scenario_designs(extra, (0.2, 0.4), (473.0, 523.0))) == 4
+    (scenario,) = scenario_designs(extra, (0.25,), (523.0,))
+    full = with_groups(pb, extra)
+    design = {**full.start, **{k: jnp.asarray(v) for k, v in scenario.items()}}
+    for k, stage in enumerate(full.plan.stages):
+        if not stage.operation.forming:
+            continue
+        inputs, _ = full.on_stage(design, k, stage.scene.inputs, jnp.ones(1))
+        assert abs(float(inputs.thermal.die_temperature_K) - 523.0) <= 1e-12
+        for die in inputs.die.members:
+            assert abs(float(die.friction.m) - 0.25) <= 1e-12
