@@ -598,6 +598,17 @@ def check_clearance(
         )
 
 
+def check_clearance_of_facets(
+    points: np.ndarray, coords: np.ndarray, facets: np.ndarray, key: str
+) -> None:
+    """:func:`check_clearance` of the workpiece facets ``facets`` ((m, 2) node pairs of
+    ``coords``, mm), each sampled at 9 points, to 1e-9 of the workpiece's size."""
+    s = np.linspace(0.0, 1.0, 9)[None, :, None]
+    a, b = coords[facets[:, 0]][:, None], coords[facets[:, 1]][:, None]
+    pts = (a + s * (b - a)).reshape(-1, 2)
+    check_clearance(points, pts, key, 1e-9 * float(np.ptp(coords, axis=0).max()))
+
+
 def time_at_travel(times: np.ndarray, travel: np.ndarray, target: float, key: str) -> float:
     """Inverse of the path table (the end time of a run that stops at ``target`` mm)."""
     if target > travel[-1] + 1e-12:

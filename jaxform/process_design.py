@@ -114,13 +114,13 @@ class Replanning:
     of its config would refuse.
 
     ``replan_distance`` (design.replan_distance; 0: off): a design farther than that from
-    the design the current plan was made at (``made_at``, default the start), in any
+    the design the current plan was made at (the start, or where :meth:`adopt` was), in any
     variable as a fraction of its bound box, gets a new plan before it is evaluated, so
     that the values the optimizer sees stay those of forward runs near their own plans
     (far from it a replay may converge to another solution of the contact conditions)."""
 
     def __init__(self, process: Process, problem, announce=None, objective_of=None,
-                 replan_distance: float = 0.0, made_at: dict | None = None):  # fmt: skip
+                 replan_distance: float = 0.0):  # fmt: skip
         from jaxform.design.process_problem import config_objective
 
         d = process.operations[0].config.design
@@ -129,7 +129,7 @@ class Replanning:
         self.objective_of = objective_of or (lambda plan: config_objective(plan, d))
         self.replans = 0
         self.replan_distance = float(replan_distance)
-        self.made_at = {k: np.asarray(v) for k, v in (made_at or problem.start).items()}
+        self.made_at = {k: np.asarray(v) for k, v in problem.start.items()}  # see adopt
 
     start = property(lambda self: self.first.start)
     groups = property(lambda self: self.first.groups)
@@ -161,12 +161,21 @@ class Replanning:
     def report(self, design) -> dict:
         return self._on_a_plan(lambda pb: pb.report(design), design)
 
+    def on_own_plan(self, design):
+        """The problem on the plan of the forward run at ``design`` (its steps, meshes).
+        Raises SimulationError, OperationRefused as the forward run does."""
+        _, plan = forward_plan(self.process, at=(self.first, design))
+        return replace(self.first, plan=plan, objective=self.objective_of(plan))
+
+    def adopt(self, design) -> None:
+        """Evaluate from now on on the plan of the forward run at ``design``."""
+        self.current = self.on_own_plan(design)
+        self.made_at = {k: np.asarray(v) for k, v in design.items()}
+
     def forward_value(self, design) -> float:
         """The objective at ``design`` on the plan of its own forward run (what `jaxform
         run` of the design's config gives), without adopting that plan."""
-        _, plan = forward_plan(self.process, at=(self.first, design))
-        own = replace(self.first, plan=plan, objective=self.objective_of(plan))
-        return float(own.value(design)[0])
+        return float(self.on_own_plan(design).value(design)[0])
 
     def _on_a_plan(self, evaluate, design):
         from jaxform.design.process_problem import DieIntoPart
@@ -183,11 +192,9 @@ class Replanning:
                     self.announce(f"  the replay failed ({err}): the forward process at this "
                                   "design")  # fmt: skip
         try:
-            _, plan = forward_plan(self.process, at=(self.first, design))
+            self.adopt(design)
         except (SimulationError, OperationRefused) as err:  # no process at this design
             raise GradientRunError(f"the forward process at this design failed: {err}") from None
-        self.current = replace(self.first, plan=plan, objective=self.objective_of(plan))
-        self.made_at = {k: np.asarray(v) for k, v in design.items()}
         self.replans += 1
         return evaluate(self.current)
 
@@ -230,12 +237,7 @@ def robust(process: Process, problem, announce=None):
     friction and die temperature fixed per scenario (:class:`jaxform.design.robust.Scenarios`
     of one :class:`Replanning` problem per scenario, each on the plan of the forward run
     at the start design and that scenario's inputs: its own steps)."""
-    from jaxform.design.process_problem import (
-        config_objective,
-        scenario_designs,
-        uncertain_groups,
-        with_groups,
-    )
+    from jaxform.design.process_problem import scenario_designs, uncertain_groups, with_groups
     from jaxform.design.robust import Scenarios
 
     d = process.operations[0].config.design
@@ -254,10 +256,9 @@ def robust(process: Process, problem, announce=None):
     for k, scenario in enumerate(scenarios):
         if announce is not None:
             announce(f"  the forward process of scenario {k}")
-        _, plan = forward_plan(process, at=(full, {**full.start, **scenario}))
-        own = replace(full, plan=plan, objective=config_objective(plan, d))
-        problems.append(Replanning(process, own, announce, replan_distance=d.replan_distance,
-                                   made_at={**full.start, **scenario}))  # fmt: skip
+        own = Replanning(process, full, announce, replan_distance=d.replan_distance)
+        own.adopt({**full.start, **scenario})  # its first plan: the scenario's own run
+        problems.append(own)
     return Scenarios(tuple(problems), names, scenarios, d.robust)
 
 

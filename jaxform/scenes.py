@@ -41,7 +41,7 @@ from jaxform.dies import (
     DieSet,
     RigidDie,
     catmull_rom,
-    check_clearance,
+    check_clearance_of_facets,
     check_profile,
     has_convex_corner,
     make_die,
@@ -182,13 +182,8 @@ def _check_clearance(profile: np.ndarray, mesh: meshing.Mesh, sets, key: str) ->
     facets = [mesh.facet_sets[s] for s in (*sets, "axis") if s in mesh.facet_sets]
     if not facets:
         return
-    f = np.concatenate(facets)
-    s = np.linspace(0.0, 1.0, 9)[None, :, None]
-    a, b = mesh.coords[f[:, 0]][:, None], mesh.coords[f[:, 1]][:, None]
-    pts = (a + s * (b - a)).reshape(-1, 2)
-    size = float(np.ptp(mesh.coords, axis=0).max())
     try:
-        check_clearance(profile, pts, key, 1e-9 * size)
+        check_clearance_of_facets(profile, mesh.coords, np.concatenate(facets), key)
     except DieError as err:
         raise ConfigError(str(err)) from None
 

@@ -19,6 +19,7 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 from jaxform.design.process_problem import build_process_problem, process_objective
 from jaxform.designed_config import designed_document, die_profiles, write_designed
@@ -56,6 +57,51 @@ def design_of(pb):
     return {k: v + 0.05 * ((hi if k in UP else lo)[k] - v) for k, v in pb.start.items()}
 
 
+def _assert_same_runs(a_result, b_result, time_rtol: float = 0.0) -> None:
+    """Two process runs alike: every step's time (to ``time_rtol``, default exactly),
+    force (1e-9 of the peak), the largest temperature (1e-9 K) and the final positions
+    (1e-9 mm)."""
+    assert len(b_result.runs) == len(a_result.runs)
+    for a, b in zip(a_result.runs, b_result.runs):
+        ha, hb = a.result.history, b.result.history
+        np.testing.assert_allclose(hb["time_s"], ha["time_s"], rtol=time_rtol, atol=0)
+        peak = max(float(np.max(np.abs(ha["force_N"]))), 1.0)
+        assert np.max(np.abs(hb["force_N"] - ha["force_N"])) <= 1e-9 * peak
+        np.testing.assert_allclose(hb["max_temperature_K"], ha["max_temperature_K"], atol=1e-9)
+        np.testing.assert_allclose(_positions(b), _positions(a), rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("seed", [3, 11])
+def test_a_random_design_reruns_from_its_config(tmp_path, seed):
+    """A seeded random design (each variable a random 0 - 8 % of the way to a bound, the
+    dies upward, the rest either way; a draw whose forward process is refused, a die
+    over the incoming part, is drawn again): designed.toml reruns as the forward run at
+    it (the step times to 1e-12: a speed or dwell factor written as dt and end rounds
+    apart by an ulp)."""
+    from jaxform.process import OperationRefused
+
+    process, pb = problem()
+    lo, hi = pb.bounds()
+    rng = np.random.default_rng(seed)
+    for _ in range(10):
+        design = {}
+        for k, v in pb.start.items():
+            v = np.asarray(v)
+            frac = rng.uniform(0.0, 0.08, v.shape)
+            down = (rng.uniform(size=v.shape) < 0.5) & (k not in UP)
+            design[k] = jnp.asarray(v + frac * (np.where(down, lo[k], hi[k]) - v))
+        try:
+            at_design, _ = forward_plan(process, at=(pb, design))
+            break
+        except OperationRefused:
+            continue
+    else:
+        pytest.fail("none of 10 draws has a forward process")
+    again = load_typed(write_designed(process, pb, design, tmp_path))
+    rerun = run_process(again.operations, prepare(again.operations))
+    _assert_same_runs(at_design, rerun, time_rtol=1e-12)
+
+
 def _positions(run) -> np.ndarray:
     sc, x = run.result.final_scene, np.asarray(run.result.final_state.x)
     return np.asarray(sc.inputs.coords) + sc.model.layout.nodal(x)[:, :2]
@@ -71,14 +117,8 @@ def test_a_designed_process_config_runs_the_design(tmp_path):
     assert (tmp_path / "designed_material.toml").is_file()
     again = load_typed(path)
     rerun = run_process(again.operations, prepare(again.operations))
-    assert len(rerun.runs) == len(at_design.runs) == 4
-    for a, b in zip(at_design.runs, rerun.runs):
-        ha, hb = a.result.history, b.result.history
-        np.testing.assert_array_equal(hb["time_s"], ha["time_s"])
-        peak = max(float(np.max(np.abs(ha["force_N"]))), 1.0)
-        assert np.max(np.abs(hb["force_N"] - ha["force_N"])) <= 1e-9 * peak
-        np.testing.assert_allclose(hb["max_temperature_K"], ha["max_temperature_K"], atol=1e-9)
-        np.testing.assert_allclose(_positions(b), _positions(a), rtol=0, atol=1e-9)
+    assert len(rerun.runs) == 4
+    _assert_same_runs(at_design, rerun)
     # the keys are the groups' closed forms: H = 7.5 e^a e^(v/3), D = 5 e^(-a/2) e^(v/3) mm
     designed = designed_document(process, pb, design)
     doc, material = designed.document, designed.material

@@ -36,7 +36,7 @@ from jaxform.design.requirements import (
     PROCESS_OBJECTIVES,
     PROCESS_WEIGHTED_SUM,
 )
-from jaxform.dies import DieError, check_clearance
+from jaxform.dies import DieError, check_clearance_of_facets
 from jaxform.gradients import GradientRunError
 from jaxform.process_gradients import ProcessPlan, check_process, process_trajectory
 
@@ -299,8 +299,8 @@ def check_dies_clear(plan: ProcessPlan, inputs: tuple, ptraj) -> None:
     """Raise :class:`DieIntoPart` naming the operation where a forming operation's top die
     at its start (``inputs``: each operation's at the design) lies inside the part it
     receives (the first: the designed billet; the others: the operation before it as it
-    left the part, ``ptraj``), by the config's own test (every facet of the part at 9
-    points; 1e-9 of the part's size)."""
+    left the part, ``ptraj``), by the config's own test
+    (:func:`jaxform.dies.check_clearance_of_facets` of every facet of the part)."""
     for k, stage in enumerate(plan.stages):
         if not stage.operation.forming:
             continue
@@ -310,13 +310,9 @@ def check_dies_clear(plan: ProcessPlan, inputs: tuple, ptraj) -> None:
             mesh = plan.stages[k - 1].final_scene.mesh
             coords = np.asarray(ptraj.operations[k - 1].positions)
         facets = np.concatenate(list(mesh.facet_sets.values()))
-        s = np.linspace(0.0, 1.0, 9)[None, :, None]
-        a, b = coords[facets[:, 0]][:, None], coords[facets[:, 1]][:, None]
-        boundary = (a + s * (b - a)).reshape(-1, 2)
         die = np.asarray(inputs[k].die.members[0].points)
-        tol = 1e-9 * float(np.ptp(coords, axis=0).max())
         try:
-            check_clearance(die, boundary, stage.operation.label, tol)
+            check_clearance_of_facets(die, coords, facets, stage.operation.label)
         except DieError as err:
             raise DieIntoPart(f"the design starts the top die inside the part: {err}") from None
 
