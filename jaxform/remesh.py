@@ -50,6 +50,7 @@ from jaxform.geometry import (
     nearest_on_segments,
     polygon_measure,
     tributary_areas,
+    with_volume,
 )
 from jaxform.mesh import MeshError, boundary_edges, boundary_polygon
 from jaxform.rezone import gap_function
@@ -105,14 +106,14 @@ def new_section_mesh(scene, pos: np.ndarray, t: float, settings: RemeshConfig):
     needed: :func:`quads_of`).  Raises RemeshError."""
     try:
         gap_fn = None if scene.inputs.die is None else gap_function(scene.inputs.die, t)
-        wanted = sized_polygon(scene.mesh, pos, gap_fn, settings)
+        axi = scene.model.formulation.axisymmetric
+        wanted = sized_polygon(scene.mesh, pos, gap_fn, settings, axi)
         mesh, how = quads_of(wanted.points, wanted.labels, wanted.sizes)
         how = replace(how, fold_cut_mm2=wanted.cut)  # also in the report's volume_change
     except MeshError as err:
         raise RemeshError(str(err)) from None
     if scene.inputs.die is None or not settings.onto_dies:
         return mesh, how
-    axi = scene.model.formulation.axisymmetric
     return onto_dies(mesh, (wanted.points, wanted.touching), gap_fn, axi), how
 
 
@@ -179,34 +180,11 @@ def onto_dies(mesh, polygon: tuple[np.ndarray, np.ndarray], gap_fn, axisymmetric
     coords[moved] -= (g[near])[:, None] * n[near]
     free_gap, _ = gap_fn(coords[loop])
     free = (free_gap > TOUCH_GAP_MM) & ~np.isin(loop, moved) & ~held
-    if free.any():
-        target = float(np.sum(polygon_measure(mesh.coords[mesh.elements], axisymmetric)))
-        # Newton on the one distance, its derivative the free surface's share (exact to
-        # first order where the outward normals are the edges'; at a corner of the free
-        # surface it converges linearly)
-        for _ in range(12):
-            change = float(np.sum(polygon_measure(coords[mesh.elements], axisymmetric))) - target
-            if abs(change) <= 1e-13 * target:
-                break
-            unit, share = _outward(coords[loop], axisymmetric)
-            coords[loop[free]] -= change / float(np.sum(share[free])) * unit[free]
+    target = float(np.sum(polygon_measure(mesh.coords[mesh.elements], axisymmetric)))
+    coords[loop] = with_volume(coords[loop], free, target, axisymmetric)
     if min_quality(coords, mesh.elements) <= 0.0:  # a moved node folded a thin element
         return mesh
     return replace(mesh, coords=coords)
-
-
-def _outward(p: np.ndarray, axisymmetric: bool):
-    """(unit outward normals (n, 2), surface shares (n,)) at the vertices of the closed
-    counter-clockwise polygon p: the share is half of each adjacent edge's length (times
-    2 pi r in an axisymmetric section), the volume a unit outward move of the vertex adds."""
-    e_out = np.roll(p, -1, axis=0) - p
-    length = np.linalg.norm(e_out, axis=1)
-    normal_out = np.stack([e_out[:, 1], -e_out[:, 0]], axis=1)  # |edge| x outward unit
-    nrm = normal_out + np.roll(normal_out, 1, axis=0)
-    share = 0.5 * (length + np.roll(length, 1))
-    if axisymmetric:
-        share = share * 2.0 * np.pi * p[:, 0]
-    return nrm / np.maximum(np.linalg.norm(nrm, axis=1), 1e-300)[:, None], share
 
 
 @dataclass(frozen=True)

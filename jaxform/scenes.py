@@ -551,12 +551,13 @@ def _remesh_settings(settings: RemeshConfig, mesh: meshing.Mesh) -> RemeshConfig
     return replace(settings, element_size_mm=size)
 
 
-def start_mesh(mesh: meshing.Mesh, die, settings: RemeshConfig) -> meshing.Mesh:
+def start_mesh(mesh: meshing.Mesh, die, settings: RemeshConfig, axisymmetric: bool) -> meshing.Mesh:
     """The remesher's own mesh of ``mesh``'s section at t = 0 (``remesh.from_start``):
     the same polygon and sizes a remesh would ask gmsh for (:mod:`jaxform.section_mesh`),
     finer where a die touches it.  Raises ConfigError where gmsh gives no all-quad mesh."""
     gap_fn = None if die is None else gap_function(die, 0.0)
-    wanted = sized_polygon(mesh, np.asarray(mesh.coords), gap_fn, settings, split=True)
+    pos = np.asarray(mesh.coords)
+    wanted = sized_polygon(mesh, pos, gap_fn, settings, axisymmetric, split=True)
     try:  # gmsh's fallbacks as for a remesh (finer sizes, then split into quads)
         return quads_of(wanted.points, wanted.labels, wanted.sizes)[0]
     except meshing.MeshError as err:
@@ -595,7 +596,7 @@ def build_scene(cfg: dict | Config, mesh: meshing.Mesh | None = None) -> Scene:
     die, load, t_end, press = _die_or_load(cfg, piece, mesh)
     remesh = _remesh_settings(cfg.remesh, mesh)
     if remesh is not None and remesh.from_start and own:
-        mesh, grid = start_mesh(mesh, die, remesh), None
+        mesh, grid = start_mesh(mesh, die, remesh, axi), None
     corner = (
         die is not None
         and cfg.die.corner_contact

@@ -4,12 +4,14 @@ all-quad mesh gmsh makes of it (:func:`quads_of`, with its fallbacks) when a run
 :func:`jaxform.scenes.build_scene`) or trims its part (:mod:`jaxform.process`).
 
 Host NumPy and gmsh only: the polygon is the section's boundary loop
-(:func:`jaxform.mesh.boundary_polygon`) with the vertices on straight runs of one set
-dropped (:func:`simplify`) and any loop it makes by crossing itself cut off
-(:func:`untangled`: a fold pressed over); the size is ``remesh.element_size_mm`` in the
-bulk and ``remesh.die_size_ratio`` times it where the boundary touches a die and at
-sharp corners, and with ``remesh.elements_across`` > 0 at most the section's local
-thickness over that many (:func:`element_sizes`).
+(:func:`jaxform.mesh.boundary_polygon`), where dies are without the bunches of vertices
+material leaves at die corners (:func:`thinned`) and without what a die reaches into
+(:func:`off_dies`; the volume given back to the free surface, :func:`volume_back`), with
+the vertices on straight runs of one set dropped (:func:`simplify`) and any loop it
+makes by crossing itself cut off (:func:`untangled`: a fold pressed over); the size is
+``remesh.element_size_mm`` in the bulk and ``remesh.die_size_ratio`` times it where the
+boundary touches a die and at sharp corners, and with ``remesh.elements_across`` > 0 at
+most the section's local thickness over that many (:func:`element_sizes`).
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ import numpy as np
 
 from jaxform.config import RemeshConfig
 from jaxform.contact import TOUCH_GAP_MM
-from jaxform.geometry import polygon_measure
+from jaxform.geometry import polygon_measure, with_volume
 from jaxform.mesh import MeshError, boundary_polygon, polygon_quads
 
 _CORNER_TURN = np.deg2rad(30.0)  # a sharper turn of the boundary is refined like die contact
@@ -102,15 +104,26 @@ def _touching(points: np.ndarray, gap_fn) -> np.ndarray:
 
 
 def sized_polygon(
-    mesh, pos: np.ndarray, gap_fn, settings: RemeshConfig, split: bool = False
+    mesh, pos: np.ndarray, gap_fn, settings: RemeshConfig, axisymmetric: bool, split: bool = False
 ) -> SizedPolygon:
     """The polygon of ``mesh``'s section with its nodes at ``pos`` and the sizes wanted
     along it; ``gap_fn`` (:func:`jaxform.rezone.gap_function`, None without dies) tells
     which vertices touch a die (gap <= TOUCH_GAP_MM).  Its edges are split at the bulk
     size where ``remesh.elements_across`` > 0 (the thickness is measured along every
     edge) or ``split`` (a start mesh: a straight side, a single edge, is fine only at its
-    corners and where a die touches it, not all along)."""
+    corners and where a die touches it, not all along).  Where a die reaches into the
+    section (:func:`off_dies`) the polygon is the part outside it, with the volume kept.
+    ``axisymmetric``: volumes by Pappus (True) or areas (plane strain)."""
     points, labels, _ = boundary_polygon(mesh, pos)
+    if gap_fn is not None:
+        die_size = settings.element_size_mm * settings.die_size_ratio
+        target = float(polygon_measure(points, axisymmetric))
+        kept = thinned(points, labels, THIN * die_size)
+        cleared = off_dies(points[kept], [labels[i] for i in kept], gap_fn, die_size)
+        if cleared is not None or len(kept) < len(points):
+            points, labels = cleared or (points[kept], [labels[i] for i in kept])
+            # the volume the dies cut off, or the dropped vertices, back to the free surface
+            points = volume_back(points, labels, gap_fn, target, axisymmetric)
     kept, kept_labels = simplify(points, labels, 1e-6 * settings.element_size_mm)
     pts, kept_labels, cut = untangled(points[kept], kept_labels)  # gmsh hangs on a crossing
     touching = _touching(pts, gap_fn)
@@ -120,6 +133,113 @@ def sized_polygon(
     if split:  # the added points lie on the section's straight sides: their own gaps
         touching = _touching(pts, gap_fn)
     return SizedPolygon(pts, kept_labels, touching, element_sizes(pts, touching, settings), cut)
+
+
+HELD = ("axis", "symmetry")  # boundary sets held by Dirichlet conditions: never moved
+WRAP_PASSES = 4  # times an edge across a convex die arc is split onto the arc, at most
+_FRACTIONS = np.arange(1, 8) / 8.0  # where along an edge its depth into a die is sampled
+DEEP = 0.1  # an edge is split onto a die where it passes this times the die size into it
+
+
+def _held(labels: list[str]) -> np.ndarray:
+    """Whether each vertex of the polygon ends an edge of a HELD set."""
+    on = np.isin(np.asarray(labels, dtype=object), HELD)
+    return on | np.roll(on, 1)  # the edges from and to each vertex
+
+
+THIN = 0.3  # boundary vertices closer than this times the die size to the one before merge
+
+
+def thinned(points: np.ndarray, labels: list[str], min_gap: float) -> np.ndarray:
+    """Indices of the vertices of the closed polygon to keep: each vertex where the set
+    changes, and each other one at least ``min_gap`` (mm) from the last kept one (and from
+    the first).  Material that flows into a die corner, or along a die past it, bunches
+    its boundary nodes there; every remesh keeps every boundary vertex as a node, so the
+    bunch passes from mesh to mesh, gmsh fans tiny elements out of it, their quality sets
+    the trigger off again at once, and the meshes grow (the two-stage disk design at blocker
+    friction 0.29: 479 -> 597 -> 779 -> 1819 -> 2091 nodes over the finisher's last 3 um
+    of stroke, 126 boundary edges under 0.05 mm, until a first step failed)."""
+    n = len(points)
+    corner = np.array([labels[i - 1] != labels[i] for i in range(n)])
+    start = int(np.argmax(corner)) if corner.any() else 0
+    kept = [start]
+    for i in (np.arange(1, n) + start) % n:
+        if corner[i] or np.linalg.norm(points[i] - points[kept[-1]]) >= min_gap:
+            kept.append(int(i))
+    if (
+        len(kept) > 1
+        and not corner[kept[-1]]
+        and (np.linalg.norm(points[kept[-1]] - points[kept[0]]) < min_gap)
+    ):
+        kept.pop()
+    return np.sort(np.asarray(kept))
+
+
+def off_dies(points: np.ndarray, labels: list[str], gap_fn, die_size: float):
+    """(points, labels) of the closed counter-clockwise polygon without the part of it
+    that a die reaches into; None where no die reaches into it.
+
+    Node contact holds the nodes off a die, not the edges between them: a convex die arc
+    (a flash land's entry, a punch's nose) that the material flows round reaches across
+    the edge between the last contact node before it and the first after it, and the
+    deformed section's boundary, and a new mesh of it, overlaps the die (0.13 mm deep
+    across a 0.58 mm edge at a 0.3 mm arc, the two-stage disk's finisher: the first step
+    on such a mesh starts with its nodes inside the die and does not converge).  Here
+    every vertex inside a die (gap < -TOUCH_GAP_MM) moves to its closest point on it; an
+    edge that passes through a die (the deepest of 7 points along it more than DEEP times
+    the die size inside) gets that point, moved onto the die, where the point is at least
+    THIN times the die size from both ends (at most WRAP_PASSES times: the polygon wraps
+    the arc, and follows a die face that a vertex moved onto; an edge along a die face that
+    dips a few um into it stays, and no new vertex bunches with one it has); the axis and
+    the mid-plane are never moved.  The volume it cuts off is
+    given back by :func:`volume_back`."""
+    pts, labs = np.array(points, dtype=float), list(labels)
+    g, n = gap_fn(pts)
+    inside = (g < -TOUCH_GAP_MM) & ~_held(labs)
+    changed = bool(inside.any())
+    pts[inside] -= g[inside][:, None] * n[inside]
+    for _ in range(WRAP_PASSES):
+        nxt = np.roll(pts, -1, axis=0)
+        # each edge's deepest point into a die of the _FRACTIONS points along it
+        along = pts[:, None] + _FRACTIONS[None, :, None] * (nxt - pts)[:, None]
+        gs, ns = (np.asarray(a).reshape(len(pts), len(_FRACTIONS), -1)
+                  for a in gap_fn(along.reshape(-1, 2)))  # fmt: skip
+        k = np.argmin(gs[..., 0], axis=1)
+        rows = np.arange(len(pts))
+        gk, nk, at_k = gs[rows, k, 0], ns[rows, k], along[rows, k]
+        ends = np.minimum(np.linalg.norm(at_k - pts, axis=1), np.linalg.norm(nxt - at_k, axis=1))
+        split = (
+            (gk < -max(TOUCH_GAP_MM, DEEP * die_size))
+            & (ends >= THIN * die_size)
+            & ~np.isin(np.asarray(labs, dtype=object), HELD)
+        )
+        if not split.any():
+            break
+        changed = True
+        at = np.nonzero(split)[0]
+        onto = at_k[at] - gk[at][:, None] * nk[at]
+        pts = np.insert(pts, at + 1, onto, axis=0)
+        labs = list(np.insert(np.asarray(labs, dtype=object), at + 1, [labs[i] for i in at]))
+    return (pts, labs) if changed else None
+
+
+def volume_back(points: np.ndarray, labels: list[str], gap_fn, target: float, axisymmetric: bool):
+    """The closed counter-clockwise polygon with its measure ``target`` again: its free
+    vertices (off the dies, the axis and the mid-plane) moved along their outward normals
+    by one distance (:func:`jaxform.geometry.with_volume`); a free vertex that this pushes
+    into a die goes onto it and the rest move again."""
+    g, _ = gap_fn(points)
+    free = (g > TOUCH_GAP_MM) & ~_held(labels)
+    pts = points
+    for _ in range(WRAP_PASSES):
+        pts = with_volume(pts, free, target, axisymmetric)
+        g, n = gap_fn(pts)
+        pushed = free & (g < -TOUCH_GAP_MM)
+        if not pushed.any():
+            break
+        pts[pushed] -= g[pushed][:, None] * n[pushed]
+        free &= ~pushed
+    return pts
 
 
 def simplify(points: np.ndarray, labels: list[str], tol: float):
