@@ -55,7 +55,7 @@ from jaxform.geometry import (
 from jaxform.mesh import MeshError, boundary_edges, boundary_polygon
 from jaxform.rezone import gap_function
 from jaxform.scenes import scene_on_mesh
-from jaxform.section_mesh import MesherHelp, quads_of, sized_polygon
+from jaxform.section_mesh import HELD, MesherHelp, quads_of, sized_polygon
 from jaxform.transfer import StateMap, Transfer, gauss_weights
 
 
@@ -160,7 +160,7 @@ def onto_dies(mesh, polygon: tuple[np.ndarray, np.ndarray], gap_fn, axisymmetric
     # that runs from the punch to the bottom die joins two contact vertices, but it is
     # no chord of a die)
     held = np.zeros(len(loop), dtype=bool)
-    for name in ("axis", "symmetry"):
+    for name in HELD:
         held |= np.isin(loop, np.asarray(mesh.node_sets.get(name, []), dtype=np.int64))
     gap_all, _ = gap_fn(pos)
     # a chord of the die between two contact vertices, or a node that an edge of the

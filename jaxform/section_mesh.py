@@ -119,9 +119,10 @@ def sized_polygon(
         die_size = settings.element_size_mm * settings.die_size_ratio
         target = float(polygon_measure(points, axisymmetric))
         kept = thinned(points, labels, THIN * die_size)
-        cleared = off_dies(points[kept], [labels[i] for i in kept], gap_fn, die_size)
+        thin = (points[kept], [labels[i] for i in kept])
+        cleared = off_dies(*thin, gap_fn, die_size)
         if cleared is not None or len(kept) < len(points):
-            points, labels = cleared or (points[kept], [labels[i] for i in kept])
+            points, labels = thin if cleared is None else cleared
             # the volume the dies cut off, or the dropped vertices, back to the free surface
             points = volume_back(points, labels, gap_fn, target, axisymmetric)
     kept, kept_labels = simplify(points, labels, 1e-6 * settings.element_size_mm)
@@ -139,15 +140,13 @@ HELD = ("axis", "symmetry")  # boundary sets held by Dirichlet conditions: never
 WRAP_PASSES = 4  # times an edge across a convex die arc is split onto the arc, at most
 _FRACTIONS = np.arange(1, 8) / 8.0  # where along an edge its depth into a die is sampled
 DEEP = 0.1  # an edge is split onto a die where it passes this times the die size into it
+THIN = 0.3  # boundary vertices closer than this times the die size to the one before merge
 
 
 def _held(labels: list[str]) -> np.ndarray:
     """Whether each vertex of the polygon ends an edge of a HELD set."""
     on = np.isin(np.asarray(labels, dtype=object), HELD)
     return on | np.roll(on, 1)  # the edges from and to each vertex
-
-
-THIN = 0.3  # boundary vertices closer than this times the die size to the one before merge
 
 
 def thinned(points: np.ndarray, labels: list[str], min_gap: float) -> np.ndarray:
