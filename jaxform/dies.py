@@ -428,6 +428,22 @@ END_SHARE = 0.1  # a facet lets go of an arc over this share of its length next 
 _rounded_profile_jit = jax.jit(rounded_profile)
 
 
+def rounded_polyline(points, corner_radius, per_arc: int = 16):
+    """The rounded profile as a polyline (traceable, differentiable in ``points`` and
+    ``corner_radius``): the first point, per interior vertex ``per_arc + 1`` points on its
+    arc from the tangent point a to b at equal angles (a vertex that does not turn: the
+    vertex repeated), the last point; the points :func:`sample_rounded` draws."""
+    pr = rounded_profile(points, corner_radius)
+    t0, t1 = pr["t"][:-1], pr["t"][1:]
+    cross = t0[:, 0] * t1[:, 1] - t0[:, 1] * t1[:, 0]
+    theta = jnp.arctan2(cross, jnp.sum(t0 * t1, axis=1))  # the turn, as rounded_profile's
+    ang = theta[:, None] * jnp.linspace(0.0, 1.0, per_arc + 1)[None, :]
+    cos, sin = jnp.cos(ang)[..., None], jnp.sin(ang)[..., None]
+    v = (pr["a"] - pr["centre"])[:, None, :]  # the radius to a, turned by s theta
+    arcs = pr["centre"][:, None, :] + cos * v + sin * jnp.stack([-v[..., 1], v[..., 0]], -1)
+    return jnp.concatenate([points[:1], arcs.reshape(-1, 2), points[-1:]], axis=0)
+
+
 def sample_rounded(points, corner_radius, per_arc: int = 16) -> np.ndarray:
     """The rounded profile as a dense polyline (NumPy; for plots and cavity volumes)."""
     p = np.asarray(points, dtype=float)

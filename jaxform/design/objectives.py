@@ -18,7 +18,8 @@ sets, targets) with ``__call__(traj, inputs) -> scalar`` (``inputs`` = the run's
 * :class:`EqpsSpread`        variance of the element-mean equivalent plastic strain over
   a set of elements.
 * :class:`UnfilledCavity`    1 - material volume / cavity volume at the end (0 = filled):
-  the cavity enclosed by the die profile, the axis and the mid-plane.
+  the cavity enclosed by the die profile (its corners rounded, as the history's
+  ``die_fill`` measures it), the axis and the mid-plane.
 * :class:`TemperatureMisfit` mean squared difference (K^2) of the run's mean temperature
   (weighted by the material each node carries) from a target history, interpolated in time
   (coupled thermal runs: identification of a conductance).
@@ -52,6 +53,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxform.design.parametrize import workpiece_volume
+from jaxform.dies import rounded_polyline
 from jaxform.geometry import polygon_measure
 
 
@@ -120,15 +122,24 @@ class EqpsSpread(_Identity):
         return jnp.var(e)
 
 
-def cavity_volume(points, travel, axisymmetric: bool):
-    """Volume (or area) between a die profile moved down by ``travel``, the axis r = 0 and
-    the mid-plane z = 0 (traceable; the part of the profile below z = 0 is clipped by
-    clamping, exact for profiles that cross z = 0 only at their last segment)."""
-    pts = points - jnp.stack([0.0, travel])[None, :]
+def _cavity_polygon(points, travel, corner_radius):
+    """The cavity's outline, clockwise: the axis at the mid-plane, the die profile (its
+    corners rounded by ``corner_radius`` as the contact sees them,
+    :func:`jaxform.dies.rounded_polyline`; sharp where None) moved down by ``travel``,
+    its last point's foot on the mid-plane.  The part of the profile below z = 0 is
+    clipped by clamping, exact for profiles that cross z = 0 only at their last segment."""
+    pts = points if corner_radius is None else rounded_polyline(points, corner_radius)
+    pts = pts - jnp.stack([0.0, travel])[None, :]
     pts = pts.at[:, 1].set(jnp.maximum(pts[:, 1], 0.0))
-    poly = jnp.concatenate(
+    return jnp.concatenate(
         [jnp.zeros((1, 2), pts.dtype), pts, jnp.stack([pts[-1, 0], 0.0])[None, :]], axis=0
     )
+
+
+def cavity_volume(points, travel, axisymmetric: bool, corner_radius=None):
+    """Volume (or area) between a die profile moved down by ``travel``, the axis r = 0 and
+    the mid-plane z = 0 (traceable; :func:`_cavity_polygon`)."""
+    poly = _cavity_polygon(points, travel, corner_radius)
     return jnp.abs(polygon_measure(poly, axisymmetric))
 
 
@@ -143,7 +154,8 @@ class UnfilledCavity(_Identity):
     def __call__(self, traj, inputs):
         die = inputs.die
         vol = workpiece_volume(traj.positions, self.elements, self.axisymmetric)
-        cav = cavity_volume(die.points, die.travel(traj.time_s[-1]), self.axisymmetric)
+        t = traj.time_s[-1]
+        cav = cavity_volume(die.points, die.travel(t), self.axisymmetric, die.corner_radius)
         return 1.0 - vol / cav
 
 
@@ -336,15 +348,12 @@ def polygon_measure_beyond(polygons, radius: float, axisymmetric: bool):
     return 2.0 * jnp.pi * total if axisymmetric else total
 
 
-def part_cavity_volume(points, travel, radius: float, axisymmetric: bool):
-    """The cavity of a closed die's profile ``points`` moved down by ``travel`` (sharp
-    corners), the axis and the mid-plane (:func:`cavity_volume`), inside r <= ``radius``
-    (the part; the flash land beyond it)."""
-    pts = points - jnp.stack([0.0, travel])[None, :]
-    pts = pts.at[:, 1].set(jnp.maximum(pts[:, 1], 0.0))
-    poly = jnp.concatenate(
-        [jnp.zeros((1, 2), pts.dtype), pts, jnp.stack([pts[-1, 0], 0.0])[None, :]], axis=0
-    )
+def part_cavity_volume(points, travel, radius: float, axisymmetric: bool, corner_radius=None):
+    """The cavity of a closed die's profile ``points`` moved down by ``travel`` (its
+    corners rounded by ``corner_radius``, sharp where None), the axis and the mid-plane
+    (:func:`_cavity_polygon`), inside r <= ``radius`` (the part; the flash land beyond
+    it)."""
+    poly = _cavity_polygon(points, travel, corner_radius)
     poly = poly[::-1]  # counter-clockwise: axis, mid-plane, then back along the die
     whole = polygon_measure(poly, axisymmetric)
     return whole - polygon_measure_beyond(poly, radius, axisymmetric)
@@ -353,9 +362,10 @@ def part_cavity_volume(points, travel, radius: float, axisymmetric: bool):
 @dataclass(frozen=True, eq=False)
 class UnfilledPart(_Identity):
     """1 - die fill of a closed die with a flash land at the end of the run: 1 - (the
-    material inside r <= ``radius``) / (the top die's cavity there, sharp-cornered
-    profile, :func:`part_cavity_volume`).  The material there lies under the die and
-    above the mid-plane, so it is the part of the cavity it fills (0 = filled)."""
+    material inside r <= ``radius``) / (the top die's cavity there, its corners rounded
+    as the contact and the history's ``die_fill`` see them, :func:`part_cavity_volume`).
+    The material there lies under the die and above the mid-plane, so it is the part of
+    the cavity it fills (0 = filled)."""
 
     elements: np.ndarray  # the final mesh's elements
     radius: float
@@ -368,7 +378,8 @@ class UnfilledPart(_Identity):
         beyond = measure_beyond(traj.positions, self.elements, self.radius, axi)
         inside = jnp.sum(polygon_measure(quads, axi) - beyond)
         die = inputs.die.members[0]
-        cav = part_cavity_volume(die.points, die.travel(traj.time_s[-1]), self.radius, axi)
+        t = traj.time_s[-1]
+        cav = part_cavity_volume(die.points, die.travel(t), self.radius, axi, die.corner_radius)
         return 1.0 - inside / cav
 
 
