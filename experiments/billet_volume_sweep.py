@@ -11,7 +11,8 @@ and the laps and pockets the run reports; then the least-flash run that fills to
         [--fill 0.999] [--set section.key=value ...] [--out out/billet_volume_sweep]
         [--timeout 3600]
 
-writes ``sweep.csv`` (one row per scale) and prints the table.
+writes ``sweep.csv`` (one row per scale; a run that stops: its one-line message) and each
+run's output in ``scale_<s>/`` (``run.log``: what it printed), and prints the table.
 """
 
 from __future__ import annotations
@@ -69,6 +70,8 @@ def run_scale(config: Path, scale: float, out: Path, overrides: list[str], timeo
     except subprocess.TimeoutExpired:
         code, out_text, err = None, "", f"time limit {timeout:g} s"
     row["wall_s"] = round(time.perf_counter() - t0, 1)
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "run.log").write_text(out_text + err)
     lines = out_text.splitlines()
     row["laps"] = sum(1 for line in lines if line.strip().startswith("lap:"))
     row["pockets"] = sum(1 for line in lines if line.strip().startswith("pocket"))
@@ -79,8 +82,8 @@ def run_scale(config: Path, scale: float, out: Path, overrides: list[str], timeo
                    flash_volume_mm3=float(end["flash_volume_mm3"]),
                    peak_forces_N=" ".join(f"{p:.0f}" for p in peaks), message="")  # fmt: skip
     else:
-        tail = (err.strip().splitlines() or [""])[-1]
-        row.update(status="stopped" if code == 1 else "crashed", message=tail[:300])
+        said = [line for line in err.strip().splitlines() if "written to" not in line]
+        row.update(status="stopped" if code == 1 else "crashed", message=(said or [""])[-1][:300])
     return row
 
 
