@@ -503,6 +503,57 @@ def test_a_failure_on_the_first_step_after_a_remesh_keeps_the_last_state(monkeyp
     assert len(lines) == 1 + 6  # header and the six converged rows
 
 
+def test_a_first_step_that_fails_below_the_run_step_is_tried_again_from_it(monkeypatch):
+    """After each of the seed's two forced remeshes the run is set to a quarter of
+    time.dt_s (as after cutbacks) and the first step on the new mesh is made to fail at
+    any step below time.dt_s (as the two-stage disk's did from 6.6e-5 s down): the run
+    tries that step again from time.dt_s and goes on to the end, each row after a remesh
+    a step of time.dt_s, the forces those of the run without remeshes (1e-6 relative:
+    frictionless, homogeneous).  A step that fails from time.dt_s too stops the run with
+    one line that says it was tried again."""
+    import jaxform.simulation as sim
+
+    real_stepped, real_adapted = sim._stepped, sim._adapted
+    refused = []
+
+    def adapted(run, done, owned):
+        new = real_adapted(run, done, owned)
+        if not done.new_mesh:
+            return new
+        return replace(new, control=replace(new.control, h=0.25 * new.control.dt_max))
+
+    def stepped(run, owned):
+        if sim._on_new_mesh(run) and float(run.control.h) < float(run.control.dt_max):
+            refused.append(float(run.control.h))
+            return replace(run, failure="step (made to fail below time.dt_s)")
+        return real_stepped(run, owned)
+
+    monkeypatch.setattr(sim, "_adapted", adapted)
+    monkeypatch.setattr(sim, "_stepped", stepped)
+    over = QUIET + ["mesh.nr=4", "mesh.nz=4", "die.reduction=0.15"]
+    res = jaxform.run(SEED, over + ["remesh.every_steps=5"])
+    h = res.history
+    dt = res.scene.dt
+    assert len(refused) == 2 and all(r == pytest.approx(0.25 * dt) for r in refused)
+    assert list(np.nonzero(h["remeshed"])[0]) == [5, 10]
+    assert h["dt_s"][6] == pytest.approx(dt) and h["dt_s"][11] == pytest.approx(dt)
+    monkeypatch.setattr(sim, "_stepped", real_stepped)
+    plain = jaxform.run(SEED, over)
+    assert np.allclose(h["force_N"], plain.history["force_N"], rtol=1e-6)
+
+    def never(run, owned):
+        if sim._on_new_mesh(run):
+            return replace(run, failure="step (made to fail at any step)")
+        return real_stepped(run, owned)
+
+    monkeypatch.setattr(sim, "_stepped", never)
+    with pytest.raises(sim.SimulationError) as err:
+        jaxform.run(SEED, over + ["remesh.every_steps=5"])
+    assert str(err.value).startswith(
+        f"the first step after the remesh at 5 s: tried again from time.dt_s = {dt:g} s, step"
+    ), str(err.value)
+
+
 def test_an_error_between_chunks_is_one_line_with_the_last_state(monkeypatch):
     """Any error of the host loop between compiled chunks (here the remesh raising
     something no one planned for) ends the run with SimulationError naming the time,
