@@ -83,7 +83,8 @@ def run_scale(config: Path, scale: float, out: Path, overrides: list[str], timeo
                    peak_forces_N=" ".join(f"{p:.0f}" for p in peaks), message="")  # fmt: skip
     else:
         said = [line for line in err.strip().splitlines() if "written to" not in line]
-        row.update(status="stopped" if code == 1 else "crashed", message=(said or [""])[-1][:300])
+        status = {1: "stopped", 2: "refused"}.get(code, "crashed")
+        row.update(status=status, message=(said or [""])[-1][:300])
     return row
 
 
