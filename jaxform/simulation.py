@@ -237,8 +237,7 @@ def _stepped_on(run: Run, owned: OwnedFactorization) -> Run:
     below a step size the run had already cut to, once more from ``time.dt_s``: the
     transferred state is balanced on the old mesh, and on the new one a step of a few
     microseconds must take up the difference elastically, where a larger step lets the
-    material flow (the two-stage disk at 1.035 times its billet: the first step after
-    a remesh failed from 6.6e-5 s down, converged at 2e-3 s in 21 iterations)."""
+    material flow (docs/remeshing.md, "Dies nobody tuned")."""
     new = _stepped(run, owned)
     if new.failure is None or not _on_new_mesh(new):
         return new
