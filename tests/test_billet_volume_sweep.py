@@ -4,20 +4,15 @@ naive run that fills) comes from these functions, so they are checked on files w
 numbers are known."""
 
 import csv
-import importlib.util
 from pathlib import Path
 
 import pytest
-
-_PATH = Path(__file__).resolve().parents[1] / "experiments" / "billet_volume_sweep.py"
+from experiment_loader import experiment
 
 
 @pytest.fixture(scope="module")
 def sweep():
-    spec = importlib.util.spec_from_file_location("billet_volume_sweep", _PATH)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return experiment("billet_volume_sweep")
 
 
 def _csv(path: Path, cols, rows):

@@ -4,11 +4,11 @@ of experiments/lap_scene.py, where the lap is known from its refinement check.""
 
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
 
 import numpy as np
 import pytest
+from experiment_loader import experiment
 
 import jaxform
 from jaxform.flowlines import (
@@ -111,11 +111,7 @@ def test_the_boss_folds_over_into_a_lap_and_its_surface_line_folds_there(tmp_pat
     0.25 mm (0.05 mm); no grid line turns by 150 deg.  The lap's depth (the wedge's shorter
     flank, jaxform.laps) is 0.21 mm (the run of 2026-11-26: 0.213; 0.05 mm slack), and the
     run has no pocket."""
-    spec = importlib.util.spec_from_file_location(
-        "lap_scene", ROOT / "experiments" / "lap_scene.py"
-    )
-    scene = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(scene)
+    scene = experiment("lap_scene")
     args = scene.main_args(["run", "--out", str(tmp_path)])
     quiet = ["output.plots=false", "output.fields=false"]
     res = jaxform.run(str(scene.write_scene(tmp_path, args)), quiet)

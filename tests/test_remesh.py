@@ -16,6 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from experiment_loader import experiment
 
 import jaxform
 from jaxform.config import ConfigError, check_gradient_run, load_config
@@ -421,13 +422,7 @@ def test_avitzur_upper_bound_reference():
     """The ring reference of experiments/ring_remesh.py: frictionless, Avitzur's field is
     homogeneous (R_n = 0), so the inner diameter grows by sqrt(T0 / T) - 1 = 41.421 % at
     50 % (to 0.01 points); friction turns the change negative and m = 1 lies below m = 0.5."""
-    import importlib.util
-    from pathlib import Path
-
-    path = Path(__file__).resolve().parents[1] / "experiments" / "ring_remesh.py"
-    spec = importlib.util.spec_from_file_location("ring_remesh", path)
-    ring = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(ring)
+    ring = experiment("ring_remesh")
     assert ring.avitzur_ring(0.0, steps=50)[-1, 1] == pytest.approx(100 * (2**0.5 - 1), abs=0.01)
     half, full = (ring.avitzur_ring(m, steps=20)[-1, 1] for m in (0.5, 1.0))
     assert full < half < 0.0

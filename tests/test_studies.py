@@ -7,27 +7,20 @@ extrapolation, Pareto front, step cap) are checked against cases with known answ
 """
 
 import csv
-import importlib.util
 import math
 from pathlib import Path
 
 import numpy as np
 import pytest
+from experiment_loader import experiment
 
 from jaxform.config import load_config
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _experiment(name):
-    spec = importlib.util.spec_from_file_location(name, ROOT / "experiments" / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-stability = _experiment("stability_map")
-speed = _experiment("speed_accuracy")
+stability = experiment("stability_map")
+speed = experiment("speed_accuracy")
 
 
 @pytest.fixture(scope="module")

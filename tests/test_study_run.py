@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from experiment_loader import experiment
 
 from jaxform.driver import run
 from jaxform.study.engine import RESULTS, Where, read_table, response_values, run_study
@@ -213,12 +214,8 @@ def test_bench_study_quick_mode_writes_its_table(tmp_path):
     """experiments/bench_study.py --quick on 2 samples, the loop and 1 worker: a row per
     mode with a positive rate, and the scheduler overhead row (the benchmark runs)."""
     import csv
-    import importlib.util
 
-    path = Path(__file__).resolve().parents[1] / "experiments" / "bench_study.py"
-    spec = importlib.util.spec_from_file_location("bench_study", path)
-    bench = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(bench)
+    bench = experiment("bench_study")
     import jax
 
     saved = os.environ.get("JAXFORM_CACHE_DIR")

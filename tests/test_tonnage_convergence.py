@@ -3,20 +3,15 @@ its dips and its spread are what issue 38 item 4 is judged by, so they are check
 history whose numbers are known."""
 
 import csv
-import importlib.util
 from pathlib import Path
 
 import pytest
-
-_PATH = Path(__file__).resolve().parents[1] / "experiments" / "tonnage_convergence.py"
+from experiment_loader import experiment
 
 
 @pytest.fixture(scope="module")
 def bench():
-    spec = importlib.util.spec_from_file_location("tonnage_convergence", _PATH)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return experiment("tonnage_convergence")
 
 
 def _history(folder: Path, rows):

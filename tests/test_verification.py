@@ -14,13 +14,13 @@ References:
   the smooth punch), for a block wider than ~9 punch half-widths (here 11).
 """
 
-import importlib.util
 import math
 from pathlib import Path
 
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from experiment_loader import experiment
 
 from jaxform.config import ConfigError, load_config
 from jaxform.element import facet_forces
@@ -37,13 +37,6 @@ COOK_FINITE_MM = 6.7188  # tip u_y at F = 100 N (finite strain), see the module 
 A_MM = 1.0625  # punch half-width in configs/prandtl_punch.toml
 K_MPA = 100.0 / math.sqrt(3.0)  # shear yield stress of j2_rigid_plastic_100MPa
 PRANDTL_MPA = (2.0 + math.pi) * K_MPA
-
-
-def _experiment(name):
-    spec = importlib.util.spec_from_file_location(name, ROOT / "experiments" / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 @pytest.fixture(scope="module")
@@ -201,7 +194,7 @@ def test_oscillation_measure_sees_a_checkerboard(runs):
 def punch_overrides(per_a):
     """m = per_a equal elements across the punch half-width, the corner mid-element (the
     experiment script's rule, so that its quick mode reuses these programs)."""
-    return tuple(_experiment("prandtl_punch").punch_overrides(per_a, A_MM))
+    return tuple(experiment("prandtl_punch").punch_overrides(per_a, A_MM))
 
 
 def punch_ratio(runs, element, per_a, line_search=False):
@@ -278,7 +271,7 @@ def test_punch_config_is_validated():
 
 def test_cooks_membrane_quick(runs, tmp_path):
     cook_tip(runs, "q4")  # make sure the programs exist whatever the test order
-    out = _experiment("cooks_membrane").main(["--quick", "--out", str(tmp_path)])
+    out = experiment("cooks_membrane").main(["--quick", "--out", str(tmp_path)])
     rows = out["rows"]
     assert sorted(set(rows["element"])) == ["q1p0", "q1q1", "q4"]
     assert set(rows["load_N"]) == {1.0, 100.0}
@@ -287,7 +280,7 @@ def test_cooks_membrane_quick(runs, tmp_path):
 
 
 def test_checkerboard_quick(runs, tmp_path):
-    rows = _experiment("checkerboard").main(["--quick", "--out", str(tmp_path)])
+    rows = experiment("checkerboard").main(["--quick", "--out", str(tmp_path)])
     assert rows["theta"] == [0.0, 0.1]
     assert rows["oscillation"][0] > 5.0 * rows["oscillation"][1]
     assert (tmp_path / "checkerboard.png").stat().st_size > 20_000
@@ -295,6 +288,6 @@ def test_checkerboard_quick(runs, tmp_path):
 
 @pytest.mark.slow  # three punch scenes with line search: ~60 s on 2 cores
 def test_prandtl_punch_quick(tmp_path):
-    curves = _experiment("prandtl_punch").main(["--quick", "--out", str(tmp_path)])
+    curves = experiment("prandtl_punch").main(["--quick", "--out", str(tmp_path)])
     assert set(curves) == {("q4", 4.5), ("q1p0", 8.5), ("q1q1", 8.5)}
     assert (tmp_path / "prandtl_punch.png").stat().st_size > 20_000
