@@ -160,17 +160,25 @@ def _inside(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def _clipped_boundary_integral(p0, p1, a, b, keep_on_boundary, tol, axisymmetric):
     """Green's-theorem integral (int r^2/2 dz, axisymmetric; int r dz, plane strain) over
     the parts of the directed edges p0 -> p1 inside the region bounded by the edges a -> b
-    (parts on that boundary, within tol, count as inside when ``keep_on_boundary``)."""
+    (parts on that boundary, within tol, count as inside when ``keep_on_boundary``).
+
+    Each edge is split where it crosses the other boundary and where a vertex of the other
+    boundary lies on it (within tol): where the boundaries run together along a die wall
+    and part ways at such a vertex, a crossing test alone misses the vertex by round-off
+    and leaves the edge in one piece, counted (or not) whole."""
     d, e = p1 - p0, b - a
     den = d[:, None, 0] * e[None, :, 1] - d[:, None, 1] * e[None, :, 0]
     w = a[None] - p0[:, None]
     with np.errstate(divide="ignore", invalid="ignore"):
         t = (w[..., 0] * e[None, :, 1] - w[..., 1] * e[None, :, 0]) / den
         u = (w[..., 0] * d[:, None, 1] - w[..., 1] * d[:, None, 0]) / den
+        s = np.sum(w * d[:, None, :], axis=-1) / np.sum(d * d, axis=-1)[:, None]
     hit = (np.abs(den) > 0) & (t > 0) & (t < 1) & (u >= 0) & (u <= 1)
+    off = np.linalg.norm(w - s[..., None] * d[:, None, :], axis=-1)
+    on = (off <= tol) & (s > 0) & (s < 1)  # a vertex of the other boundary on the edge
     total = 0.0
     for k in range(len(p0)):
-        ts = np.concatenate([[0.0], np.sort(t[k][hit[k]]), [1.0]])
+        ts = np.concatenate([[0.0], np.sort(np.concatenate([t[k][hit[k]], s[k][on[k]]])), [1.0]])
         q = p0[k] + ts[:, None] * d[k]
         mid = 0.5 * (q[:-1] + q[1:])
         near = nearest_on_segments(mid, a, b)[2] <= tol
