@@ -425,7 +425,6 @@ END_SHARE = 0.1  # a facet lets go of an arc over this share of its length next 
 
 
 # one compiled call (eagerly, its few dozen small operations would each compile)
-_rounded_profile_jit = jax.jit(rounded_profile)
 
 
 def rounded_polyline(points, corner_radius, per_arc: int = 16):
@@ -444,26 +443,19 @@ def rounded_polyline(points, corner_radius, per_arc: int = 16):
     return jnp.concatenate([points[:1], arcs.reshape(-1, 2), points[-1:]], axis=0)
 
 
+# one compiled call (eagerly, its few dozen small operations would each compile)
+_rounded_polyline_jit = jax.jit(rounded_polyline, static_argnums=2)
+
+
 def sample_rounded(points, corner_radius, per_arc: int = 16) -> np.ndarray:
-    """The rounded profile as a dense polyline (NumPy; for plots and cavity volumes)."""
-    p = np.asarray(points, dtype=float)
-    pr = {
-        k: np.asarray(v)
-        for k, v in _rounded_profile_jit(jnp.asarray(p), jnp.asarray(float(corner_radius))).items()
-    }
-    out = [p[:1]]
-    for i in range(len(pr["rho"])):
-        if not pr["turns"][i]:
-            out.append(p[i + 1 : i + 2])
-            continue
-        c, a, b = pr["centre"][i], pr["a"][i], pr["b"][i]
-        ang_a = np.arctan2(*(a - c)[::-1])
-        ang_b = np.arctan2(*(b - c)[::-1])
-        sweep = (ang_b - ang_a + np.pi) % (2 * np.pi) - np.pi
-        ang = ang_a + sweep * np.linspace(0.0, 1.0, per_arc + 1)
-        out.append(c + pr["rho"][i] * np.column_stack([np.cos(ang), np.sin(ang)]))
-    out.append(p[-1:])
-    return np.vstack(out)
+    """The rounded profile as a dense polyline (NumPy; for plots and cavity volumes):
+    :func:`rounded_polyline`, a vertex that does not turn once."""
+    poly = np.asarray(
+        _rounded_polyline_jit(
+            jnp.asarray(points, dtype=float), jnp.asarray(float(corner_radius)), per_arc
+        )
+    )
+    return poly[np.r_[True, np.any(np.diff(poly, axis=0) != 0.0, axis=1)]]
 
 
 # ----------------------------------------------------------------------------------
