@@ -25,7 +25,7 @@ import numpy as np
 
 from jaxform.cache import enable_compilation_cache
 from jaxform.config import dump_config
-from jaxform.designed_config import write_design_files
+from jaxform.designed_config import write_design_files, write_designed
 from jaxform.io import write_csv
 from jaxform.precision import require_x64
 from jaxform.process_config import Process, check_process_design, process_document
@@ -130,6 +130,7 @@ class Replanning:
         self.replans = 0
         self.replan_distance = float(replan_distance)
         self.made_at = {k: np.asarray(v) for k, v in problem.start.items()}  # see adopt
+        self.kept = {}  # see _keep: the first and the best evaluation, for reports
 
     start = property(lambda self: self.first.start)
     groups = property(lambda self: self.first.groups)
@@ -143,12 +144,35 @@ class Replanning:
         return self.first.physical(design)
 
     def value(self, design):
+        kept = self.kept.get(_key(design))
+        if kept is not None:  # evaluated already: the same numbers, no second run
+            val, _, ptraj = kept[1]
+            return val, ptraj
         return self._on_a_plan(lambda pb: self._clear(pb, design, pb.value(design)), design)
 
     def value_and_grad(self, design):
-        return self._on_a_plan(
-            lambda pb: self._clear(pb, design, pb.value_and_grad(design)), design
-        )
+        kept = self.kept.get(_key(design))
+        if kept is not None:
+            return kept[1]
+        out = self._on_a_plan(lambda pb: self._clear(pb, design, pb.value_and_grad(design)), design)
+        self._keep(design, out)
+        return out
+
+    def _keep(self, design, out) -> None:
+        """Keep the first evaluation and the one of least objective (with their plan's
+        problem), so that the report at the start and at the best design, and a second
+        evaluation of either, cost no run (each is a full gradient run of the process)."""
+        key, val = _key(design), float(out[0])
+        if not np.isfinite(val):
+            return
+        best = [k for k, (_, o, role) in self.kept.items() if role == "best"]
+        if not self.kept:
+            self.kept[key] = (self.current, out, "first")
+        elif not best or val < float(self.kept[best[0]][1][0]):
+            for k in best:
+                del self.kept[k]
+            if key not in self.kept:
+                self.kept[key] = (self.current, out, "best")
 
     @staticmethod
     def _clear(pb, design, out):
@@ -159,6 +183,9 @@ class Replanning:
         return out
 
     def report(self, design) -> dict:
+        kept = self.kept.get(_key(design))
+        if kept is not None:
+            return kept[0].report(design, kept[1])
         return self._on_a_plan(lambda pb: pb.report(design), design)
 
     def on_own_plan(self, design):
@@ -209,6 +236,11 @@ class Replanning:
             if np.any(step > self.replan_distance * np.where(np.isfinite(box), box, np.inf)):
                 return True
         return False
+
+
+def _key(design) -> tuple:
+    """A design as a hashable key (its values' bytes, float64, by group name)."""
+    return tuple((k, np.asarray(design[k], np.float64).tobytes()) for k in sorted(design))
 
 
 def process_problem(process: Process, groups=None, progress=None, announce=None):
@@ -291,8 +323,11 @@ def run_process_design(process: Process, out_dir, progress=None, forward_progres
     and best: the objective, each term, each blow's peak force, each constraint),
     objective.png, config.toml (the process as configured), designed.toml (the process at
     the best design) and the designed dies' profiles (die_profiles.csv, .png;
-    :func:`jaxform.designed_config.write_design_files`) to ``out_dir``."""
-    from jaxform.design import optimize
+    :func:`jaxform.designed_config.write_design_files`) to ``out_dir``.  config.toml is
+    written first, design_history.csv and designed.toml after each iteration (a design
+    stopped early leaves the rows and the best design so far); the report's start and
+    best rows come from those designs' evaluations (kept, no further run)."""
+    from jaxform.design import DesignHistory, optimize
     from jaxform.driver import design_report, optimizer_settings
     from jaxform.plot import design_objective
 
@@ -310,11 +345,23 @@ def run_process_design(process: Process, out_dir, progress=None, forward_progres
                  "programs) and evaluating the start design")  # fmt: skip
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    if announce is not None:  # the start design's terms, before a long optimization
-        start = problem.report(problem.start)
-        terms = ", ".join(f"{k} {v:.6g}" for k, v in start.items() if k != "constraints")
-        announce(f"  start design: {terms}")
-    hist = optimize(problem, optimizer_settings(d), progress=progress)
+    dump_config(process_document(process.document), out / "config.toml")
+    hist = DesignHistory()
+
+    def after_each(k, *row):
+        """The rows so far to design_history.csv and the best design so far to
+        designed.toml after each iteration, so that a design stopped anywhere (interrupted,
+        out of time) leaves what it reached; the start design's terms to ``announce``."""
+        if k == 0 and announce is not None:
+            start = problem.report(hist.designs[0])  # the evaluation just made: no run
+            terms = ", ".join(f"{n} {v:.6g}" for n, v in start.items() if n != "constraints")
+            announce(f"  start design: {terms}")
+        write_csv(out / "design_history.csv", hist.columns(problem))
+        write_designed(process, problem, hist.designs[hist.best], out)
+        if progress is not None:
+            progress(k, *row)
+
+    optimize(problem, optimizer_settings(d), progress=after_each, history=hist)
     if announce is not None and problem.replans:
         announce(f"  {problem.replans} new plans (forward runs at designs whose replay failed "
                  "or that lay beyond design.replan_distance of their plan)")  # fmt: skip
@@ -326,7 +373,6 @@ def run_process_design(process: Process, out_dir, progress=None, forward_progres
                 "another solution of the contact conditions)") if differs else ""  # fmt: skip
         announce(f"  the best design's own forward run: objective {own:.8g}, its replay "
                  f"{best:.8g}{note}")  # fmt: skip
-    dump_config(process_document(process.document), out / "config.toml")
     write_design_files(process, problem, hist, out, announce)
     write_csv(out / "design_history.csv", hist.columns(problem))
     rows = design_report(problem, hist)

@@ -55,8 +55,8 @@ class OptimizerSettings:
     max_backtracks: int = 8
     armijo: float = 1e-4
 
-    def minimize(self, problem, design=None, progress=None) -> DesignHistory:
-        return gradient_loop(problem, self, design, progress)
+    def minimize(self, problem, design=None, progress=None, history=None) -> DesignHistory:
+        return gradient_loop(problem, self, design, progress, history)
 
 
 @dataclass
@@ -118,6 +118,7 @@ def optimize(
     settings=OptimizerSettings(),
     design=None,
     progress: Callable[[int, float, float, dict], None] | None = None,
+    history: DesignHistory | None = None,
 ) -> DesignHistory:
     """Minimize ``problem``'s objective within its bounds.
 
@@ -132,22 +133,24 @@ def optimize(
         progress: called after each accepted iteration with (iteration, objective,
             projected gradient norm, design); a sampling optimizer calls it after each
             run with (runs, objective, best objective so far, design).
+        history: the :class:`DesignHistory` to fill (empty; default a new one): the caller
+            can read it from ``progress``, e.g. to write the rows so far.
 
     Returns:
         the :class:`DesignHistory`: objective, gradient norm, design and runs used per
         iteration (per run for sampling), evaluations, rejected trials, why it stopped.
     """
-    return settings.minimize(problem, design, progress)
+    return settings.minimize(problem, design, progress, history)
 
 
-def gradient_loop(problem, settings: OptimizerSettings, design=None, progress=None):
+def gradient_loop(problem, settings: OptimizerSettings, design=None, progress=None, history=None):
     """The projected L-BFGS / Adam loop of :func:`optimize` (module docstring)."""
     if settings.method not in ("lbfgs", "adam"):
         raise ValueError(f"design.optimizer = {settings.method!r}: must be 'lbfgs' or 'adam'")
     lo, hi = problem.bounds()
     project = jax.jit(lambda u: optax.projections.projection_box(u, lo, hi))
     u = project(problem.start if design is None else design)
-    hist = DesignHistory()
+    hist = DesignHistory() if history is None else history
 
     def evaluate(u):
         hist.evaluations += 1

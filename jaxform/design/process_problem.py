@@ -390,12 +390,13 @@ class ProcessDesignProblem:
     def physical(self, design) -> dict:
         return par.physical_values(self.groups, design)
 
-    def report(self, design) -> dict:
+    def report(self, design, evaluated=None) -> dict:
         """The objective (with the constraints' penalty), each term of a weighted sum
         (unweighted, its own unit), each forming operation's peak force
-        (``<operation>.peak_force_N``), the penalty and each constraint's rows.  Runs the
-        gradient program (compiled already where a design ran)."""
-        val, _, ptraj = self.value_and_grad(design)
+        (``<operation>.peak_force_N``), the penalty and each constraint's rows, from
+        ``evaluated`` (value_and_grad's output at ``design`` on this plan) or by running
+        the gradient program (compiled already where a design ran)."""
+        val, _, ptraj = self.value_and_grad(design) if evaluated is None else evaluated
         inputs, _ = self._inputs(design)
         out = {"objective": float(val)}
         if hasattr(self.objective, "values"):

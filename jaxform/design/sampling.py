@@ -70,9 +70,9 @@ class Box:
 class _Runs:
     """Runs trial designs, records them in the history, reports progress."""
 
-    def __init__(self, problem, box: Box, progress):
+    def __init__(self, problem, box: Box, progress, history=None):
         self.problem, self.box, self.progress = problem, box, progress
-        self.hist = DesignHistory()
+        self.hist = DesignHistory() if history is None else history
         self.best = np.inf
 
     def __call__(self, x: np.ndarray) -> float:
@@ -185,11 +185,12 @@ class LhsRsm:
     max_simulations: int = 200
     seed: int = 0
 
-    def minimize(self, problem, design=None, progress: Callable | None = None) -> DesignHistory:
+    def minimize(self, problem, design=None, progress: Callable | None = None,
+                 history=None) -> DesignHistory:  # fmt: skip
         """Run the plan on ``problem`` (``design`` is not used: a plan has no start);
         ``progress`` is called after each run with (runs, objective, best, design)."""
         box = Box.of(problem)
-        run = _Runs(problem, box, progress)
+        run = _Runs(problem, box, progress, history)
         rng = np.random.default_rng(self.seed)
         d = len(box.lo)
         rounds = min(self.rounds, max(self.max_simulations - 1, 1))
@@ -234,11 +235,12 @@ class CmaEs:
     seed: int = 0
     tol: float = 1e-12
 
-    def minimize(self, problem, design=None, progress: Callable | None = None) -> DesignHistory:
+    def minimize(self, problem, design=None, progress: Callable | None = None,
+                 history=None) -> DesignHistory:  # fmt: skip
         """Minimize from ``design`` (default ``problem.start``); ``progress`` is called
         after each run with (runs, objective, best, design)."""
         box = Box.of(problem)
-        run = _Runs(problem, box, progress)
+        run = _Runs(problem, box, progress, history)
         rng = np.random.default_rng(self.seed)
         start = box.flat(problem.start if design is None else design)
         state = _CmaState.start(np.clip(box.to_unit(start), 0.0, 1.0), self.sigma, self.population)

@@ -1,0 +1,81 @@
+"""A process design's evaluations are each a full gradient run of the process (minutes on
+the two-stage disk): :class:`jaxform.process_design.Replanning` keeps the first one and
+the best so far, so that the design report at the start and at the best design, and a
+second evaluation of either, run nothing.  Reference: a counting stand-in for the
+process problem (its value is the square of its one variable)."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+
+from jaxform.design import OptimizerSettings, optimize
+from jaxform.process_design import Replanning
+
+
+class Counting:
+    """A process problem's interface, f(a) = (a - 0.3)^2 on [-1, 1], runs counted."""
+
+    start = {"a": np.array([1.0])}
+    runs = 0
+
+    def bounds(self):
+        return {"a": np.array([-1.0])}, {"a": np.array([1.0])}
+
+    def physical(self, design):
+        return {"a": float(np.asarray(design["a"])[0])}
+
+    def value_and_grad(self, design):
+        self.runs += 1
+        a = np.asarray(design["a"], np.float64)
+        return float(np.sum((a - 0.3) ** 2)), {"a": 2.0 * (a - 0.3)}, f"run {self.runs}"
+
+    def value(self, design):
+        val, _, traj = self.value_and_grad(design)
+        return val, traj
+
+    def report(self, design, evaluated=None):
+        val, _, traj = self.value_and_grad(design) if evaluated is None else evaluated
+        return {"objective": val, "run": traj}
+
+    def check_dies_clear(self, design, traj):
+        pass
+
+
+def replanning():
+    process = SimpleNamespace(operations=[SimpleNamespace(config=SimpleNamespace(design=None))])
+    inner = Counting()
+    return Replanning(process, inner), inner
+
+
+def test_the_reports_at_the_start_and_the_best_design_run_nothing():
+    """After an L-BFGS design of 3 iterations: the report and the value at the start and
+    at the best design come from the runs the optimizer made (no further run, the same
+    run's output); a design evaluated neither first nor best runs again."""
+    pb, inner = replanning()
+    hist = optimize(pb, OptimizerSettings("lbfgs", iterations=3))
+    runs = inner.runs
+    assert runs == hist.evaluations >= 4
+    start, best = hist.designs[0], hist.designs[hist.best]
+    assert hist.best > 0 and hist.objective[hist.best] < hist.objective[0]
+    assert pb.report(start) == {"objective": hist.objective[0], "run": "run 1"}
+    assert pb.report(best)["objective"] == hist.objective[hist.best]
+    assert pb.value(best)[0] == hist.objective[hist.best]
+    assert inner.runs == runs  # nothing ran
+    pb.report({"a": np.array([-0.5])})
+    assert inner.runs == runs + 1
+
+
+def test_the_kept_best_follows_the_least_objective_and_skips_failed_runs():
+    """Only the first evaluation and the least one are kept (a later worse one replaces
+    nothing; a better one replaces the best)."""
+    pb, inner = replanning()
+    for a in (1.0, 0.5, 0.8, 0.35):
+        pb.value_and_grad({"a": np.array([a])})
+    roles = sorted(role for _, _, role in pb.kept.values())
+    assert roles == ["best", "first"] and len(pb.kept) == 2
+    assert pb.report({"a": np.array([0.35])})["run"] == "run 4"
+    assert pb.report({"a": np.array([1.0])})["run"] == "run 1"
+    pb.report({"a": np.array([0.5])})  # no longer kept: it runs
+    assert inner.runs == 5
