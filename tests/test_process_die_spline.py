@@ -208,6 +208,31 @@ def test_design_command_on_a_process(tmp_path, capsys):
     assert ops == {"first", "second"} and (out / "die_profiles.png").is_file()
 
 
+@pytest.mark.slow  # the start evaluation of the tiny process (compiled above)
+def test_a_design_stopped_after_its_first_evaluation_leaves_its_rows(tmp_path):
+    """A process design interrupted right after its start evaluation (the progress
+    callback raises, as Ctrl-C would): config.toml, design_history.csv (one row, the
+    start objective to 1e-9 relative, the CSV's 10 digits) and designed.toml (the start
+    design, a valid process config) are there already."""
+    from jaxform.io import read_csv
+    from jaxform.process_design import run_process_design
+
+    process = load_typed(document(iterations=1))
+
+    def stop(k, *row):
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_process_design(process, tmp_path, progress=stop, problem=problem())
+    h = read_csv(tmp_path / "design_history.csv")
+    val, _, _ = start_gradient()
+    rows = np.atleast_1d(h["objective"])
+    assert rows.shape == (1,)
+    assert abs(rows[0] - float(val)) <= 1e-9 * abs(float(val))  # the CSV's 10 digits
+    assert load_typed(tmp_path / "designed.toml").operations[1].name == "second"
+    assert (tmp_path / "config.toml").is_file()
+
+
 @pytest.mark.slow  # shares the problem above
 def test_die_spline_taylor_rate_through_the_process():
     """Taylor remainders of the second blow's die spline through the process (the first
