@@ -18,6 +18,7 @@ import numpy as np
 
 from jaxform.contact import facets_in_contact
 from jaxform.dies import sample_rounded
+from jaxform.fill import conformed_edges, slivers
 from jaxform.geometry import nearest_on_segments, polygon_measure, tributary_areas
 from jaxform.laps import fold_columns
 from jaxform.mesh import boundary_edges
@@ -238,7 +239,8 @@ def filled_volume(scene, pos: np.ndarray, t: float) -> float:
         return 0.0
     axi = scene.model.formulation.axisymmetric
     edges = boundary_edges(scene.mesh.elements)
-    m0, m1 = pos[edges[:, 0]], pos[edges[:, 1]]
+    surfaces = die_outlines(scene, t, reach_mm=0.0).values()
+    m0, m1 = conformed_edges(pos, edges, surfaces)
     c0, c1 = cav, np.roll(cav, -1, axis=0)
     tol = 1e-9 * max(float(np.ptp(cav, axis=0).max()), 1.0)
     total = _clipped_boundary_integral(m0, m1, c0, c1, True, tol, axi) + _clipped_boundary_integral(
@@ -246,10 +248,21 @@ def filled_volume(scene, pos: np.ndarray, t: float) -> float:
     )
     green = abs(2.0 * np.pi * total) if axi else abs(total)
     die = scene.settings.die
+    radius = die.part_radius_mm if die is not None and die.part_radius_mm > 0.0 else np.inf
     part = material_volume(scene, pos)
-    if die is not None and die.part_radius_mm > 0.0:
-        part -= material_beyond(scene, pos, die.part_radius_mm)
+    if radius < np.inf:
+        part -= material_beyond(scene, pos, radius)
+    for surface in surfaces:  # the slivers conforming adds (overlaps it removes) at r <= radius
+        conformed, polys = (np.asarray(a) for a in slivers(pos, edges, surface))
+        part += sum(_measure_within(poly, radius, axi) for poly in polys[conformed])
     return min(green, part, abs(float(polygon_measure(cav, axi))))
+
+
+def _measure_within(poly: np.ndarray, radius: float, axisymmetric: bool) -> float:
+    """Signed measure of the part of the polygon at r <= radius (its orientation kept)."""
+    if radius < np.inf:  # z >= -R of the polygon turned by 180 degrees and mirrored: r <= R
+        poly = -_clip_above(-poly[:, ::-1], -radius)[:, ::-1]
+    return float(polygon_measure(poly, axisymmetric)) if len(poly) >= 3 else 0.0
 
 
 def extra_history(scene, xs: np.ndarray, times: np.ndarray) -> dict[str, np.ndarray]:

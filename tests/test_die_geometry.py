@@ -201,6 +201,86 @@ def test_filled_volume_is_the_material_inside_the_cavity(width, height, expected
     assert abs(v / expected - 1.0) <= 1e-12, (v, expected)
 
 
+def _on_the_rounded_corner():
+    """The cylinder cavity's scene (die corner radius 0.5 mm at (3, 2)) and a section that
+    fills it with a 4 x 3 mesh: the rectangle [0, 3] x [0, 2], its corner node moved onto
+    the corner's arc at 45 degrees, so that the two edges beside it are chords of the
+    rounded corner (ends on the die, the arc outside the material)."""
+    sc = _cylinder_cavity_scene()
+    pos = np.asarray(sc.mesh.coords) * np.array([1.5, 2.0])
+    corner = np.argmin(np.linalg.norm(pos - np.array([3.0, 2.0]), axis=1))
+    pos[corner] = np.array([2.5, 1.5]) + 0.5 / np.sqrt(2.0)
+    return sc, pos
+
+
+def test_a_section_whose_nodes_lie_on_the_die_fills_its_rounded_corner():
+    """Every boundary node of the section lies on the die (the rounded corner's arc
+    between two of them): the history's fill is 1 (1e-12) and the design's traced
+    UnfilledCavity 0 (1e-12): the chords across the arc are the mesh's, not air
+    (:mod:`jaxform.fill`).  Without the conforming the two chords read the slivers
+    between them and the arc as unfilled (checked here: > 1e-4 of the cavity)."""
+    from jaxform.design.objectives import UnfilledCavity
+    from jaxform.geometry import polygon_measure
+    from jaxform.mesh import boundary_edges
+
+    sc, pos = _on_the_rounded_corner()
+    cav = cavity_volume(sc, 0.0)
+    assert abs(filled_volume(sc, pos, 0.0) / cav - 1.0) <= 1e-12
+    raw = float(np.sum(polygon_measure(pos[np.asarray(sc.mesh.elements)], True)))
+    assert 1.0 - raw / cav > 1e-4  # the slivers a chord leaves
+    obj = UnfilledCavity(np.asarray(sc.mesh.elements), True)
+    assert abs(float(obj(_trajectory(jnp.asarray(pos)), sc.inputs))) <= 1e-12
+    # sliding a node along the die's flat face changes nothing: zero derivative along it
+    edges = boundary_edges(np.asarray(sc.mesh.elements))
+    top = [n for n in np.unique(edges) if abs(pos[n, 1] - 2.0) < 1e-12 and 0.1 < pos[n, 0] < 2.4]
+    grad = jax.grad(lambda p: obj(_trajectory(p), sc.inputs))(jnp.asarray(pos))
+    assert len(top) == 3 and np.all(np.abs(np.asarray(grad)[top, 0]) <= 1e-12)
+
+
+def _trajectory(positions):
+    """The end of a run as the design objectives read it: positions, time."""
+    from types import SimpleNamespace
+
+    return SimpleNamespace(positions=positions, time_s=jnp.zeros(1))
+
+
+def test_a_section_bridging_a_groove_leaves_it_unfilled():
+    """A die with a groove 0.5 mm deep (r 0.85 .. 1.35 mm) over a flat section whose top
+    nodes at r = 0.75 and 1.5 mm lie on the die on either side of it: the die's path
+    between them is 2.1 times the edge, so the edge is no chord of the die (it bridges
+    the groove) and the groove reads unfilled.  Reference: the section's own Pappus
+    volume (it lies under the die) over the cavity's, 1e-6 (the die's corner radius of
+    1e-3 mm at the section's top corner)."""
+    sc = build_scene(
+        load_config(
+            {
+                "billet": {"diameter_mm": 4.0, "height_mm": 2.0},
+                "mesh": {"nr": 4, "nz": 3},
+                "die": {
+                    "speed_mm_s": 0.1,
+                    "reduction": 0.1,
+                    "closed": True,
+                    "corner_radius_mm": 1e-3,
+                    "profile_mm": [
+                        [0.0, 2.0],
+                        [0.85, 2.0],
+                        [0.95, 2.5],
+                        [1.25, 2.5],
+                        [1.35, 2.0],
+                        [3.0, 2.0],
+                        [3.0, 0.0],
+                    ],  # fmt: skip
+                },
+                "time": {"dt_s": 1.0},
+            }
+        )
+    )
+    pos = np.asarray(sc.mesh.coords) * np.array([1.5, 2.0])
+    expected = np.pi * 3.0**2 * 2.0 / cavity_volume(sc, 0.0)
+    assert expected < 0.99  # the groove is a visible part of the cavity
+    assert filled_volume(sc, pos, 0.0) / cavity_volume(sc, 0.0) == pytest.approx(expected, rel=1e-6)
+
+
 def test_part_fill_and_flash_volume_split_at_the_part_radius():
     """A flat closed die at z = 2 over r in [0, 3] with the part ending at r = 1.5 (the
     rest a flash land).  Reference, by hand (Pappus, whole workpiece = both halves):

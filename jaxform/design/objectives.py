@@ -54,7 +54,9 @@ import numpy as np
 
 from jaxform.design.parametrize import workpiece_volume
 from jaxform.dies import rounded_polyline
+from jaxform.fill import slivers
 from jaxform.geometry import polygon_measure
+from jaxform.mesh import boundary_edges
 
 
 class _Identity:
@@ -128,12 +130,30 @@ def _cavity_polygon(points, travel, corner_radius):
     :func:`jaxform.dies.rounded_polyline`; sharp where None) moved down by ``travel``,
     its last point's foot on the mid-plane.  The part of the profile below z = 0 is
     clipped by clamping, exact for profiles that cross z = 0 only at their last segment."""
-    pts = points if corner_radius is None else rounded_polyline(points, corner_radius)
-    pts = pts - jnp.stack([0.0, travel])[None, :]
+    pts = die_surface(points, travel, corner_radius)
     pts = pts.at[:, 1].set(jnp.maximum(pts[:, 1], 0.0))
     return jnp.concatenate(
         [jnp.zeros((1, 2), pts.dtype), pts, jnp.stack([pts[-1, 0], 0.0])[None, :]], axis=0
     )
+
+
+def die_surface(points, travel, corner_radius):
+    """The die's surface moved down by ``travel``, its corners rounded as the contact
+    sees them (:func:`jaxform.dies.rounded_polyline`; traceable)."""
+    pts = points if corner_radius is None else rounded_polyline(points, corner_radius)
+    return pts - jnp.stack([0.0, travel])[None, :]
+
+
+def conformed_change(pos, elements, surface, axisymmetric: bool, radius=None):
+    """What the material's measure gains where its boundary edges conform to the die
+    ``surface`` (:mod:`jaxform.fill`): each sliver between a chord and a concave die path,
+    less each overlap of a convex one; with ``radius`` its part at r <= radius.  The
+    boundary edges are the mesh's (``elements``, static).  Traceable."""
+    conformed, polys = slivers(pos, boundary_edges(np.asarray(elements)), surface)
+    change = polygon_measure(polys, axisymmetric)
+    if radius is not None:
+        change = change - polygon_measure_beyond(polys, radius, axisymmetric)
+    return jnp.sum(jnp.where(conformed, change, 0.0))
 
 
 def cavity_volume(points, travel, axisymmetric: bool, corner_radius=None):
@@ -155,6 +175,8 @@ class UnfilledCavity(_Identity):
         die = inputs.die
         vol = workpiece_volume(traj.positions, self.elements, self.axisymmetric)
         t = traj.time_s[-1]
+        surface = die_surface(die.points, die.travel(t), die.corner_radius)
+        vol = vol + conformed_change(traj.positions, self.elements, surface, self.axisymmetric)
         cav = cavity_volume(die.points, die.travel(t), self.axisymmetric, die.corner_radius)
         return 1.0 - vol / cav
 
@@ -379,6 +401,8 @@ class UnfilledPart(_Identity):
         inside = jnp.sum(polygon_measure(quads, axi) - beyond)
         die = inputs.die.members[0]
         t = traj.time_s[-1]
+        surface = die_surface(die.points, die.travel(t), die.corner_radius)
+        inside = inside + conformed_change(traj.positions, self.elements, surface, axi, self.radius)
         cav = part_cavity_volume(die.points, die.travel(t), self.radius, axi, die.corner_radius)
         return 1.0 - inside / cav
 
