@@ -352,7 +352,7 @@ def run_process_design(process: Process, out_dir, progress=None, forward_progres
         """The rows so far to design_history.csv and the best design so far to
         designed.toml after each iteration, so that a design stopped anywhere (interrupted,
         out of time) leaves what it reached; the start design's terms to ``announce``."""
-        if k == 0 and announce is not None:
+        if len(hist.objective) == 1 and announce is not None:  # sampling counts runs from 1
             start = problem.report(hist.designs[0])  # the evaluation just made: no run
             terms = ", ".join(f"{n} {v:.6g}" for n, v in start.items() if n != "constraints")
             announce(f"  start design: {terms}")
