@@ -148,11 +148,13 @@ class Replanning:
         if kept is not None:  # evaluated already: the same numbers, no second run
             val, _, ptraj = kept[1]
             return val, ptraj
-        return self._on_a_plan(lambda pb: self._clear(pb, design, pb.value(design)), design)
+        val, ptraj = self._on_a_plan(lambda pb: self._clear(pb, design, pb.value(design)), design)
+        self._keep(design, (val, None, ptraj))
+        return val, ptraj
 
     def value_and_grad(self, design):
         kept = self.kept.get(_key(design))
-        if kept is not None:
+        if kept is not None and kept[1][1] is not None:
             return kept[1]
         out = self._on_a_plan(lambda pb: self._clear(pb, design, pb.value_and_grad(design)), design)
         self._keep(design, out)
@@ -160,19 +162,19 @@ class Replanning:
 
     def _keep(self, design, out) -> None:
         """Keep the first evaluation and the one of least objective (with their plan's
-        problem), so that the report at the start and at the best design, and a second
-        evaluation of either, cost no run (each is a full gradient run of the process)."""
+        problem; ``out`` (value, gradient or None, run)), so that the report at the start
+        and at the best design, and a second evaluation of either, cost no run (on the
+        disk each is a forward or gradient run of minutes)."""
         key, val = _key(design), float(out[0])
         if not np.isfinite(val):
             return
-        best = [k for k, (_, o, role) in self.kept.items() if role == "best"]
-        if not self.kept:
+        if key in self.kept:  # a gradient run where a value run was kept: the fuller one
+            self.kept[key] = (self.current, out, self.kept[key][2])
+        elif not self.kept:
             self.kept[key] = (self.current, out, "first")
-        elif not best or val < float(self.kept[best[0]][1][0]):
-            for k in best:
-                del self.kept[k]
-            if key not in self.kept:
-                self.kept[key] = (self.current, out, "best")
+        elif val < min(float(o[0]) for _, o, _ in self.kept.values()):
+            self.kept = {k: v for k, v in self.kept.items() if v[2] != "best"}
+            self.kept[key] = (self.current, out, "best")
 
     @staticmethod
     def _clear(pb, design, out):
@@ -352,8 +354,9 @@ def run_process_design(process: Process, out_dir, progress=None, forward_progres
         """The rows so far to design_history.csv and the best design so far to
         designed.toml after each iteration, so that a design stopped anywhere (interrupted,
         out of time) leaves what it reached; the start design's terms to ``announce``."""
-        if len(hist.objective) == 1 and announce is not None:  # sampling counts runs from 1
-            start = problem.report(hist.designs[0])  # the evaluation just made: no run
+        first = len(hist.objective) == 1  # (sampling counts its runs from 1)
+        if first and announce is not None and np.isfinite(hist.objective[0]):
+            start = problem.report(hist.designs[0])  # the evaluation just made, kept
             terms = ", ".join(f"{n} {v:.6g}" for n, v in start.items() if n != "constraints")
             announce(f"  start design: {terms}")
         write_csv(out / "design_history.csv", hist.columns(problem))

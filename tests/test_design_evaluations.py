@@ -9,6 +9,7 @@ from __future__ import annotations
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 
 from jaxform.design import OptimizerSettings, optimize
 from jaxform.process_design import Replanning
@@ -79,3 +80,19 @@ def test_the_kept_best_follows_the_least_objective_and_skips_failed_runs():
     assert pb.report({"a": np.array([1.0])})["run"] == "run 1"
     pb.report({"a": np.array([0.5])})  # no longer kept: it runs
     assert inner.runs == 5
+
+
+def test_a_value_run_is_kept_and_a_gradient_run_there_replaces_it():
+    """A sampling optimizer evaluates values only: the first and the least are kept as
+    well (a report there runs nothing); a gradient asked at a design kept without one
+    runs once and is then kept in its place."""
+    pb, inner = replanning()
+    for a in (1.0, 0.2, 0.6):
+        pb.value({"a": np.array([a])})
+    assert inner.runs == 3
+    assert pb.report({"a": np.array([0.2])})["run"] == "run 2"
+    assert inner.runs == 3
+    val, grad, run = pb.value_and_grad({"a": np.array([0.2])})
+    assert inner.runs == 4 and run == "run 4" and float(grad["a"][0]) == pytest.approx(-0.2)
+    assert pb.value_and_grad({"a": np.array([0.2])})[2] == "run 4"
+    assert inner.runs == 4
