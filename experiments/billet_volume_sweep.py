@@ -73,8 +73,9 @@ def run_scale(config: Path, scale: float, out: Path, overrides: list[str], timeo
     folder.mkdir(parents=True, exist_ok=True)
     (folder / "run.log").write_text(out_text + err)
     lines = out_text.splitlines()
-    row["laps"] = sum(1 for line in lines if line.strip().startswith("lap:"))
-    row["pockets"] = sum(1 for line in lines if line.strip().startswith("pocket"))
+    # each operation's laps and pockets to its end ("<operation>: lap: ..." in a process)
+    row["laps"] = sum(1 for line in lines if "lap: from stroke" in line)
+    row["pockets"] = sum(1 for line in lines if "pocket (underfill along the die)" in line)
     if code == 0:
         op, peaks = last_forming(folder)
         end = end_of(folder, op)

@@ -245,17 +245,23 @@ def _material_point(args) -> int:
 
 def fold_lines(result) -> list[str]:
     """One line per persisting lap (a wedge: the material folded onto itself) and per
-    persisting pocket (air between the material and a die) of a run (:mod:`jaxform.laps`)."""
+    persisting pocket (air between the material and a die) of a run (:mod:`jaxform.laps`),
+    in a process each headed by its operation (to whose end it persists)."""
+
+    def head(fold) -> str:
+        return f"{fold['operation']}: " if "operation" in fold else ""
+
     out = [
-        f"lap: from stroke {lap['stroke_mm']:.4g} mm the free surface folds onto itself at "
-        f"({lap['end_r_mm']:.4g}, {lap['end_z_mm']:.4g}) mm and stays folded to the end, "
+        f"{head(lap)}lap: from stroke {lap['stroke_mm']:.4g} mm the free surface folds onto "
+        f"itself at ({lap['end_r_mm']:.4g}, {lap['end_z_mm']:.4g}) mm and stays folded to the end, "
         f"fold angle {lap['angle_deg']:.3g} -> {lap['end_angle_deg']:.3g} deg, depth "
         f"{lap['depth_mm']:.3g} mm (history wedge_angle_deg, wedge_depth_mm; "
         f"output.lap_angle_deg)"
         for lap in result.laps
     ]
     out += [
-        f"pocket (underfill along the die): from stroke {p['stroke_mm']:.4g} mm air stays "
+        f"{head(p)}pocket (underfill along the die): from stroke {p['stroke_mm']:.4g} mm air "
+        "stays "
         f"between the material and the die at ({p['end_r_mm']:.4g}, {p['end_z_mm']:.4g}) mm, "
         f"closed at both ends by material on the die: gap {1e3 * p['gap_mm']:.3g} um, "
         f"{p['length_mm']:.3g} mm long; not a lap (history pocket_gap_mm, pocket_length_mm)"

@@ -144,11 +144,14 @@ class ProcessResult:
 
     @property
     def laps(self) -> list:
-        return [lap for run in self.runs for lap in run.result.laps]
+        """Each operation's laps (to its end), with the operation's name (``operation``)."""
+        return [{**lap, "operation": r.operation.name} for r in self.runs for lap in r.result.laps]
 
     @property
     def pockets(self) -> list:
-        return [p for run in self.runs for p in run.result.pockets]
+        """Each operation's pockets (to its end), with the operation's name: a blocker
+        leaves air along its die that the finisher then fills."""
+        return [{**p, "operation": r.operation.name} for r in self.runs for p in r.result.pockets]
 
 
 def positions_of(part: PartState) -> np.ndarray:

@@ -204,7 +204,8 @@ def test_a_pocket_along_a_rounded_die_corner():
 
 def test_the_command_line_and_the_plot_tell_laps_from_pockets(tmp_path):
     """One line per lap (with its depth) and per pocket (gap in micrometres, length, 'not
-    a lap'); the deformed-mesh plot marks a pocket with its own marker and legend entry."""
+    a lap'), in a process headed by its operation; the deformed-mesh plot marks a pocket
+    with its own marker and legend entry."""
     from jaxform import plot
     from jaxform.cli import fold_lines
 
@@ -216,6 +217,9 @@ def test_the_command_line_and_the_plot_tell_laps_from_pockets(tmp_path):
     assert lines[0].startswith("lap: ") and "depth 0.25 mm" in lines[0]
     assert lines[1].startswith("pocket (underfill along the die): ")
     assert "gap 6.2 um" in lines[1] and "1.68 mm long" in lines[1] and "not a lap" in lines[1]
+    # in a process each is headed by the operation to whose end it persists
+    tagged = fold_lines(SimpleNamespace(laps=[], pockets=[{**pocket, "operation": "blocker"}]))
+    assert tagged == ["blocker: " + lines[1]]
     coords = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
     fig = plot.deformed_mesh(coords, coords, np.array([[0, 1, 2, 3]]), tmp_path / "m.png",
                              "mesh", marks=plot.Marks(((0.5, 1.0),), ((1.0, 0.5),)))  # fmt: skip
