@@ -981,6 +981,35 @@ def test_the_finisher_fold_that_hung_gmsh_is_untangled_and_meshes():
     assert min_quality(mesh.coords, mesh.elements) > 0.0
 
 
+def test_a_fold_cut_a_hair_from_a_vertex_leaves_no_needle():
+    """Generated die 29 (seeded flanged hub) stopped at 4.068 mm: its remesh's polygon
+    (tests/data/generated_die29_fold_polygon.csv, saved from the run at 4.06 mm) crosses
+    itself where a fin folded over, and the crossing falls 5.5 um from the fold's next
+    vertex.  Cut there alone, it leaves a needle (two vertices 5.5 um apart, turns of 145
+    and 157 deg) that gmsh meshes only split, with corners of quality ~0.02 (the step
+    after it failed).  :func:`fold_cut` drops the vertices nearer than THIN x the die
+    size to the one before: no two vertices closer than that, the polygon meshes on the
+    first try with every corner above 0.3 (measured 0.62), the cut area unchanged."""
+    import jaxform.section_mesh as sm
+
+    pts, labels, sizes = _saved_polygon("generated_die29_fold_polygon.csv")
+    min_gap = 0.0578328695  # THIN x the run's die size (0.5 x 0.3856 mm)
+
+    def sizes_at(points):  # each vertex takes the wanted size of the nearest saved one
+        return sizes[np.argmin(np.linalg.norm(points[:, None] - pts[None], axis=2), axis=1)]
+
+    bare, bare_labels, cut = sm.untangled(pts, labels)
+    edges = np.linalg.norm(np.roll(bare, -1, axis=0) - bare, axis=1)
+    assert cut > 0.0 and edges.min() < 1e-2  # the needle
+    mesh, how = sm.quads_of(bare, bare_labels, sizes_at(bare))
+    assert how.split and min_quality(mesh.coords, mesh.elements) < 0.05
+    out, labs, cut2 = sm.fold_cut(pts, labels, min_gap)
+    assert cut2 == cut
+    assert np.linalg.norm(np.roll(out, -1, axis=0) - out, axis=1).min() >= min_gap
+    mesh, how = sm.quads_of(out, labs, sizes_at(out))
+    assert not how and min_quality(mesh.coords, mesh.elements) > 0.3
+
+
 def test_the_run_notes_what_the_mesher_needed():
     """The run's note counts the remeshes whose mesher needed finer sizes, the split into
     quadrilaterals or a fold cut (RemeshReport.mesher as quads_of and new_section_mesh
