@@ -35,6 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxform.contact import TOUCH_GAP_MM
+from jaxform.geometry import nearest_on_segments
 
 CONFORM_GAP_MM = TOUCH_GAP_MM  # a node this close to the die lies on it (contact's touching gap)
 CONFORM_PATH_RATIO = 1.2  # the die's path between the ends over the edge's length, at most
@@ -43,16 +44,8 @@ CONFORM_PATH_RATIO = 1.2  # the die's path between the ends over the edge's leng
 def _project(points, surface, arc):
     """(arc length along the polyline ``surface`` (m, 2), its vertices at ``arc`` (m,), of
     each point's nearest point on it, the distance): the points (p, 2); traceable."""
-    a, b = surface[:-1], surface[1:]
-    d = b - a
-    s = jnp.einsum("pmi,mi->pm", points[:, None] - a[None], d) / jnp.maximum(
-        jnp.sum(d * d, axis=1), 1e-300
-    )
-    s = jnp.clip(s, 0.0, 1.0)
-    dist = jnp.linalg.norm(points[:, None] - (a[None] + s[..., None] * d[None]), axis=2)
-    k = jnp.argmin(dist, axis=1)
-    rows = jnp.arange(points.shape[0])
-    return arc[k] + s[rows, k] * (arc[k + 1] - arc[k]), dist[rows, k]
+    k, s, dist = nearest_on_segments(points, surface[:-1], surface[1:], xp=jnp)
+    return arc[k] + s * (arc[k + 1] - arc[k]), dist
 
 
 def slivers(pos, edges, surface):

@@ -105,17 +105,18 @@ def tributary_areas(pos, facets, axisymmetric: bool, counted=None, xp=np):
     return xp.zeros(n, dtype=pos.dtype).at[facets[:, 0]].add(wa).at[facets[:, 1]].add(wb)
 
 
-def nearest_on_segments(points: np.ndarray, a: np.ndarray, b: np.ndarray):
+def nearest_on_segments(points, a, b, xp=np):
     """For each of the points (p, 2), the nearest of the segments a -> b (m, 2): (its index
-    (p,), the parameter along it (p,) in [0, 1], the distance (p,), mm).  Host NumPy."""
+    (p,), the parameter along it (p,) in [0, 1], the distance (p,), mm).  ``xp``: NumPy
+    (host) or ``jax.numpy`` (traced; the index carries no derivative)."""
     d = b - a
-    s = np.einsum("pmi,mi->pm", points[:, None] - a[None], d) / np.maximum(
-        np.sum(d * d, axis=1), 1e-300
+    s = xp.einsum("pmi,mi->pm", points[:, None] - a[None], d) / xp.maximum(
+        xp.sum(d * d, axis=1), 1e-300
     )
-    s = np.clip(s, 0.0, 1.0)
-    dist = np.linalg.norm(points[:, None] - (a[None] + s[..., None] * d[None]), axis=2)
-    k = np.argmin(dist, axis=1)
-    rows = np.arange(len(points))
+    s = xp.clip(s, 0.0, 1.0)
+    dist = xp.linalg.norm(points[:, None] - (a[None] + s[..., None] * d[None]), axis=2)
+    k = xp.argmin(dist, axis=1)
+    rows = xp.arange(points.shape[0])
     return k, s[rows, k], dist[rows, k]
 
 

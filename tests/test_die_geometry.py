@@ -158,24 +158,26 @@ def test_a_zero_corner_radius_is_rejected():
         )
 
 
-def _cylinder_cavity_scene(nr=4, nz=3):
-    """Closed flat die at z = 2 over r in [0, 3] (cavity: cylinder r < 3, z < 2), billet
-    r < 2, z < 1 (only the geometry is used)."""
+def _closed_die_scene(profile, nr=4, nz=3, **die):
+    """A closed die of ``profile`` (and ``die`` keys) over the billet r < 2, z < 1 (only
+    the geometry is used)."""
+    die = {"speed_mm_s": 0.1, "reduction": 0.1, "closed": True, "profile_mm": profile, **die}
     return build_scene(
         load_config(
             {
                 "billet": {"diameter_mm": 4.0, "height_mm": 2.0},
                 "mesh": {"nr": nr, "nz": nz},
-                "die": {
-                    "speed_mm_s": 0.1,
-                    "reduction": 0.1,
-                    "closed": True,
-                    "profile_mm": [[0.0, 2.0], [3.0, 2.0], [3.0, 0.0]],
-                },
+                "die": die,
                 "time": {"dt_s": 1.0},
             }
         )
     )
+
+
+def _cylinder_cavity_scene(nr=4, nz=3):
+    """Closed flat die at z = 2 over r in [0, 3] (cavity: cylinder r < 3, z < 2), billet
+    r < 2, z < 1 (only the geometry is used)."""
+    return _closed_die_scene([[0.0, 2.0], [3.0, 2.0], [3.0, 0.0]], nr, nz)
 
 
 @pytest.mark.parametrize(
@@ -251,30 +253,9 @@ def test_a_section_bridging_a_groove_leaves_it_unfilled():
     the groove) and the groove reads unfilled.  Reference: the section's own Pappus
     volume (it lies under the die) over the cavity's, 1e-6 (the die's corner radius of
     1e-3 mm at the section's top corner)."""
-    sc = build_scene(
-        load_config(
-            {
-                "billet": {"diameter_mm": 4.0, "height_mm": 2.0},
-                "mesh": {"nr": 4, "nz": 3},
-                "die": {
-                    "speed_mm_s": 0.1,
-                    "reduction": 0.1,
-                    "closed": True,
-                    "corner_radius_mm": 1e-3,
-                    "profile_mm": [
-                        [0.0, 2.0],
-                        [0.85, 2.0],
-                        [0.95, 2.5],
-                        [1.25, 2.5],
-                        [1.35, 2.0],
-                        [3.0, 2.0],
-                        [3.0, 0.0],
-                    ],  # fmt: skip
-                },
-                "time": {"dt_s": 1.0},
-            }
-        )
-    )
+    groove = [[0.0, 2.0], [0.85, 2.0], [0.95, 2.5], [1.25, 2.5], [1.35, 2.0], [3.0, 2.0],
+              [3.0, 0.0]]  # fmt: skip
+    sc = _closed_die_scene(groove, corner_radius_mm=1e-3)
     pos = np.asarray(sc.mesh.coords) * np.array([1.5, 2.0])
     expected = np.pi * 3.0**2 * 2.0 / cavity_volume(sc, 0.0)
     assert expected < 0.99  # the groove is a visible part of the cavity
@@ -289,23 +270,8 @@ def test_part_fill_and_flash_volume_split_at_the_part_radius():
     r < 1, z < 2 fills (1/1.5)^2 of the part and has no flash.  1e-12 relative."""
     from jaxform.postprocess import extra_history
 
-    sc = build_scene(
-        load_config(
-            {
-                "billet": {"diameter_mm": 4.0, "height_mm": 2.0},
-                "mesh": {"nr": 5, "nz": 3},
-                "die": {
-                    "speed_mm_s": 0.1,
-                    "reduction": 0.1,
-                    "closed": True,
-                    "part_radius_mm": 1.5,
-                    "corner_radius_mm": 1e-3,
-                    "profile_mm": [[0.0, 2.0], [3.0, 2.0], [3.0, 0.0]],
-                },
-                "time": {"dt_s": 1.0},
-            }
-        )
-    )
+    sc = _closed_die_scene([[0.0, 2.0], [3.0, 2.0], [3.0, 0.0]], nr=5, part_radius_mm=1.5,
+                           corner_radius_mm=1e-3)  # fmt: skip
     c0 = np.asarray(sc.mesh.coords)
     lay = sc.model.layout
     rows = []
