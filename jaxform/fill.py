@@ -87,11 +87,13 @@ def slivers(pos, edges, surface):
     return jax.lax.stop_gradient(conformed), polys
 
 
-def conformed_edges(pos: np.ndarray, edges: np.ndarray, surfaces) -> tuple[np.ndarray, np.ndarray]:
+def conformed_edges(pos: np.ndarray, edges: np.ndarray, surfaces):
     """The material's boundary (the directed edges ``edges`` at ``pos``) with each edge
-    that conforms to one of the die ``surfaces`` replaced by its path along that die: the
-    (start, end) points (k, 2) of the boundary's segments.  Host NumPy."""
-    starts, ends = [pos[edges[:, 0]]], [pos[edges[:, 1]]]
+    that conforms to one of the die ``surfaces`` (the first it conforms to) replaced by
+    its path along that die: (the start points (k, 2), the end points (k, 2) of the
+    boundary's segments, the conformed edges' closed sliver polygons, whose signed
+    measures are what conforming adds, :func:`slivers`).  Host NumPy."""
+    starts, ends, used = [pos[edges[:, 0]]], [pos[edges[:, 1]]], []
     keep = np.ones(len(edges), dtype=bool)
     for surface in surfaces:
         conformed, polys = (np.asarray(a) for a in slivers(pos, edges, surface))
@@ -100,7 +102,7 @@ def conformed_edges(pos: np.ndarray, edges: np.ndarray, surfaces) -> tuple[np.nd
             path = poly[np.r_[True, np.any(np.diff(poly, axis=0) != 0.0, axis=1)]]
             starts.append(path[:-1])
             ends.append(path[1:])
+            used.append(poly)
         keep &= ~conformed
-    return np.concatenate([starts[0][keep], *starts[1:]]), np.concatenate(
-        [ends[0][keep], *ends[1:]]
-    )
+    return (np.concatenate([starts[0][keep], *starts[1:]]),
+            np.concatenate([ends[0][keep], *ends[1:]]), used)  # fmt: skip

@@ -18,7 +18,7 @@ import numpy as np
 
 from jaxform.contact import facets_in_contact
 from jaxform.dies import sample_rounded
-from jaxform.fill import conformed_edges, slivers
+from jaxform.fill import conformed_edges
 from jaxform.geometry import nearest_on_segments, polygon_measure, tributary_areas
 from jaxform.laps import fold_columns
 from jaxform.mesh import boundary_edges
@@ -240,7 +240,7 @@ def filled_volume(scene, pos: np.ndarray, t: float) -> float:
     axi = scene.model.formulation.axisymmetric
     edges = boundary_edges(scene.mesh.elements)
     surfaces = die_outlines(scene, t, reach_mm=0.0).values()
-    m0, m1 = conformed_edges(pos, edges, surfaces)
+    m0, m1, sliver_polygons = conformed_edges(pos, edges, surfaces)
     c0, c1 = cav, np.roll(cav, -1, axis=0)
     tol = 1e-9 * max(float(np.ptp(cav, axis=0).max()), 1.0)
     total = _clipped_boundary_integral(m0, m1, c0, c1, True, tol, axi) + _clipped_boundary_integral(
@@ -252,9 +252,8 @@ def filled_volume(scene, pos: np.ndarray, t: float) -> float:
     part = material_volume(scene, pos)
     if radius < np.inf:
         part -= material_beyond(scene, pos, radius)
-    for surface in surfaces:  # the slivers conforming adds (overlaps it removes) at r <= radius
-        conformed, polys = (np.asarray(a) for a in slivers(pos, edges, surface))
-        part += sum(_measure_within(poly, radius, axi) for poly in polys[conformed])
+    # the slivers conforming adds (the overlaps it removes) at r <= radius
+    part += sum(_measure_within(poly, radius, axi) for poly in sliver_polygons)
     return min(green, part, abs(float(polygon_measure(cav, axi))))
 
 
