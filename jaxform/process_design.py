@@ -160,21 +160,24 @@ class Replanning:
         self._keep(design, out)
         return out
 
-    def _keep(self, design, out) -> None:
-        """Keep the first evaluation and the one of least objective (with their plan's
-        problem; ``out`` (value, gradient or None, run)), so that the report at the start
-        and at the best design, and a second evaluation of either, cost no run (on the
-        disk each is a forward or gradient run of minutes)."""
+    def _keep(self, design, out, problem=None) -> None:
+        """Keep the first evaluation and the one of least objective (with the problem on
+        the plan it ran on, default the current one; ``out`` (value, gradient or None,
+        run)), so that the report at the start and at the best design, and a second
+        evaluation of either, cost no run (on the disk each is a forward or gradient run
+        of minutes)."""
         key, val = _key(design), float(out[0])
+        problem = self.current if problem is None else problem
         if not np.isfinite(val):
             return
         if key in self.kept:  # a gradient run where a value run was kept: the fuller one
-            self.kept[key] = (self.current, out, self.kept[key][2])
+            if out[1] is not None or self.kept[key][1][1] is None:
+                self.kept[key] = (problem, out, self.kept[key][2])
         elif not self.kept:
-            self.kept[key] = (self.current, out, "first")
+            self.kept[key] = (problem, out, "first")
         elif val < min(float(o[0]) for _, o, _ in self.kept.values()):
             self.kept = {k: v for k, v in self.kept.items() if v[2] != "best"}
-            self.kept[key] = (self.current, out, "best")
+            self.kept[key] = (problem, out, "best")
 
     @staticmethod
     def _clear(pb, design, out):
@@ -202,9 +205,26 @@ class Replanning:
         self.made_at = {k: np.asarray(v) for k, v in design.items()}
 
     def forward_value(self, design) -> float:
-        """The objective at ``design`` on the plan of its own forward run (what `jaxform
-        run` of the design's config gives), without adopting that plan."""
-        return float(self.on_own_plan(design).value(design)[0])
+        """The objective at ``design`` of the forward process at that design, read from
+        the run itself (:func:`jaxform.process_gradients.forward_trajectory`: no replay,
+        nothing more to compile): what `jaxform run` of the design's config gives, and
+        what a sampling optimizer evaluates (a forward simulation each, as the commercial
+        codes run).  The plan stays; the evaluation is kept as a replay's is (the first,
+        the least).  Raises :class:`jaxform.gradients.GradientRunError` where that run
+        fails or an operation is refused."""
+        from jaxform.gradients import GradientRunError
+        from jaxform.process import OperationRefused
+        from jaxform.process_gradients import forward_trajectory
+
+        try:
+            result, plan = forward_plan(self.process, at=(self.first, design))
+        except (SimulationError, OperationRefused) as err:  # no process at this design
+            raise GradientRunError(f"the forward process at this design failed: {err}") from None
+        problem = replace(self.first, plan=plan, objective=self.objective_of(plan))
+        ptraj = forward_trajectory(result)
+        val = problem.value_of(design, ptraj)
+        self._keep(design, (val, None, ptraj), problem)
+        return val
 
     def _on_a_plan(self, evaluate, design):
         from jaxform.design.process_problem import DieIntoPart
@@ -296,16 +316,6 @@ def robust(process: Process, problem, announce=None):
     return Scenarios(tuple(problems), names, scenarios, d.robust)
 
 
-def forward_value(problem, design) -> float:
-    """The objective at ``design`` from the forward process at that design (each scenario's
-    for a robust problem, aggregated as it aggregates them)."""
-    scenarios = getattr(problem, "scenarios", None)
-    if scenarios is None:
-        return problem.forward_value(design)
-    values = [p.forward_value({**design, **s}) for p, s in zip(problem.problems, scenarios)]
-    return max(values) if problem.aggregate == "worst" else float(np.mean(values))
-
-
 def run_process_taylor(process: Process, groups=None, h=(1.0, 0.5, 0.25, 0.125), progress=None,
                        forward_progress=None, announce=None):  # fmt: skip
     """Taylor test of each group (default: design.variables) of a process's problem."""
@@ -369,7 +379,7 @@ def run_process_design(process: Process, out_dir, progress=None, forward_progres
         announce(f"  {problem.replans} new plans (forward runs at designs whose replay failed "
                  "or that lay beyond design.replan_distance of their plan)")  # fmt: skip
     if announce is not None:  # the best design as `jaxform run` of its config runs it
-        own = forward_value(problem, hist.designs[hist.best])
+        own = problem.forward_value(hist.designs[hist.best])
         best = float(hist.objective[hist.best])
         differs = abs(own - best) > 1e-6 * max(abs(best), 1e-12)
         note = (" (they differ: the forward run took other steps, or its Newton solves found "

@@ -300,6 +300,39 @@ def process_trajectory(plan: ProcessPlan, inputs=None, times=None) -> ProcessTra
     return ProcessTrajectory(tuple(out))
 
 
+def forward_trajectory(result) -> ProcessTrajectory:
+    """What :func:`process_trajectory` of ``result``'s own plan gives at the design it ran
+    at (each replayed step converges where the forward run's did), read from the forward
+    :class:`jaxform.process.ProcessResult` itself: each operation's history on its own
+    clock (time, stroke, force, friction work, Newton iterations) and its final state on
+    the mesh it ends on.  No replay and nothing to compile: the values of the outputs,
+    not their gradients.  ``contact_status`` has no rows and ``temperature_K`` is None
+    (the per-row fields are not read; no process objective reads them)."""
+    out = []
+    for run in result.runs:
+        res = run.result
+        h, scene, state = res.history, res.final_scene, res.final_state
+        lay = scene.model.layout
+        coords = jnp.asarray(scene.inputs.coords)
+        n = len(h["time_s"]) - 1
+        out.append(Trajectory(
+            time_s=jnp.asarray(h["time_s"], float),
+            stroke_mm=jnp.asarray(h["stroke_mm"], float),
+            force_N=jnp.asarray(h["force_N"], float),
+            friction_work_Nmm=jnp.asarray(h["friction_work_Nmm"], float),
+            x=jnp.asarray(state.x),
+            gauss=state.gauss,
+            positions=coords + lay.nodal(jnp.asarray(state.x))[:, :2],
+            coords=coords,
+            codes=jnp.zeros(n, jnp.int32),
+            iterations=jnp.asarray(h["newton_iterations"][1:], jnp.int32),
+            contact_status=jnp.zeros((0, lay.n_contact), jnp.int32),
+            temperature_K=None,
+            final_state=state,
+        ))  # fmt: skip
+    return ProcessTrajectory(tuple(out))
+
+
 def check_process(plan: ProcessPlan, ptraj: ProcessTrajectory) -> None:
     """Raise :class:`jaxform.gradients.GradientRunError` (naming the operation) if a step
     of the process's differentiable run failed (outside jit)."""

@@ -96,3 +96,23 @@ def test_a_value_run_is_kept_and_a_gradient_run_there_replaces_it():
     assert inner.runs == 4 and run == "run 4" and float(grad["a"][0]) == pytest.approx(-0.2)
     assert pb.value_and_grad({"a": np.array([0.2])})[2] == "run 4"
     assert inner.runs == 4
+
+
+def test_a_sampling_optimizer_runs_the_forward_process_not_the_replay():
+    """LHS-RSM on a process problem evaluates each design by its forward run
+    (``forward_value``: one simulation a design, as the sampling codes run them), never by
+    a replay of a plan; the history holds those values."""
+    from jaxform.design import LhsRsm
+
+    pb, inner = replanning()
+    forward = []
+
+    def forward_value(design):
+        a = float(np.asarray(design["a"])[0])
+        forward.append(a)
+        return (a - 0.3) ** 2 + 1.0  # not the replay's value: which one was read shows
+
+    pb.forward_value = forward_value
+    hist = optimize(pb, LhsRsm(samples_per_variable=4, rounds=1, max_simulations=10, seed=0))
+    assert inner.runs == 0 and len(forward) == hist.evaluations >= 4
+    np.testing.assert_allclose(hist.objective, [(a - 0.3) ** 2 + 1.0 for a in forward])

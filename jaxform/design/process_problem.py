@@ -375,6 +375,13 @@ class ProcessDesignProblem:
         check_process(self.plan, ptraj)
         return val, ptraj
 
+    def value_of(self, design, ptraj) -> float:
+        """The objective at ``design`` of a run made already (``ptraj``: on this problem's
+        plan, e.g. the forward run's own, :func:`jaxform.process_gradients.forward_trajectory`),
+        with the groups' penalties, as :meth:`value` gives it for its replay."""
+        inputs, _ = self._inputs(design)
+        return float(self._objective(ptraj, inputs) + par.penalty_of(self.groups, design))
+
     def value_and_grad(self, design):
         (val, ptraj), grad = jax.value_and_grad(self._j, has_aux=True)(design)
         check_process(self.plan, ptraj)

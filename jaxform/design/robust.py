@@ -85,6 +85,12 @@ class Scenarios:
         return [float(p.value(self._full(design, k))[0])
                 for k, p in enumerate(self.problems)]  # fmt: skip
 
+    def forward_value(self, design) -> float:
+        """The objective aggregated over the scenarios' own forward runs (each inner
+        problem's ``forward_value``: a process's, :class:`jaxform.process_design.Replanning`)."""
+        vals = [float(p.forward_value(self._full(design, k))) for k, p in enumerate(self.problems)]
+        return max(vals) if self.aggregate == "worst" else float(np.mean(vals))
+
     def value(self, design):
         runs = [p.value(self._full(design, k)) for k, p in enumerate(self.problems)]
         vals = [float(v) for v, _ in runs]

@@ -68,18 +68,27 @@ class Box:
 
 
 class _Runs:
-    """Runs trial designs, records them in the history, reports progress."""
+    """Runs trial designs, records them in the history, reports progress.  A problem with
+    a ``forward_value`` (a process's: :class:`jaxform.process_design.Replanning`) is
+    evaluated by the forward simulation at each design, as the sampling codes run it;
+    another by its ``value``."""
 
     def __init__(self, problem, box: Box, progress, history=None):
         self.problem, self.box, self.progress = problem, box, progress
         self.hist = DesignHistory() if history is None else history
         self.best = np.inf
 
+    def _value(self, design) -> float:
+        forward = getattr(self.problem, "forward_value", None)
+        if forward is not None:
+            return float(forward(design))
+        return float(self.problem.value(design)[0])
+
     def __call__(self, x: np.ndarray) -> float:
         design = self.box.tree(np.clip(x, self.box.lo, self.box.hi))
         program_store.release_if_crowded()  # each design's meshes compile programs of their own
         try:
-            val = float(self.problem.value(design)[0])
+            val = self._value(design)
         except GradientRunError:
             val = np.nan
         h = self.hist
