@@ -131,6 +131,7 @@ class Replanning:
         self.replan_distance = float(replan_distance)
         self.made_at = {k: np.asarray(v) for k, v in problem.start.items()}  # see adopt
         self.kept = {}  # see _keep: the first and the best evaluation, for reports
+        self._forward = None  # (design key, plan) of the last forward_value's run
 
     start = property(lambda self: self.first.start)
     groups = property(lambda self: self.first.groups)
@@ -194,9 +195,13 @@ class Replanning:
         return self._on_a_plan(lambda pb: pb.report(design), design)
 
     def on_own_plan(self, design):
-        """The problem on the plan of the forward run at ``design`` (its steps, meshes).
-        Raises SimulationError, OperationRefused as the forward run does."""
-        _, plan = forward_plan(self.process, at=(self.first, design))
+        """The problem on the plan of the forward run at ``design`` (its steps, meshes;
+        the last :meth:`forward_value`'s run where that was at ``design``).  Raises
+        SimulationError, OperationRefused as the forward run does."""
+        if self._forward is not None and self._forward[0] == _key(design):
+            plan = self._forward[1]
+        else:
+            _, plan = forward_plan(self.process, at=(self.first, design))
         return replace(self.first, plan=plan, objective=self.objective_of(plan))
 
     def adopt(self, design) -> None:
@@ -220,6 +225,7 @@ class Replanning:
             result, plan = forward_plan(self.process, at=(self.first, design))
         except (SimulationError, OperationRefused) as err:  # no process at this design
             raise GradientRunError(f"the forward process at this design failed: {err}") from None
+        self._forward = (_key(design), plan)  # a gradient there needs no second run
         problem = replace(self.first, plan=plan, objective=self.objective_of(plan))
         ptraj = forward_trajectory(result)
         val = problem.value_of(design, ptraj)

@@ -45,9 +45,22 @@ class Counting:
 
 
 def replanning():
+    """Replanning over the stand-in, whose forward runs (``forward_value``) are counted in
+    ``inner.forward`` and kept as the real ones are."""
     process = SimpleNamespace(operations=[SimpleNamespace(config=SimpleNamespace(design=None))])
     inner = Counting()
-    return Replanning(process, inner), inner
+    inner.forward = 0
+    pb = Replanning(process, inner)
+
+    def forward_value(design):
+        inner.forward += 1
+        a = np.asarray(design["a"], np.float64)
+        val = float(np.sum((a - 0.3) ** 2))
+        pb._keep(design, (val, None, f"forward {inner.forward}"))
+        return val
+
+    pb.forward_value = forward_value
+    return pb, inner
 
 
 def test_the_reports_at_the_start_and_the_best_design_run_nothing():
@@ -57,7 +70,7 @@ def test_the_reports_at_the_start_and_the_best_design_run_nothing():
     pb, inner = replanning()
     hist = optimize(pb, OptimizerSettings("lbfgs", iterations=3))
     runs = inner.runs
-    assert runs == hist.evaluations >= 4
+    assert runs + inner.forward == hist.evaluations and runs >= 4
     start, best = hist.designs[0], hist.designs[hist.best]
     assert hist.best > 0 and hist.objective[hist.best] < hist.objective[0]
     assert pb.report(start) == {"objective": hist.objective[0], "run": "run 1"}
@@ -105,14 +118,20 @@ def test_a_sampling_optimizer_runs_the_forward_process_not_the_replay():
     from jaxform.design import LhsRsm
 
     pb, inner = replanning()
-    forward = []
-
-    def forward_value(design):
-        a = float(np.asarray(design["a"])[0])
-        forward.append(a)
-        return (a - 0.3) ** 2 + 1.0  # not the replay's value: which one was read shows
-
-    pb.forward_value = forward_value
     hist = optimize(pb, LhsRsm(samples_per_variable=4, rounds=1, max_simulations=10, seed=0))
-    assert inner.runs == 0 and len(forward) == hist.evaluations >= 4
-    np.testing.assert_allclose(hist.objective, [(a - 0.3) ** 2 + 1.0 for a in forward])
+    assert inner.runs == 0 and inner.forward == hist.evaluations >= 4
+    a = np.array([float(d["a"][0]) for d in hist.designs])
+    np.testing.assert_allclose(hist.objective, (a - 0.3) ** 2)
+
+
+def test_lbfgs_on_a_process_runs_a_gradient_only_where_a_trial_is_accepted():
+    """L-BFGS on a process problem: each line-search trial is its forward run, the
+    gradient (a replay, or a new plan) is evaluated at the start and at each accepted
+    trial only; the values recorded are the forward runs' (equal to the replay's here)."""
+    pb, inner = replanning()
+    hist = optimize(pb, OptimizerSettings("lbfgs", iterations=3))
+    accepted = len(hist.objective) - 1
+    assert inner.runs == 1 + accepted  # the start, then one per accepted step
+    assert inner.forward == accepted + hist.rejected >= accepted
+    assert hist.evaluations == inner.runs + inner.forward
+    assert hist.objective[-1] < hist.objective[0]

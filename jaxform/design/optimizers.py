@@ -15,6 +15,9 @@ compiled gradient evaluation per trial design, and
 * a trial design whose run fails (:class:`GradientRunError`: a load step did not
   converge) is treated as a rejected step and the step is halved, so one bad trial
   never ends the loop;
+* a problem with a ``forward_value`` (a process's) has each trial's objective from its
+  forward run and the gradient only where a trial is accepted, so that a rejected trial
+  costs one simulation (each evaluation counts one);
 * stops after ``iterations`` accepted steps, or when the line search cannot decrease the
   objective (a stationary point within the bounds).
 
@@ -152,11 +155,22 @@ def gradient_loop(problem, settings: OptimizerSettings, design=None, progress=No
     u = project(problem.start if design is None else design)
     hist = DesignHistory() if history is None else history
 
+    forward = getattr(problem, "forward_value", None)
+
     def evaluate(u):
         hist.evaluations += 1
         program_store.release_if_crowded()  # each design's meshes compile programs of their own
         val, g, _ = problem.value_and_grad(u)
         return float(val), g
+
+    def trial_value(u):
+        """A trial's objective: its forward run where the problem has one (a process:
+        a rejected trial costs a simulation, not a gradient run and a new plan), else its
+        value and gradient at once."""
+        if forward is None:
+            return evaluate(u)
+        hist.evaluations += 1
+        return float(forward(u)), None
 
     val, g = evaluate(u)
     record(hist, u, val, g, lo, hi, progress)
@@ -198,14 +212,16 @@ def gradient_loop(problem, settings: OptimizerSettings, design=None, progress=No
                 )
             )
             try:
-                val_t, g_t = evaluate(trial)
+                val_t, g_t = trial_value(trial)
+                ok = np.isfinite(val_t) and (
+                    settings.method == "adam" or val_t <= val + settings.armijo * decrease
+                )
+                if ok and g_t is None:  # the gradient of the accepted trial (its value
+                    g_t = evaluate(trial)[1]  # stays the forward run's, as Armijo saw it)
             except GradientRunError:
                 hist.rejected += 1
                 step *= 0.5
                 continue
-            ok = np.isfinite(val_t) and (
-                settings.method == "adam" or val_t <= val + settings.armijo * decrease
-            )
             if ok:
                 accepted = True
                 break

@@ -85,11 +85,20 @@ class Scenarios:
         return [float(p.value(self._full(design, k))[0])
                 for k, p in enumerate(self.problems)]  # fmt: skip
 
-    def forward_value(self, design) -> float:
-        """The objective aggregated over the scenarios' own forward runs (each inner
-        problem's ``forward_value``: a process's, :class:`jaxform.process_design.Replanning`)."""
-        vals = [float(p.forward_value(self._full(design, k))) for k, p in enumerate(self.problems)]
-        return max(vals) if self.aggregate == "worst" else float(np.mean(vals))
+    @property
+    def forward_value(self):
+        """design -> the objective aggregated over the scenarios' own forward runs, where
+        every inner problem has one (a process's, :class:`jaxform.process_design.Replanning`:
+        what the optimizers then evaluate trials by); else None."""
+        if not all(getattr(p, "forward_value", None) for p in self.problems):
+            return None
+
+        def value(design) -> float:
+            vals = [float(p.forward_value(self._full(design, k)))
+                    for k, p in enumerate(self.problems)]  # fmt: skip
+            return max(vals) if self.aggregate == "worst" else float(np.mean(vals))
+
+        return value
 
     def value(self, design):
         runs = [p.value(self._full(design, k)) for k, p in enumerate(self.problems)]
