@@ -70,7 +70,7 @@ def test_the_reports_at_the_start_and_the_best_design_run_nothing():
     pb, inner = replanning()
     hist = optimize(pb, OptimizerSettings("lbfgs", iterations=3))
     runs = inner.runs
-    assert runs + inner.forward == hist.evaluations and runs >= 4
+    assert inner.forward + 1 == hist.evaluations and runs >= 4  # the start's run, then trials
     start, best = hist.designs[0], hist.designs[hist.best]
     assert hist.best > 0 and hist.objective[hist.best] < hist.objective[0]
     assert pb.report(start) == {"objective": hist.objective[0], "run": "run 1"}
@@ -127,11 +127,12 @@ def test_a_sampling_optimizer_runs_the_forward_process_not_the_replay():
 def test_lbfgs_on_a_process_runs_a_gradient_only_where_a_trial_is_accepted():
     """L-BFGS on a process problem: each line-search trial is its forward run, the
     gradient (a replay, or a new plan) is evaluated at the start and at each accepted
-    trial only; the values recorded are the forward runs' (equal to the replay's here)."""
+    trial only; the values recorded are the forward runs' (equal to the replay's here);
+    each design run counts one simulation, with its gradient or without."""
     pb, inner = replanning()
     hist = optimize(pb, OptimizerSettings("lbfgs", iterations=3))
     accepted = len(hist.objective) - 1
     assert inner.runs == 1 + accepted  # the start, then one per accepted step
     assert inner.forward == accepted + hist.rejected >= accepted
-    assert hist.evaluations == inner.runs + inner.forward
+    assert hist.evaluations == 1 + inner.forward
     assert hist.objective[-1] < hist.objective[0]

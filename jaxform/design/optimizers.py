@@ -17,7 +17,7 @@ compiled gradient evaluation per trial design, and
   never ends the loop;
 * a problem with a ``forward_value`` (a process's) has each trial's objective from its
   forward run and the gradient only where a trial is accepted, so that a rejected trial
-  costs one simulation (each evaluation counts one);
+  costs one simulation (a design counts one simulation, with or without its gradient);
 * stops after ``iterations`` accepted steps, or when the line search cannot decrease the
   objective (a stationary point within the bounds).
 
@@ -157,8 +157,8 @@ def gradient_loop(problem, settings: OptimizerSettings, design=None, progress=No
 
     forward = getattr(problem, "forward_value", None)
 
-    def evaluate(u):
-        hist.evaluations += 1
+    def evaluate(u, counted=True):
+        hist.evaluations += int(counted)
         program_store.release_if_crowded()  # each design's meshes compile programs of their own
         val, g, _ = problem.value_and_grad(u)
         return float(val), g
@@ -216,8 +216,8 @@ def gradient_loop(problem, settings: OptimizerSettings, design=None, progress=No
                 ok = np.isfinite(val_t) and (
                     settings.method == "adam" or val_t <= val + settings.armijo * decrease
                 )
-                if ok and g_t is None:  # the gradient of the accepted trial (its value
-                    g_t = evaluate(trial)[1]  # stays the forward run's, as Armijo saw it)
+                if ok and g_t is None:  # the accepted trial's gradient, the same design's
+                    g_t = evaluate(trial, counted=False)[1]  # run (value: the forward run's)
             except GradientRunError:
                 hist.rejected += 1
                 step *= 0.5
