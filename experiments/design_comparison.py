@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 import jaxform
-from jaxform.design import CmaEs, LhsRsm, OptimizerSettings, optimize
+from jaxform.design import CmaEs, DesignHistory, LhsRsm, OptimizerSettings, optimize
 from jaxform.driver import design_problem
 from jaxform.plot import design_comparison
 from jaxform.process_config import Process, load_typed
@@ -90,16 +90,18 @@ def main(argv=None) -> int:
         chosen = {k: v for k, v in chosen.items() if any(w in k for w in args.only.split(","))}
     for label, settings in chosen.items():
         t1 = time.perf_counter()
+        hist = DesignHistory()
 
-        def progress(k, val, extra, design, label=label, t1=t1):
-            print(f"  {label} {k:4d}: objective {val:.8g} ({time.perf_counter() - t1:.1f} s)",
-                  flush=True)  # fmt: skip
+        def progress(k, val, extra, design, label=label, t1=t1, hist=hist):
+            print(f"  {label} {k:4d}: objective {val:.8g} ({time.perf_counter() - t1:.1f} s, "
+                  f"{hist.evaluations} runs)", flush=True)  # fmt: skip
+            # the rows so far (a comparison stopped early leaves them)
+            _write(out / "design_comparison.csv", rows + _rows(label, hist))
 
         print(f"{label}:", flush=True)
-        hist = optimize(problem, settings, progress=progress)
+        hist = optimize(problem, settings, progress=progress, history=hist)
         runs[label] = (hist, time.perf_counter() - t1)
-        for s, f, b in zip(hist.simulations, hist.objective, hist.best_so_far()):
-            rows.append(dict(optimizer=label, simulations=s, objective=f, best_objective=b))
+        rows += _rows(label, hist)
         best_rows.append(dict(optimizer=label, objective=hist.objective[hist.best],
                               **problem.physical(hist.designs[hist.best])))  # fmt: skip
         print(f"  {hist.stop_reason}", flush=True)
@@ -124,6 +126,11 @@ def main(argv=None) -> int:
     print(f"outputs in {out}: design_comparison.csv, design_comparison.png, "
           "design_comparison_best.csv")  # fmt: skip
     return 0
+
+
+def _rows(label: str, hist) -> list[dict]:
+    return [dict(optimizer=label, simulations=s, objective=f, best_objective=b)
+            for s, f, b in zip(hist.simulations, hist.objective, hist.best_so_far())]  # fmt: skip
 
 
 def _write(path: Path, rows: list[dict]) -> None:
