@@ -23,7 +23,9 @@ its nearest die, :func:`pick_law`), the radial return of thesis Sec. 5.4 in forc
     :class:`Coulomb`       b = mu max(0, lambda_n - c g)  (= mu lambda_n at convergence);
     :class:`Shear`         b = m (sigma_eq / sqrt 3) A    (constant friction factor; sigma_eq
                            the nodal flow stress and A the node's contact area, both taken
-                           at the start of the step: lagged by one step);
+                           at the start of the step: lagged by one step), rising linearly
+                           from 0 over trial pressures 0 .. SHEAR_RAMP sigma_eq (so that
+                           C_t is continuous where a node comes into contact);
     :class:`Sticking`      an active node never slips (C_t = c s; no infinite bound enters
                            the arithmetic, so the reverse pass stays NaN-free).
 A law's bound reads a :class:`FrictionSite` (the trial normal force, the lagged flow stress
@@ -61,6 +63,10 @@ import jax.numpy as jnp
 import numpy as np
 
 OPEN, STICK, SLIP = 0, 1, 2
+
+# the contact pressure, as a fraction of the flow stress, from which shear friction holds
+# in full (:class:`Shear`; below it the bound rises linearly from 0 at p = 0)
+SHEAR_RAMP = 0.05
 
 
 @jax.tree_util.register_dataclass
@@ -179,14 +185,24 @@ class Coulomb(BoundedFriction):
 @jax.tree_util.register_dataclass
 @dataclass(frozen=True)
 class Shear(BoundedFriction):
-    """b = m sigma_eq / sqrt(3) A, lagged by one step (m: shear friction factor, -)."""
+    """b = m sigma_eq / sqrt(3) A where the trial contact pressure p = (lambda_n - c g) / A
+    reaches SHEAR_RAMP sigma_eq, and m sigma_eq / sqrt(3) A p / (SHEAR_RAMP sigma_eq) below
+    it (0 at p = 0); sigma_eq and A lagged by one step (m: shear friction factor, -).
+
+    The ramp makes C_t continuous where a node comes into contact: with the full bound
+    from the first positive trial force, C_t jumped from lambda_t (inactive) to
+    lambda_t - b z / |z| or c s (active) as lambda_n - c g crossed 0, and Newton stalled
+    at a node sitting on that switch (its line search finds no decrease either side:
+    docs/theory.md, "Shear friction where contact begins")."""
 
     m: jax.Array
     coefficient_range: ClassVar[dict[str, tuple[float, float]]] = {"m": (0.0, 1.0)}
     uses_flow_stress: ClassVar[bool] = True
 
     def bound(self, site):
-        return self.m * site.sigma_eq / jnp.sqrt(3.0) * site.area
+        full = self.m * site.sigma_eq / jnp.sqrt(3.0) * site.area
+        pressed = self.m / jnp.sqrt(3.0) * jnp.maximum(0.0, site.trial_n) / SHEAR_RAMP
+        return jnp.minimum(full, pressed)
 
 
 @jax.tree_util.register_dataclass
