@@ -237,7 +237,8 @@ class FrictionConfig:
         0.0,
         low=0.0,
         high=1.0,
-        doc="shear friction factor, tau = m sigma_eq/sqrt(3) (friction.model = shear)",
+        doc="shear friction factor, tau = m sigma_eq/sqrt(3) where the contact pressure "
+        "reaches 0.05 sigma_eq, less below it (friction.model = shear)",
     )
 
 
