@@ -63,15 +63,53 @@ _MAPS = Path("/proc/self/maps")
 _MAP_LIMIT = Path("/proc/sys/vm/max_map_count")
 
 
+_ROOT = Path(__file__).resolve().parent  # the package whose source keys the programs
+
+
+def _source_files() -> list[Path]:
+    return sorted(_ROOT.rglob("*.py"))
+
+
+def _source_stamp() -> tuple:
+    """(path, size, modification time) of each source file: cheap to compare."""
+    stamp = []
+    for path in _source_files():
+        try:
+            st = path.stat()
+        except OSError:
+            continue
+        stamp.append((str(path), st.st_size, st.st_mtime_ns))
+    return tuple(stamp)
+
+
 @cache
-def code_fingerprint() -> str:
-    """sha256 of the source of every jaxform module (the package's .py files)."""
+def _source_at_start() -> tuple[str, tuple]:
+    """(sha256 of the source of every jaxform module, their stamp), read once: when this
+    process first keyed a program (or this module was imported, whichever came first)."""
+    stamp = _source_stamp()
     h = hashlib.sha256()
-    root = Path(__file__).resolve().parent
-    for path in sorted(root.rglob("*.py")):
-        h.update(str(path.relative_to(root)).encode())
+    for path in _source_files():
+        h.update(str(path.relative_to(_ROOT)).encode())
         h.update(path.read_bytes())
-    return h.hexdigest()
+    return h.hexdigest(), stamp
+
+
+def code_fingerprint() -> str:
+    """sha256 of the source of every jaxform module (the package's .py files), as it was
+    when this process started to use the store."""
+    return _source_at_start()[0]
+
+
+def source_changed() -> bool:
+    """Whether a jaxform source file changed on disk since :func:`code_fingerprint` read
+    them.  The modules this process runs may then differ from the source the key names
+    (one imported before the change, another after), so it neither loads nor stores
+    programs from then on: a program traced from edited code must not be kept under the
+    key of the code it replaced, nor the reverse."""
+    return _source_stamp() != _source_at_start()[1]
+
+
+_source_at_start()  # read now: the modules imported so far were loaded from this source
 
 
 def store_dir() -> Path | None:
@@ -251,6 +289,8 @@ def _prepared(key: str, fn, leaves, tree):
     disk, or exported now (and stored)."""
     if key in _loaded:
         return _loaded[key]
+    if source_changed():
+        raise NotStorable(key)  # edited under this process: run it traced (source_changed)
     release_if_crowded()  # before a new program adds its maps
     register_ffi_targets()  # a loaded program calls them without being traced here
     folder = store_dir()

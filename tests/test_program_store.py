@@ -122,3 +122,27 @@ def test_a_crowded_process_lets_its_programs_go(tmp_path, monkeypatch):
     np.testing.assert_allclose(np.asarray(out), 20.0 * np.arange(3.0) + np.sin(np.arange(3.0)))
     assert len(program_store._loaded) == 1
     assert _maps() <= grown - 2 * 19
+
+
+def test_a_source_edited_under_the_process_turns_the_store_off(tmp_path, monkeypatch):
+    """A jaxform file that changes on disk after the process read the source: programs
+    are neither loaded nor stored from then on (a program traced from the edited code must
+    not sit under the old code's key); the call still runs, traced."""
+    src = tmp_path / "pkg"
+    src.mkdir()
+    (src / "a.py").write_text("x = 1\n")
+    monkeypatch.setattr(program_store, "_ROOT", src)
+    program_store._source_at_start.cache_clear()
+    monkeypatch.setattr(program_store, "store_dir", lambda: tmp_path / "exported")
+    monkeypatch.setattr(program_store, "_loaded", {})
+    try:
+        before = program_store.code_fingerprint()
+        assert not program_store.source_changed()
+        (src / "a.py").write_text("x = 22\n")  # another size: a change whatever the clock
+        assert program_store.source_changed()
+        assert program_store.code_fingerprint() == before  # the key stays the old source's
+        out = program_store.call("f", "S()", lambda a: a * 2.0, jnp.arange(3.0))
+        np.testing.assert_array_equal(out, [0.0, 2.0, 4.0])
+        assert not (tmp_path / "exported").exists()  # nothing stored
+    finally:
+        program_store._source_at_start.cache_clear()
