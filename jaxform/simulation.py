@@ -227,6 +227,19 @@ def _stepped(run: Run, owned: OwnedFactorization) -> Run:
     )
 
 
+def _adapts(run: Run, t_stop: float) -> bool:
+    """Whether the run's paused last row is answered by its adaptation: not at the end,
+    and not where the step planned next ends the run and only triggers for the steps ahead
+    fired (:meth:`Armed.only_ahead`): such a new mesh would serve the last step alone, and
+    a remesh costs a transient of the force that recovers over some microns of die travel
+    (docs/remeshing.md, "Where a dip comes from"), so the run's last row would read it."""
+    t = float(run.state.t)
+    if t >= t_stop:
+        return False
+    last_step = t + float(run.control.h) >= t_stop
+    return not (last_step and run.armed.only_ahead(run.rows[-1]))
+
+
 def _on_new_mesh(run: Run) -> bool:
     """Whether ``run`` has a new mesh with no converged step on it yet."""
     return len(run.segments) > 1 and run.segments[-1].first_row == len(run.rows)
@@ -419,7 +432,7 @@ def simulate(
             first = len(run.rows)
             run = _stepped_on(run, owned)
             paused = len(run.rows) > first and bool(run.rows[-1]["paused"])
-            if paused and run.failure is None and float(run.state.t) < t_stop:
+            if paused and run.failure is None and _adapts(run, t_stop):
                 run = _adapted(run, adaptation.adapt(run.mesh, run.state, run.rows[-1]), owned)
             reporting = True  # an error of the caller's callback is the caller's
             for k in range(first, len(run.rows) if progress is not None else first):

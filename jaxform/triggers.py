@@ -47,6 +47,11 @@ CAUSE_NAMES = {QUALITY: "quality", STEPS: "steps", STROKE: "stroke", CORNER: "di
                FOLD: "fold", CAPACITY: "press capacity"}  # fmt: skip
 
 
+# a mesh at this share of the quality threshold still serves a step where only the steps
+# ahead would need a new one (:meth:`Armed.only_ahead`)
+HOLDS = 0.5
+
+
 def causes(bits: int) -> str:
     """The names of the triggers set in ``bits`` (e.g. 'quality+fold')."""
     return "+".join(name for bit, name in CAUSE_NAMES.items() if bits & bit) or "none"
@@ -270,6 +275,19 @@ class Armed:
             jnp.asarray(float(t.armed(c, row, quality_after)))
             for t, c in zip(self.triggers, self.configured)
         )
+
+    def only_ahead(self, row: dict) -> bool:
+        """Whether the paused ``row`` fired only triggers that adapt the mesh for the steps
+        ahead: a schedule (steps, stroke), or the quality with the mesh still at least
+        :data:`HOLDS` of the configured threshold (a fold, a die corner's depth, a worse
+        mesh, the press capacity: no)."""
+        bits = int(row["pause_cause"])
+        if bits & ~(QUALITY | STEPS | STROKE):
+            return False
+        if not bits & QUALITY:
+            return True
+        configured = [c for t, c in zip(self.triggers, self.configured) if t.bit == QUALITY]
+        return bool(configured) and float(row["mesh_quality"]) >= HOLDS * configured[0]
 
     def for_chunk(self, thresholds: tuple, steps_since: int) -> tuple:
         """``thresholds`` for the next chunk, ``steps_since`` steps after the last new mesh."""

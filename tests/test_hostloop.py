@@ -21,9 +21,12 @@ from jaxform.scenes import build_scene
 from jaxform.solver import FullNewton, ModifiedNewton, NewtonSettings
 from jaxform.stepping import initial_state, stepper_of
 from jaxform.triggers import (
+    CAPACITY,
     CORNER,
     FOLD,
     QUALITY,
+    STEPS,
+    STROKE,
     TRIGGERS,
     Armed,
     CornerDepth,
@@ -151,6 +154,24 @@ def test_thresholds_arm_and_relax_after_an_adaptation():
     # rezoning: the quality trigger is mesh.rezone_quality; no [remesh] trigger is on
     rz = _scene("mesh.rezone_quality=0.4")
     assert [float(h) for h in Armed.of(rz, scene_triggers(rz)).thresholds()] == [0.4, 0, 0, 0]
+
+
+def test_only_triggers_for_the_steps_ahead_may_skip_the_last_step():
+    """Reference: the rule by hand (jaxform.triggers.HOLDS = 0.5): a schedule (steps,
+    stroke) adapts only for the steps ahead, so does the quality while the mesh holds at
+    least half the configured 0.3; a fold, a die corner, the press capacity or a mesh
+    below 0.15 do not."""
+    sc = _scene("remesh.quality_below=0.3", "remesh.every_steps=10",
+                "remesh.fold_angle_deg=30", "press.capacity_N=500")  # fmt: skip
+    armed = Armed.of(sc, scene_triggers(sc))
+
+    def ahead(bits, q=0.29):
+        return armed.only_ahead(dict(pause_cause=bits, mesh_quality=q))
+
+    assert ahead(STEPS) and ahead(STROKE) and ahead(STEPS | STROKE)
+    assert ahead(QUALITY, 0.29) and ahead(QUALITY | STEPS, 0.15)
+    assert not ahead(QUALITY, 0.149) and not ahead(QUALITY | FOLD)
+    assert not ahead(FOLD) and not ahead(CORNER) and not ahead(CAPACITY | STEPS)
 
 
 def test_each_scene_has_its_adaptation():

@@ -1031,3 +1031,19 @@ def test_the_run_notes_what_the_mesher_needed():
     assert str(both) == "a fold crossed the boundary: 0.002 mm^2 cut; sizes x 0.65"
     assert both.kinds() == ("finer sizes", "a fold cut")
     assert str(hows[2]) == "split (gmsh left triangles at sizes x 1, 0.8, 0.65)"
+
+
+def test_no_new_mesh_for_the_last_step_alone():
+    """A trigger for the steps ahead (here every 7 steps of a 15-step run) that fires on
+    the step before the last adapts nothing: the new mesh would serve the last step alone
+    and its row would read the remesh's transient. Step 7 (eight steps left) remeshes,
+    step 14 does not; with every 14 steps the run equals the unremeshed one."""
+    over = QUIET + ["mesh.nr=4", "mesh.nz=4", "die.reduction=0.15"]
+    plain = jaxform.run(SEED, over).history
+    assert len(plain["force_N"]) == 16  # 15 steps of 1 s
+    res = jaxform.run(SEED, over + ["remesh.every_steps=7"])
+    assert list(np.nonzero(res.history["remeshed"])[0]) == [7]
+    assert len(res.remeshes) == 1 and len(res.history["force_N"]) == 16
+    late = jaxform.run(SEED, over + ["remesh.every_steps=14"])
+    assert not np.any(late.history["remeshed"]) and not late.remeshes
+    np.testing.assert_allclose(late.history["force_N"], plain["force_N"], rtol=1e-12)
