@@ -84,8 +84,8 @@ def _source_stamp() -> tuple:
 
 @cache
 def _source_at_start() -> tuple[str, tuple]:
-    """(sha256 of the source of every jaxform module, their stamp), read once: when this
-    process first keyed a program (or this module was imported, whichever came first)."""
+    """(sha256 of the source of every jaxform module, their stamp), read once, when this
+    module is imported (the modules imported before it were loaded from that source)."""
     stamp = _source_stamp()
     h = hashlib.sha256()
     for path in _source_files():
@@ -109,7 +109,7 @@ def source_changed() -> bool:
     return _source_stamp() != _source_at_start()[1]
 
 
-_source_at_start()  # read now: the modules imported so far were loaded from this source
+_source_at_start()  # read at import (see its docstring)
 
 
 def store_dir() -> Path | None:
