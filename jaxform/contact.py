@@ -200,9 +200,8 @@ class Shear(BoundedFriction):
     uses_flow_stress: ClassVar[bool] = True
 
     def bound(self, site):
-        full = self.m * site.sigma_eq / jnp.sqrt(3.0) * site.area
-        pressed = self.m / jnp.sqrt(3.0) * jnp.maximum(0.0, site.trial_n) / SHEAR_RAMP
-        return jnp.minimum(full, pressed)
+        pressed = jnp.maximum(0.0, site.trial_n) / (jnp.sqrt(3.0) * SHEAR_RAMP)
+        return self.m * jnp.minimum(site.shear_base, pressed)
 
 
 @jax.tree_util.register_dataclass
