@@ -93,9 +93,13 @@ def _plateau(hist: np.ndarray) -> float:
     return float(np.max(h[1:] / np.maximum(h[:-1], 1e-300)))
 
 
-def replay(call: dict, verbose: bool = True) -> list[dict]:
+def replay(
+    call: dict, verbose: bool = True, h: float | None = None, at_rest: bool = False
+) -> list[dict]:
     """The captured step solved again in Python, attempt by attempt and iteration by
-    iteration (see the module docstring); returns one record per iteration."""
+    iteration (see the module docstring); returns one record per iteration.  ``h``: the
+    first attempt's step size (default: the run's); ``at_rest``: the first attempt starts
+    from the state itself, not from the predictor (x + h x_rate)."""
     import jax
     import jax.numpy as jnp
 
@@ -113,7 +117,7 @@ def replay(call: dict, verbose: bool = True) -> list[dict]:
     lay = model.layout
     lin = StepLinear(lay.n_dofs, stepper.linear)
     report = jax.jit(lambda x, ctx: model.contact_report(x, ctx)[0])
-    h = float(control.h)
+    h = float(control.h) if h is None else h
     h_min = float(control.dt_max) * 0.5**stepper.max_cutbacks
     t0, t_end = float(st.t), float(control.t_end)
     snap = 1e-9 * float(control.dt_max)
@@ -126,7 +130,7 @@ def replay(call: dict, verbose: bool = True) -> list[dict]:
         t_new = t_end if t0 + h >= t_end - snap else t0 + h
         hh = t_new - t0
         ctx = step_context(model, st, inp, idx, jnp.asarray(t_new), jnp.asarray(hh))
-        x = x_state + (hh * rate if attempt == 0 else 0.0)
+        x = x_state + (hh * rate if attempt == 0 and not at_rest else 0.0)
         r, _, code, scale = _step_residual(model, jnp.asarray(x), ctx)
         if int(code) != 0:
             x = x_state
@@ -134,6 +138,7 @@ def replay(call: dict, verbose: bool = True) -> list[dict]:
         status = np.asarray(report(jnp.asarray(x), ctx))
         fmult = np.asarray(x)[np.asarray(idx.facet_mult)] if lay.n_facets else np.zeros(0)
         rn = float(jnp.linalg.norm(r))
+        start = rn / max(float(scale), 1e-300)
         if verbose:
             print(
                 f"  attempt {attempt}: dt {hh:.4g} s, start ||R||/F "
@@ -168,6 +173,7 @@ def replay(call: dict, verbose: bool = True) -> list[dict]:
                 attempt=attempt,
                 dt=hh,
                 it=k + 1,
+                start=start,
                 res=rtn / float(scalet),
                 contraction=rtn / max(rnorm, 1e-300),
                 backtracks=bt,
@@ -201,6 +207,33 @@ def replay(call: dict, verbose: bool = True) -> list[dict]:
         h, attempt = 0.5 * h, attempt + 1
 
 
+def first_steps_table(calls: list[dict], h: dict) -> str:
+    """Each first step on a new mesh replayed at the step size the run took (its last
+    attempt's), from the predictor (x + h x_rate, as the run's mapped rates give it) and
+    from the state at rest: iterations of the first attempt ('F': not converged within the
+    solver's iterations, then halved as the run would) and its start ||R|| / F."""
+    remeshed = np.asarray(h.get("remeshed", np.zeros(len(h["time_s"]))))
+    lines = ["| row | t (s) | dt (s) | predictor: iterations, start | at rest: iterations, start |",
+             "|---|---|---|---|---|"]  # fmt: skip
+    totals = {False: 0, True: 0}
+    for row in range(2, len(h["time_s"])):
+        if remeshed[row - 1] == 0 or row > len(calls):
+            continue
+        cells = []
+        for at_rest in (False, True):
+            recs = replay(calls[row - 1], verbose=False, h=float(h["dt_s"][row]), at_rest=at_rest)
+            first = [r for r in recs if r["attempt"] == 0]
+            conv = bool(first) and len(first) == len(recs)
+            totals[at_rest] += len(recs)
+            start = first[0]["start"] if first else 0.0
+            cells.append(f"{len(first)}{'' if conv else 'F'}, {start:.2g}")
+        lines.append(f"| {row} | {h['time_s'][row - 1]:.3f} | {h['dt_s'][row]:.4g} | "
+                     f"{cells[0]} | {cells[1]} |")  # fmt: skip
+    lines.append(f"iterations in all (with halvings): predictor {totals[False]}, "
+                 f"at rest {totals[True]}")  # fmt: skip
+    return "\n".join(lines)
+
+
 def _cand_pos(c, lay, idx, coords, x):
     node = int(np.asarray(idx.contact_nodes)[c])
     p = coords[node] + lay.nodal(np.asarray(x))[node, :2]
@@ -230,6 +263,12 @@ def main(argv=None) -> int:
     ap.add_argument("config")
     ap.add_argument("--set", action="append", default=[], dest="overrides")
     ap.add_argument("--replay", type=int, nargs="*", default=[], help="history rows")
+    ap.add_argument(
+        "--first-steps",
+        action="store_true",
+        help="replay each first step on a new mesh at the size the run took, from the "
+        "predictor and from the state at rest",
+    )
     ap.add_argument("--json", default=None, help="write the tables here")
     a = ap.parse_args(argv)
     import jax
@@ -284,6 +323,8 @@ def main(argv=None) -> int:
     for row in a.replay:
         print(f"replay of row {row} (from t = {float(calls[row - 1]['state'].t):.4g} s):")
         replays[row] = replay(calls[row - 1])
+    if a.first_steps:
+        print(first_steps_table(calls, h), flush=True)
     if a.json:
         Path(a.json).write_text(
             json.dumps(

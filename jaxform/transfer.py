@@ -254,13 +254,15 @@ class StateMap:
     fixed offset that makes them the new mesh's nodes exactly at the forward run's state:
     nodes a rounding outside the old mesh).  Each state field is mapped as its kind
     declares (:mod:`jaxform.fields`): the unknowns with u = 0 (the deformed configuration
-    is the new reference) and the other nodal fields (pressure, temperature) and the
-    predictor's nodal rates interpolated; the Gauss state by :class:`Transfer` (patch
-    recovery, then interpolation) with F = I, the other element fields (damage
-    integrals) likewise; the candidates' multipliers, slip and status by ``contact``
-    (:class:`jaxform.remesh.ContactMap`; None: a map whose topology does not change, a
-    rezoning, keeps the candidates' and facets' values as they are); time, friction
-    work, heat and die wear carry over."""
+    is the new reference), the other nodal fields (pressure, temperature) interpolated;
+    the predictor's rates interpolated by a rezoning and zero on a new mesh, whose first
+    step starts from the carried state (the old mesh's nodal rates are not the new
+    discretization's flow at the die corners: docs/benchmarks.md); the Gauss state by
+    :class:`Transfer` (patch recovery, then interpolation) with F = I, the other element
+    fields (damage integrals) likewise; the candidates' multipliers, slip and status by
+    ``contact`` (:class:`jaxform.remesh.ContactMap`; None: a map whose topology does not
+    change, a rezoning, keeps the candidates' and facets' values as they are); time,
+    friction work, heat and die wear carry over."""
 
     old: object  # jaxform.assembly.Layout
     new: object
@@ -296,9 +298,9 @@ class _Moved(FieldMap):
 
     def rates(self, x_rate):
         m, xp = self.m, self.xp
+        if m.contact is not None:  # a new mesh starts its first step at rest
+            return xp.zeros(m.new.n_dofs)
         nodal, lam, facets = m.old.split(x_rate)
-        if m.contact is not None:
-            lam, facets = xp.zeros((m.new.n_contact, 2)), xp.zeros(m.new.n_facets)
         return m.new.join(m.move.nodal(nodal, xp), lam, facets, xp)
 
     def element(self, value):

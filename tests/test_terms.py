@@ -130,3 +130,27 @@ def test_a_map_onto_the_same_mesh_carries_every_field():
     for k in ("slip_mm", "contact_status", "t", "heat_mJ", "friction_work", "wear_mm"):
         np.testing.assert_array_equal(getattr(new, k), getattr(st, k))
     np.testing.assert_array_equal(new.gauss.F, st.gauss.F)
+
+
+def test_a_new_mesh_starts_its_first_step_at_rest():
+    """Reference: a remesh's map (one with a contact map: new candidates) sets the
+    predictor's rates to 0, so the first step on the new mesh starts from the carried
+    state (the old mesh's rates are not the new discretization's flow); its other fields
+    carry as on a rezoning (here onto the same mesh: the unknowns to round-off)."""
+    from jaxform.remesh import ContactMap
+
+    sc = _scene("hot_upsetting")
+    st = _random_state(sc, seed=1)
+    lay, coords = sc.model.layout, np.asarray(sc.inputs.coords)
+    elements = np.asarray(sc.mesh.elements)
+    move = Transfer(coords, elements, coords, elements)
+    n_c = lay.n_contact
+    ends = np.column_stack([np.arange(n_c), np.arange(n_c)])
+    w = np.column_stack([np.ones(n_c), np.zeros(n_c)])
+    contact = ContactMap(ends, w, w, np.asarray(st.contact_status))
+    new, _ = StateMap(lay, lay, move, np.zeros_like(coords), contact).apply(st, coords)
+    assert n_c > 0 and np.abs(st.x_rate).max() > 0
+    np.testing.assert_array_equal(new.x_rate, np.zeros(lay.n_dofs))
+    np.testing.assert_allclose(lay.nodal(new.x)[:, 2:], lay.nodal(st.x)[:, 2:], atol=1e-12)
+    kept, _ = StateMap(lay, lay, move, np.zeros_like(coords)).apply(st, coords)
+    np.testing.assert_allclose(kept.x_rate, st.x_rate, atol=1e-12)
