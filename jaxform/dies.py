@@ -96,14 +96,11 @@ class RigidDie:
         off = self.offset(t)
         return closest_point_gap(self.points, self.corner_radius, x - off, self.profile)
 
-    def facet_gap(self, xa, xb, t, arc_ends: bool = True):
+    def facet_gap(self, xa, xb, t):
         """(g, engaged) of the workpiece facet xa -> xb against the convex arcs at time t
-        (:func:`corner_gap`; ``arc_ends``: let go near an arc's straight ends, as the
-        contact condition does; False: the geometric depth, as the remesh trigger reads)."""
+        (:func:`corner_gap`)."""
         off = self.offset(t)
-        return corner_gap(
-            self.points, self.corner_radius, xa - off, xb - off, self.profile, arc_ends
-        )
+        return corner_gap(self.points, self.corner_radius, xa - off, xb - off, self.profile)
 
     @property
     def members(self) -> tuple[RigidDie, ...]:
@@ -131,9 +128,9 @@ class RigidDie:
         """The frame of die ``which`` (the one die: :meth:`frame`)."""
         return self.frame(x, t, t_old)
 
-    def facet_frame(self, xa, xb, t, arc_ends: bool = True):
+    def facet_frame(self, xa, xb, t):
         """(g, engaged, which die) of a facet against the convex arcs (:meth:`facet_gap`)."""
-        g, engaged = self.facet_gap(xa, xb, t, arc_ends)
+        g, engaged = self.facet_gap(xa, xb, t)
         return g, engaged, jnp.zeros((), jnp.int32)
 
     def replace_each(self, fn) -> RigidDie:
@@ -243,16 +240,16 @@ class DieSet:
         f = self.frame(x, t, t)
         return f.g, f.n, f.tan
 
-    def facet_frame(self, xa, xb, t, arc_ends: bool = True):
+    def facet_frame(self, xa, xb, t):
         """(g, engaged, which die): the least gap of the facet to any die's convex arcs."""
-        parts = [d.facet_gap(xa, xb, t, arc_ends) for d in self.dies]
+        parts = [d.facet_gap(xa, xb, t) for d in self.dies]
         g = jnp.stack([p[0] for p in parts])
         engaged = jnp.stack([p[1] for p in parts])
         k = jnp.argmin(jnp.where(engaged, g, jnp.inf)).astype(jnp.int32)
         return jnp.where(jnp.any(engaged), g[k], g[0]), jnp.any(engaged), k
 
-    def facet_gap(self, xa, xb, t, arc_ends: bool = True):
-        g, engaged, _ = self.facet_frame(xa, xb, t, arc_ends)
+    def facet_gap(self, xa, xb, t):
+        g, engaged, _ = self.facet_frame(xa, xb, t)
         return g, engaged
 
     def prepared(self) -> DieSet:
@@ -363,7 +360,7 @@ def has_convex_corner(points, corner_radius) -> bool:
     return bool(np.any(np.asarray(pr["turns"]) & (np.asarray(pr["sign"]) > 0)))
 
 
-def corner_gap(points, corner_radius, xa, xb, profile=None, arc_ends: bool = True):
+def corner_gap(points, corner_radius, xa, xb, profile=None):
     """(g, engaged) of the workpiece facet xa -> xb (material on its left) against the
     convex arcs of the rounded profile (``profile``: as for :func:`closest_point_gap`).
 
@@ -385,11 +382,7 @@ def corner_gap(points, corner_radius, xa, xb, profile=None, arc_ends: bool = Tru
     (inactive) at the node.  There the node's own condition holds the die, and a facet
     condition that switched off as the point crossed the node made the multiplier jump and
     Newton cycle (docs/remeshing.md, generated dies).  The arc may then reach past the
-    chord near the node by up to (END_SHARE length)^2 / (2 rho).  Likewise where the
-    deepest point nears one of the arc's own ends (:func:`_arc_end_ramp`): there the die
-    runs on straight, which the nodes' conditions hold, and the arc may reach past the
-    chord by up to rho (1 - cos ARC_END_MAX_RAD), 0.4 % of its radius (``arc_ends``
-    False: not, the geometric depth a remesh trigger reads)."""
+    chord near the node by up to (END_SHARE length)^2 / (2 rho)."""
     pr = rounded_profile(points, corner_radius) if profile is None else profile
     d = xb - xa
     length = jnp.sqrt(jnp.sum(d * d))
@@ -409,9 +402,6 @@ def corner_gap(points, corner_radius, xa, xb, profile=None, arc_ends: bool = Tru
     g = (p - xa) @ n_f
     # near a node the facet lets go of the arc gradually (see the docstring)
     g = g + (length - g) * jnp.clip((END_SHARE - jnp.minimum(xi, 1.0 - xi)) / END_SHARE, 0.0, 1.0)
-    # and near the arc's ends likewise (outside its span: let go)
-    if arc_ends:
-        g = g + (length - g) * (1.0 - _arc_end_ramp(pr, c, v, length))
     # the die surface at p faces the facet (its normal within 60 deg of the facet's):
     # an arc end round the workpiece's corner belongs to the neighbouring facet
     safe_rho = jnp.where(pr["turns"], rho, 1.0)
@@ -431,41 +421,6 @@ def corner_gap(points, corner_radius, xa, xb, profile=None, arc_ends: bool = Tru
 
 
 SOFT = 1e-3  # width of the soft minimum over the arcs, as a fraction of the facet length
-# a facet lets go of an arc whose deepest point nears one of the arc's ends, over this share
-# of the arc's turn, at most ARC_END_MAX_RAD
-ARC_END_SHARE = 0.25
-ARC_END_MAX_RAD = float(np.deg2rad(5.0))
-
-
-def _arc_end_ramp(pr, centre, v, length):
-    """(n_arcs,) 1 where the direction v (unit, from each arc's centre) lies well inside
-    the arc's span, falling linearly to 0 at an end over ARC_END_SHARE of the arc's turn
-    (at most ARC_END_MAX_RAD), 0 beyond it; only at an end where the die runs on straight
-    for at least the facet's ``length`` (elsewhere, 1 there as before: a spline die's
-    short pieces between its arcs).  Where the deepest point is such an end, the die there
-    is straight (the arcs are tangent to the profile's segments): the facet's gap to it
-    is a linear combination of its nodes' gaps to that straight part whenever both nodes
-    lie on it, and a facet condition active beside theirs made the Jacobian singular (the
-    first step after a remesh whose nodes the remesher had put on the flange face at a
-    fillet's end, docs/benchmarks.md)."""
-    turns = pr["turns"]
-    unit = jnp.asarray([1.0, 0.0])
-    ra = jnp.where(turns[:, None], pr["a"] - centre, unit)
-    rb = jnp.where(turns[:, None], pr["b"] - centre, unit)
-
-    def angle(p, q):  # from p to q, counter-clockwise
-        return jnp.arctan2(p[:, 0] * q[:, 1] - p[:, 1] * q[:, 0], jnp.sum(p * q, axis=1))
-
-    span = jnp.abs(angle(ra, rb))
-    width = jnp.where(turns, jnp.minimum(ARC_END_SHARE * span, ARC_END_MAX_RAD), 1.0)
-    straight = pr["hi"] - pr["lo"]  # (n_segments,) the straight part of each segment
-    far = 10.0  # radians: past any width (finite, so that no inf enters the derivatives)
-    at_a = jnp.where(straight[:-1] >= length, angle(ra, v), far)  # arc i: segments i, i+1
-    at_b = jnp.where(straight[1:] >= length, angle(v, rb), far)
-    inside = jnp.minimum(at_a, at_b)
-    return jnp.where(turns, jnp.clip(inside / jnp.maximum(width, 1e-12), 0.0, 1.0), 0.0)
-
-
 END_SHARE = 0.1  # a facet lets go of an arc over this share of its length next to a node
 
 

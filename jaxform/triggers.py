@@ -311,7 +311,7 @@ def corner_depth_ratio(die, pos, idx: Indices, t):
         return jnp.zeros((), pos.dtype)
     p = pos[idx.contact_nodes]
     xa, xb = p[f[:, 0]], p[f[:, 1]]
-    g, engaged = jax.vmap(lambda a, b: die.facet_gap(a, b, t, arc_ends=False))(xa, xb)
+    g, engaged = jax.vmap(lambda a, b: die.facet_gap(a, b, t))(xa, xb)
     length = jnp.sqrt(jnp.sum((xb - xa) ** 2, axis=1))
     depth = jnp.where(engaged & (g < 0.0), -g / jnp.maximum(length, 1e-300), 0.0)
     return jnp.max(depth)

@@ -322,64 +322,31 @@ def test_die_overlap_is_the_sagitta_of_a_convex_corner_between_two_nodes(radius,
     assert overlap_depth(circle + np.array([0.0, expected + 1e-6]), pos, edges) == 0.0
 
 
-def _facet_facing_arc(phi_deg, xi, depth, length=0.25):
-    """A facet of the given length whose outward normal faces the point at phi_deg along
-    the convex edge arc (R = 0.3, centre (1.7, 1.3)) of a flat face z = 1 that turns up at
-    r = 2, from its tangent point E = (1.7, 1.0); that arc point lies ``depth`` above the
-    facet's line (its raw gap) at the facet's fraction ``xi``.  Returns the corner gap."""
-    from jaxform.dies import corner_gap
-
-    pts = jnp.asarray([[0.0, 1.0], [2.0, 1.0], [2.0, 3.0]])
-    phi = np.deg2rad(phi_deg)
-    p = np.array([1.7 + 0.3 * np.sin(phi), 1.3 - 0.3 * np.cos(phi)])
-    n_f = np.array([-np.sin(phi), np.cos(phi)])  # out of the material, towards the arc
-    tau = np.array([-n_f[1], n_f[0]])  # material on the facet's left
-    xa = p - depth * n_f - xi * length * tau
-    return corner_gap(pts, 0.3, jnp.asarray(xa), jnp.asarray(xa + length * tau))
-
-
 def test_a_facet_lets_go_of_an_arc_gradually_at_its_node():
-    """A facet facing the edge arc well inside its span (30 deg from its end), the arc's
-    deepest point 2 um into the material: away from the facet's nodes the corner gap is
-    that raw gap (-0.002 mm, to 1e-12); within END_SHARE of node a it rises linearly to the
-    facet length, the gap of a disengaged facet, so nothing jumps as the point crosses the
-    node (the jump made Newton cycle: docs/remeshing.md).  Reference: the closed form
-    g = d + (L - d) (END_SHARE - xi) / END_SHARE for xi < END_SHARE, to 1e-12."""
-    from jaxform.dies import END_SHARE
+    """A facet lying on a flat die face, its node a crossing the tangent point E where the
+    face runs into a convex edge arc (R = 0.3): the arc's deepest point is E, at the
+    facet's depth (raw gap 0).  Away from the nodes the corner gap is that raw gap (0 to
+    1e-12); within END_SHARE of node a it rises linearly to the facet length, which is
+    the gap of a disengaged facet, so nothing jumps as E crosses the node (the jump made
+    Newton cycle: docs/remeshing.md).  Reference: the closed form
+    g = L (END_SHARE - xi) / END_SHARE for xi = |E - x_a| / L < END_SHARE, to 1e-12."""
+    from jaxform.dies import END_SHARE, corner_gap
 
-    length, depth = 0.25, -0.002
+    pts = jnp.asarray([[0.0, 1.0], [2.0, 1.0], [2.0, 3.0]])  # flat face, then up: convex
+    radius, length = 0.3, 0.25
+    e_r = 2.0 - radius  # the tangent point on the flat face
+
+    def gap(s):  # facet from x_a = E + s (towards the edge) back along the face
+        xa = jnp.asarray([e_r + s, 1.0])
+        xb = jnp.asarray([e_r + s - length, 1.0])
+        return corner_gap(pts, radius, xa, xb)
+
     for xi in (0.5, 0.3, END_SHARE + 1e-3):
-        g, engaged = _facet_facing_arc(30.0, xi, depth, length)
-        assert bool(engaged) and abs(float(g) - depth) <= 1e-12, (xi, g)
+        g, engaged = gap(xi * length)
+        assert bool(engaged) and abs(float(g)) <= 1e-12, (xi, g)
     for xi in (0.075, 0.05, 0.02, 1e-9):
-        g, engaged = _facet_facing_arc(30.0, xi, depth, length)
-        want = depth + (length - depth) * (END_SHARE - xi) / END_SHARE
+        g, engaged = gap(xi * length)
+        want = length * (END_SHARE - xi) / END_SHARE
         assert bool(engaged) and abs(float(g) - want) <= 1e-12, (xi, g, want)
-    g, engaged = _facet_facing_arc(30.0, -0.01, depth, length)  # beyond node a: let go
+    g, engaged = gap(-0.01 * length)  # E beyond node a: the facet has let go
     assert not bool(engaged) and float(g) == pytest.approx(length, abs=1e-12)
-
-
-def test_a_facet_lets_go_of_an_arc_gradually_at_the_arcs_end():
-    """The same facet with its middle facing points of the arc nearer its end E, where the
-    arc runs into the flat face (ARC_END_MAX_RAD = 5 deg of the arc's 90): from 5 deg on the
-    raw gap (to 1e-12); below it rising linearly in the angle to the facet length at E;
-    lying on the face itself (E at depth 0 in the facet's middle, a facet whose gap is
-    that of its two nodes on the face: a second condition on the same motion, which made
-    the Jacobian singular) and beyond E, the facet length.  Reference: the closed form
-    g = d + (L - d) (1 - phi / 5 deg)."""
-    from jaxform.dies import ARC_END_MAX_RAD
-
-    length, depth = 0.25, -0.002
-    assert ARC_END_MAX_RAD == pytest.approx(np.deg2rad(5.0))
-    for phi in (60.0, 10.0, 5.0 + 1e-6):
-        g, _ = _facet_facing_arc(phi, 0.5, depth, length)
-        assert abs(float(g) - depth) <= 1e-12, (phi, g)
-    for phi in (4.0, 2.5, 0.5):
-        g, _ = _facet_facing_arc(phi, 0.5, depth, length)
-        want = depth + (length - depth) * (1.0 - phi / 5.0)
-        assert abs(float(g) - want) <= 1e-12, (phi, g, want)
-    for phi in (0.0, -3.0):
-        g, _ = _facet_facing_arc(phi, 0.5, 0.0, length)
-        assert float(g) == pytest.approx(length, abs=1e-12), (phi, g)
-    grad = jax.grad(lambda x: _facet_facing_arc(0.0, 0.5, x, length)[0])(0.0)
-    assert np.isfinite(float(grad))
