@@ -223,7 +223,7 @@ def first_steps_table(calls: list[dict], h: dict) -> str:
         for at_rest in (False, True):
             recs = replay(calls[row - 1], verbose=False, h=float(h["dt_s"][row]), at_rest=at_rest)
             first = [r for r in recs if r["attempt"] == 0]
-            conv = bool(first) and len(first) == len(recs)
+            conv = len(first) == len(recs)  # no later attempt (none at all: it started converged)
             totals[at_rest] += len(recs)
             start = first[0]["start"] if first else 0.0
             cells.append(f"{len(first)}{'' if conv else 'F'}, {start:.2g}")
