@@ -10,8 +10,9 @@ reaches the end of its stroke, *stopped* when jaxform ended it with its one-line
         [--timeout 1800] [--out out/generated_dies]
 
 writes ``results.csv`` (one row per seed: status, steps, stroke, force, fill, remeshes,
-wall time, the last line of stderr) and prints the completion rate; ``--quick`` runs
-seeds 0-1 on a 6 x 6 mesh (the test suite's smoke check of this script).
+Newton iterations, cutbacks, wall time, the last line of stderr) and prints the completion
+rate; ``--quick`` runs seeds 0-1 on a 6 x 6 mesh (the test suite's smoke check of this
+script).
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ from jaxform.config import dump_config
 from jaxform.generated_dies import draw, flanged_hub
 
 COLUMNS = ("seed", "status", "steps", "stroke_mm", "force_N", "die_fill", "remeshes",
-           "wall_s", "message", "dies")  # fmt: skip
+           "newton_iterations", "cutbacks", "wall_s", "message", "dies")  # fmt: skip
 
 
 def seeds(text: str) -> list[int]:
@@ -39,10 +40,22 @@ def seeds(text: str) -> list[int]:
     return out
 
 
-def last_row(history: Path) -> dict:
+def summary(history: Path) -> dict:
+    """The run's end (stroke, force, fill) and its totals (steps, remeshes, Newton
+    iterations, cutbacks) from its history.csv."""
     with open(history, newline="") as fh:
         rows = list(csv.DictReader(fh))
-    return rows[-1] if rows else {}
+    if not rows:
+        return {}
+
+    def total(key):
+        return sum(int(float(r.get(key, 0) or 0)) for r in rows)
+
+    last = rows[-1]
+    return dict(steps=len(rows) - 1, stroke_mm=last.get("stroke_mm", ""),
+                force_N=last.get("force_N", ""), die_fill=last.get("die_fill", ""),
+                remeshes=total("remeshed"), newton_iterations=total("newton_iterations"),
+                cutbacks=total("cutbacks"))  # fmt: skip
 
 
 def run_seed(seed: int, out: Path, overrides: list[str], timeout: float) -> dict:
@@ -70,13 +83,7 @@ def run_seed(seed: int, out: Path, overrides: list[str], timeout: float) -> dict
                message=(lines[-1] if lines and code != 0 else "")[:400])  # fmt: skip
     history = folder / "history.csv"
     if history.exists():
-        last = last_row(history)
-        row.update(steps=last.get("step", ""), stroke_mm=last.get("stroke_mm", ""),
-                   force_N=last.get("force_N", ""), die_fill=last.get("die_fill", ""))  # fmt: skip
-        with open(history, newline="") as fh:
-            rows = list(csv.DictReader(fh))
-        row["steps"] = len(rows) - 1
-        row["remeshes"] = sum(int(float(r.get("remeshed", 0) or 0)) for r in rows)
+        row.update(summary(history))
     return row
 
 

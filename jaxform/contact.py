@@ -361,12 +361,21 @@ class ContactLaw:
         return status, p["n"], p["tan"], p["slip"]
 
 
+# A corner-contact facet with no force counts as open until a die's arc reaches this far
+# into it (mm). Without it a facet lying on a flat face where an arc ends tangent to it
+# (gap 0 to round-off, multiplier 0: a new mesh's carried state) is active by round-off,
+# and its condition ties with its nodes' own: a singular Jacobian. 1e-9 mm is far above
+# the round-off of a gap (~1e-15 mm) and far below any motion the solver resolves.
+FACET_OPEN_REACH_MM = 1e-9
+
+
 def facet_terms(die, v, t, c):
     """Corner contact of one workpiece facet, v = (x_a (2), x_b (2), mu): (force residual
     on its two nodes (4,), complementarity residual (1,)).
 
     The facet's gap to the die's convex arcs g(x_a, x_b) (:meth:`RigidDie.facet_gap`)
-    with a normal multiplier mu >= 0 (N, frictionless): C = mu - max(0, mu - c g), and the
+    with a normal multiplier mu >= 0 (N, frictionless): C = mu - max(0, mu - c (g + e)),
+    e = :data:`FACET_OPEN_REACH_MM`, and the
     nodes' residuals gain -mu dg/dx (the die pushes the facet back along the arc's normal,
     shared between the nodes by where the arc touches)."""
     mu = v[4]
@@ -375,7 +384,7 @@ def facet_terms(die, v, t, c):
         return die.facet_gap(xs[:2], xs[2:], t)[0]
 
     g, dg = jax.value_and_grad(gap)(v[:4])
-    c_n = mu - jnp.maximum(0.0, mu - c * g)
+    c_n = mu - jnp.maximum(0.0, mu - c * (g + FACET_OPEN_REACH_MM))
     return jnp.concatenate([-mu * dg, c_n[None]])
 
 

@@ -350,3 +350,39 @@ def test_a_facet_lets_go_of_an_arc_gradually_at_its_node():
         assert bool(engaged) and abs(float(g) - want) <= 1e-12, (xi, g, want)
     g, engaged = gap(-0.01 * length)  # E beyond node a: the facet has let go
     assert not bool(engaged) and float(g) == pytest.approx(length, abs=1e-12)
+
+
+def test_a_facet_on_a_flat_face_at_an_arc_end_with_no_force_is_open():
+    """The singular tie of docs/remeshing.md: a new mesh puts a facet on the flat face where
+    a convex arc ends tangent to it; the arc's deepest point is the arc end, on the facet's
+    line (raw gap 0 to round-off), and the carried multiplier is 0.  The facet condition
+    C = mu - max(0, mu - c (g + FACET_OPEN_REACH_MM)) must then be the open one, C = mu
+    (dC/dmu = 1, dC/dx = 0: the row ties with nothing), for gaps within round-off of 0 on
+    either side.  Once the arc reaches 1e-6 mm into the facet the condition is the active
+    one, C = c (g + e) (dC/dmu = 0, dC/dz = c/2 at each node for an arc touching
+    mid-facet).  Reference: the two branches' derivatives, exact (to 1e-9)."""
+    from jaxform.contact import FACET_OPEN_REACH_MM, facet_terms
+    from jaxform.dies import corner_gap
+
+    pts = jnp.asarray([[0.0, 1.0], [2.0, 1.0], [2.0, 3.0]])  # flat face, then up: convex
+    radius, length, c = 0.3, 0.25, 1e4
+    e_r = 2.0 - radius  # the arc's end, tangent to the flat face
+
+    class Die:
+        def facet_gap(self, xa, xb, t):
+            return corner_gap(pts, radius, xa, xb)
+
+    def condition_row(dz):  # the facet's two nodes dz below the face, the arc end mid-facet
+        v = jnp.asarray([e_r + 0.5 * length, 1.0 - dz, e_r - 0.5 * length, 1.0 - dz, 0.0])
+        g, _ = corner_gap(pts, radius, v[:2], v[2:4])
+        return float(g), np.asarray(jax.jacfwd(lambda w: facet_terms(Die(), w, 0.0, c)[4])(v))
+
+    for dz in (0.0, 1e-15, -1e-15, 1e-13):
+        g, row = condition_row(dz)
+        assert abs(g) <= 1e-12 < FACET_OPEN_REACH_MM, (dz, g)
+        np.testing.assert_array_equal(row, [0.0, 0.0, 0.0, 0.0, 1.0], err_msg=f"dz {dz}")
+    g, row = condition_row(-1e-6)  # the arc 1e-6 mm into the facet: active
+    assert g == pytest.approx(-1e-6, abs=1e-12)
+    # the arc touches mid-facet: its reach is shared evenly by the two nodes' heights
+    assert row[4] == 0.0 and row[1] == pytest.approx(-0.5 * c, rel=1e-9)
+    assert row[3] == pytest.approx(-0.5 * c, rel=1e-9)
