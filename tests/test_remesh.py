@@ -954,6 +954,34 @@ def test_a_boundary_that_crosses_itself_is_untangled():
     assert untangled(out, labs)[2] == 0.0  # a simple polygon stays as it is
 
 
+def test_a_fold_whose_sides_have_closed_is_cut_like_a_crossing():
+    """A slit (a fold whose two sides have closed on each other without crossing) is cut
+    at the midpoint of its mouth: kept, it gave the new mesh poor elements from the start
+    and, pressed further, a section overlapping itself (generated die 29). Reference, by
+    hand: the rectangle 4 x 2 with a slit from its top edge down to (2, 1), its mouth
+    (2 -+ w/2, 2): with w = 1e-4 mm (< TOUCH_GAP_MM) the polygon is the rectangle again,
+    the mouth's vertices merged at (2, 2), the cut the slit's area w / 2 (1e-15); with w
+    = 1e-2 mm (an open fold) and without ``touch`` it stays as it is."""
+    from jaxform.contact import TOUCH_GAP_MM
+    from jaxform.section_mesh import first_touch, fold_cut, untangled
+
+    def slit(w):
+        return np.array([[0, 0], [4, 0], [4, 2], [2 + w / 2, 2], [2, 1], [2 - w / 2, 2],
+                         [0, 2]], float)  # fmt: skip
+
+    labels = ["symmetry", "side", "top", "fold", "fold", "top", "axis"]
+    out, labs, cut = untangled(slit(1e-4), labels, touch=TOUCH_GAP_MM)
+    np.testing.assert_allclose(out, [[0, 0], [4, 0], [4, 2], [2, 2], [0, 2]], atol=1e-15)
+    assert labs == ["symmetry", "side", "top", "top", "axis"]
+    assert cut == pytest.approx(0.5e-4, abs=1e-15)
+    assert polygon_measure(out[None], False)[0] == pytest.approx(8.0, abs=1e-14)
+    assert first_touch(slit(1e-4), TOUCH_GAP_MM) == (3, 5)
+    assert fold_cut(slit(1e-4), labels, 0.01)[2] == cut
+    for pts, touch in ((slit(1e-2), TOUCH_GAP_MM), (slit(1e-4), 0.0)):
+        out, labs, cut = untangled(pts, labels, touch=touch)
+        assert np.array_equal(out, pts) and labs == labels and cut == 0.0
+
+
 def test_the_finisher_fold_that_hung_gmsh_is_untangled_and_meshes():
     """The two-stage disk design's finisher hung at 1.95 mm of its stroke inside gmsh's
     mesh.generate (the run waited 10 min): the fin at the rib cavity's top corner (the
