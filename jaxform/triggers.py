@@ -286,8 +286,15 @@ class Armed:
             return False
         if not bits & QUALITY:
             return True
+        return self.holds(row)
+
+    def holds(self, row: dict) -> bool:
+        """Whether the mesh of ``row`` is still at least :data:`HOLDS` of the configured
+        quality threshold (True where no quality trigger is configured)."""
         configured = [c for t, c in zip(self.triggers, self.configured) if t.bit == QUALITY]
-        return bool(configured) and float(row["mesh_quality"]) >= HOLDS * configured[0]
+        if not configured or configured[0] <= 0.0:
+            return True
+        return float(row["mesh_quality"]) >= HOLDS * configured[0]
 
     def for_chunk(self, thresholds: tuple, steps_since: int) -> tuple:
         """``thresholds`` for the next chunk, ``steps_since`` steps after the last new mesh."""

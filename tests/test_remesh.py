@@ -1075,3 +1075,32 @@ def test_no_new_mesh_for_the_last_step_alone():
     late = jaxform.run(SEED, over + ["remesh.every_steps=14"])
     assert not np.any(late.history["remeshed"]) and not late.remeshes
     np.testing.assert_allclose(late.history["force_N"], plain["force_N"], rtol=1e-12)
+
+
+def test_a_last_step_that_breaks_the_kept_mesh_is_taken_again_on_a_new_one(monkeypatch):
+    """The quality trigger fires on the step before the last with the mesh still above
+    HOLDS of the threshold, so the run keeps its mesh for the last step (the test above);
+    where that step leaves the mesh below HOLDS of the threshold, the run adapts after all
+    and takes the last step again on the new mesh (generated die 29: quality 0.268 ->
+    0.0017 in its last step, -6.5 % of force).  Set up on the unremeshed run's own
+    qualities q_k (falling step by step): the threshold between q_13 and q_14, HOLDS
+    between q_15 and q_14 over it: the row of step 14 remeshes and the run still has 15
+    steps; with HOLDS 0.5 (the last step keeps the mesh above it) nothing is remeshed and
+    the run equals the unremeshed one.  (A 4 x 6 mesh: its elements start square, so the
+    quality falls from 1 at every step.)"""
+    import jaxform.triggers as triggers
+
+    over = QUIET + ["mesh.nr=4", "mesh.nz=6", "die.reduction=0.15"]
+    plain = jaxform.run(SEED, over).history
+    q = plain["mesh_quality"]
+    assert q[13] > q[14] > q[15]
+    threshold = float(0.5 * (q[13] + q[14]))
+    kept = jaxform.run(SEED, over + [f"remesh.quality_below={threshold!r}"])
+    assert not np.any(kept.history["remeshed"])
+    np.testing.assert_allclose(kept.history["force_N"], plain["force_N"], rtol=1e-12)
+    monkeypatch.setattr(triggers, "HOLDS", 0.5 * (q[14] + q[15]) / threshold)
+    res = jaxform.run(SEED, over + [f"remesh.quality_below={threshold!r}"])
+    assert list(np.nonzero(res.history["remeshed"])[0]) == [14]
+    assert len(res.remeshes) == 1 and len(res.history["force_N"]) == 16
+    # frictionless upsetting is homogeneous: the new mesh's last step carries the same force
+    assert res.history["force_N"][-1] == pytest.approx(plain["force_N"][-1], rel=1e-8)
