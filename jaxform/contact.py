@@ -375,9 +375,9 @@ def facet_terms(die, v, t, c):
 
     The facet's gap to the die's convex arcs g(x_a, x_b) (:meth:`RigidDie.facet_gap`)
     with a normal multiplier mu >= 0 (N, frictionless): C = mu - max(0, mu - c (g + e)),
-    e = :data:`FACET_OPEN_REACH_MM`, and the
-    nodes' residuals gain -mu dg/dx (the die pushes the facet back along the arc's normal,
-    shared between the nodes by where the arc touches)."""
+    e = :data:`FACET_OPEN_REACH_MM`, and the nodes' residuals gain -mu dg/dx (the die
+    pushes the facet back along the arc's normal, shared between the nodes by where the
+    arc touches)."""
     mu = v[4]
 
     def gap(xs):

@@ -302,6 +302,11 @@ def _adapted(run: Run, done: Adapted, owned: OwnedFactorization) -> Run:
     )
 
 
+def _adapted_paused(run: Run, adaptation, owned: OwnedFactorization) -> Run:
+    """``run`` with its paused last row answered by ``adaptation`` (:func:`_adapted`)."""
+    return _adapted(run, adaptation.adapt(run.mesh, run.state, run.rows[-1]), owned)
+
+
 def _without_empty_mesh(run: Run) -> Run:
     """A run whose first step on its newest mesh failed ends on the mesh before it (the
     last converged state), that mesh's remesh undone."""
@@ -446,7 +451,7 @@ def simulate(
             if declined and _last_step_broke_mesh(stepped, t_stop):
                 # the last step on the kept mesh left it below what holds: adapt after all
                 # and take it again (where that fails, the kept mesh's step stands)
-                again = _adapted(run, adaptation.adapt(run.mesh, run.state, run.rows[-1]), owned)
+                again = _adapted_paused(run, adaptation, owned)
                 retried = _stepped_on(again, owned) if again.failure is None else again
                 if retried.failure is None:
                     stepped, first = retried, first - 1  # the paused row again, now adapted
@@ -455,7 +460,7 @@ def simulate(
             declined = False
             if paused and run.failure is None:
                 if _adapts(run, t_stop):
-                    run = _adapted(run, adaptation.adapt(run.mesh, run.state, run.rows[-1]), owned)
+                    run = _adapted_paused(run, adaptation, owned)
                 else:
                     declined = float(run.state.t) < t_stop
             reporting = True  # an error of the caller's callback is the caller's
