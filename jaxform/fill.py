@@ -41,14 +41,15 @@ CONFORM_GAP_MM = TOUCH_GAP_MM  # a node this close to the die lies on it (contac
 CONFORM_PATH_RATIO = 1.2  # the die's path between the ends over the edge's length, at most
 
 
-def _project(points, surface, arc):
+def _project(points, surface, arc, xp=jnp):
     """(arc length along the polyline ``surface`` (m, 2), its vertices at ``arc`` (m,), of
-    each point's nearest point on it, the distance): the points (p, 2); traceable."""
-    k, s, dist = nearest_on_segments(points, surface[:-1], surface[1:], xp=jnp)
+    each point's nearest point on it, the distance): the points (p, 2); traceable
+    (``xp`` = jax.numpy) or host NumPy."""
+    k, s, dist = nearest_on_segments(points, surface[:-1], surface[1:], xp=xp)
     return arc[k] + s * (arc[k + 1] - arc[k]), dist
 
 
-def slivers(pos, edges, surface):
+def slivers(pos, edges, surface, xp=jnp):
     """(conformed (n_b,), the closed polygons p0 -> path -> p1 of every edge (n_b, m + 2,
     2)) of the directed boundary edges ``edges`` (n_b, 2) at positions ``pos`` against the
     die polyline ``surface`` (m, 2): the surface's vertices outside an edge's path collapse
@@ -57,34 +58,36 @@ def slivers(pos, edges, surface):
     -> path -> p1 -> p0 runs counter-clockwise round a sliver on its right (outside the
     material: a concave die corner) and clockwise round an overlap on its left (a convex
     one): the polygon's signed measure is what conforming the edge adds to the material.
-    Traceable; the mask is not differentiated."""
-    pos, surface = jnp.asarray(pos), jnp.asarray(surface)
+    Traceable; the mask is not differentiated.  ``xp``: jax.numpy (traced, the design
+    objectives) or NumPy (the host's history, which an eager jax.numpy call would
+    compile anew for every boundary length)."""
+    pos, surface = xp.asarray(pos), xp.asarray(surface)
     edges = np.asarray(edges)
     p0, p1 = pos[edges[:, 0]], pos[edges[:, 1]]
-    arc = jnp.concatenate(
+    arc = xp.concatenate(
         [
-            jnp.zeros(1, surface.dtype),
-            jnp.cumsum(jnp.linalg.norm(jnp.diff(surface, axis=0), axis=1)),
+            xp.zeros(1, surface.dtype),
+            xp.cumsum(xp.linalg.norm(xp.diff(surface, axis=0), axis=1)),
         ]
     )
-    s0, g0 = _project(p0, surface, arc)
-    s1, g1 = _project(p1, surface, arc)
-    chord = jnp.linalg.norm(p1 - p0, axis=1)
+    s0, g0 = _project(p0, surface, arc, xp)
+    s1, g1 = _project(p1, surface, arc, xp)
+    chord = xp.linalg.norm(p1 - p0, axis=1)
     conformed = (
         (g0 <= CONFORM_GAP_MM)
         & (g1 <= CONFORM_GAP_MM)
-        & (jnp.abs(s1 - s0) <= CONFORM_PATH_RATIO * chord)
+        & (xp.abs(s1 - s0) <= CONFORM_PATH_RATIO * chord)
     )
     forward = (s0 <= s1)[:, None]
     # walk the vertices in the edge's direction: ascending where s0 <= s1, else descending
-    sv = jnp.where(forward, arc[None, :], arc[None, ::-1])  # (n_b, m)
-    v = jnp.where(forward[..., None], surface[None], surface[None, ::-1])  # (n_b, m, 2)
-    lo, hi = jnp.minimum(s0, s1)[:, None], jnp.maximum(s0, s1)[:, None]
+    sv = xp.where(forward, arc[None, :], arc[None, ::-1])  # (n_b, m)
+    v = xp.where(forward[..., None], surface[None], surface[None, ::-1])  # (n_b, m, 2)
+    lo, hi = xp.minimum(s0, s1)[:, None], xp.maximum(s0, s1)[:, None]
     inside = (sv > lo) & (sv < hi)
-    before = jnp.where(forward, sv <= lo, sv >= hi)
-    q = jnp.where(inside[..., None], v, jnp.where(before[..., None], p0[:, None], p1[:, None]))
-    polys = jnp.concatenate([p0[:, None], q, p1[:, None]], axis=1)
-    return jax.lax.stop_gradient(conformed), polys
+    before = xp.where(forward, sv <= lo, sv >= hi)
+    q = xp.where(inside[..., None], v, xp.where(before[..., None], p0[:, None], p1[:, None]))
+    polys = xp.concatenate([p0[:, None], q, p1[:, None]], axis=1)
+    return (conformed if xp is np else jax.lax.stop_gradient(conformed)), polys
 
 
 def conformed_edges(pos: np.ndarray, edges: np.ndarray, surfaces):
@@ -96,7 +99,7 @@ def conformed_edges(pos: np.ndarray, edges: np.ndarray, surfaces):
     starts, ends, used = [pos[edges[:, 0]]], [pos[edges[:, 1]]], []
     keep = np.ones(len(edges), dtype=bool)
     for surface in surfaces:
-        conformed, polys = (np.asarray(a) for a in slivers(pos, edges, surface))
+        conformed, polys = slivers(pos, edges, surface, xp=np)
         conformed = conformed & keep
         for poly in polys[conformed]:
             path = poly[np.r_[True, np.any(np.diff(poly, axis=0) != 0.0, axis=1)]]

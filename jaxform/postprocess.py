@@ -177,20 +177,24 @@ def _clipped_boundary_integral(p0, p1, a, b, keep_on_boundary, tol, axisymmetric
     hit = (np.abs(den) > 0) & (t > 0) & (t < 1) & (u >= 0) & (u <= 1)
     off = np.linalg.norm(w - s[..., None] * d[:, None, :], axis=-1)
     on = (off <= tol) & (s > 0) & (s < 1)  # a vertex of the other boundary on the edge
-    total = 0.0
-    for k in range(len(p0)):
-        ts = np.concatenate([[0.0], np.sort(np.concatenate([t[k][hit[k]], s[k][on[k]]])), [1.0]])
-        q = p0[k] + ts[:, None] * d[k]
-        mid = 0.5 * (q[:-1] + q[1:])
-        near = nearest_on_segments(mid, a, b)[2] <= tol
-        keep = np.where(near, keep_on_boundary, _inside(mid, a, b))
-        r0, z0, r1, z1 = q[:-1, 0], q[:-1, 1], q[1:, 0], q[1:, 1]
-        if axisymmetric:
-            part = (z1 - z0) * (r0 * r0 + r0 * r1 + r1 * r1) / 6.0
-        else:
-            part = (z1 - z0) * (r0 + r1) / 2.0
-        total += float(np.sum(part[keep]))
-    return total
+    # every edge's split parameters in one sorted row (NaN where none: sorted last); the
+    # pieces between neighbouring finite parameters, all edges at once
+    cuts = np.concatenate([np.where(hit, t, np.nan), np.where(on, s, np.nan)], axis=1)
+    ends = np.broadcast_to(np.array([0.0, 1.0]), (len(p0), 2))
+    ts = np.sort(np.concatenate([ends, cuts], axis=1), axis=1)
+    valid = np.isfinite(ts[:, 1:])
+    k = np.broadcast_to(np.arange(len(p0))[:, None], valid.shape)[valid]
+    t0, t1 = ts[:, :-1][valid], ts[:, 1:][valid]
+    q0, q1 = p0[k] + t0[:, None] * d[k], p0[k] + t1[:, None] * d[k]
+    mid = 0.5 * (q0 + q1)
+    near = nearest_on_segments(mid, a, b)[2] <= tol
+    keep = np.where(near, keep_on_boundary, _inside(mid, a, b))
+    r0, z0, r1, z1 = q0[:, 0], q0[:, 1], q1[:, 0], q1[:, 1]
+    if axisymmetric:
+        part = (z1 - z0) * (r0 * r0 + r0 * r1 + r1 * r1) / 6.0
+    else:
+        part = (z1 - z0) * (r0 + r1) / 2.0
+    return float(np.sum(part[keep]))
 
 
 def overlap_depth(die_points: np.ndarray, pos: np.ndarray, edges: np.ndarray) -> float:
@@ -259,7 +263,7 @@ def filled_volume(scene, pos: np.ndarray, t: float) -> float:
 
 def _measure_within(poly: np.ndarray, radius: float, axisymmetric: bool) -> float:
     """Signed measure of the part of the polygon at r <= radius (its orientation kept)."""
-    if radius < np.inf:  # z >= -R of the polygon turned by 180 degrees and mirrored: r <= R
+    if poly[:, 0].max() > radius:  # z >= -R of the polygon turned and mirrored: r <= R
         poly = -_clip_above(-poly[:, ::-1], -radius)[:, ::-1]
     return float(polygon_measure(poly, axisymmetric)) if len(poly) >= 3 else 0.0
 
