@@ -3,8 +3,9 @@
 Runs a config (with its remeshing) to a time T, then from the state at T takes one
 vanishing step (1e-4 of the last step size: the carried state re-balanced, no new flow) and
 one step of the last step size, each on the mesh the run ended on, on a new mesh of its
-deformed section (:func:`jaxform.remesh.remesh`) and on an identity remesh (the same mesh,
-the state carried by the same kind of map).  The die moves on as in the full run.  Each
+deformed section (:func:`jaxform.remesh.remesh`), on an identity remesh (the same mesh,
+the state carried by the same kind of map) and on a new mesh whose boundary nodes are the
+old mesh's (gmsh meshes the interior anew).  The die moves on as in the full run.  Each
 step's force is split by where the die holds the part: contact nodes and corner facets
 between given radii.
 
@@ -24,7 +25,7 @@ import numpy as np
 
 import jaxform.remesh as remeshing
 from jaxform.config import load_config
-from jaxform.mesh import Mesh
+from jaxform.mesh import Mesh, boundary_polygon, polygon_quads
 from jaxform.scenes import build_scene
 from jaxform.section_mesh import MesherHelp
 from jaxform.simulation import init, simulate, step
@@ -72,6 +73,28 @@ def identity_mesh(scene, pos, t, settings):
     return mesh, MesherHelp()
 
 
+def kept_boundary_mesh(scene, pos, t, settings):
+    """A new mesh of the deformed section whose boundary nodes are the old mesh's, all of
+    them and no others (one segment per boundary edge, one edge halved where Blossom
+    needs an even count): the interior is new, the boundary's discretization along the
+    dies is the old one's."""
+    points, labels, _ = boundary_polygon(scene.mesh, np.asarray(pos, float))
+    length = np.linalg.norm(np.roll(points, -1, axis=0) - points, axis=1)
+    sizes = np.maximum(length, np.roll(length, 1))
+    return polygon_quads(points, labels, sizes), MesherHelp()
+
+
+def remeshed_with(scene, state, mesher):
+    """:func:`jaxform.remesh.remesh` of the state with ``mesher`` in place of its
+    new_section_mesh (the state carried by the same map)."""
+    real = remeshing.new_section_mesh
+    remeshing.new_section_mesh = mesher
+    try:
+        return remeshing.remesh(scene, state, scene.remesh)
+    finally:
+        remeshing.new_section_mesh = real
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("config")
@@ -88,14 +111,11 @@ def main() -> None:
           f"{time.time() - start:.0f} s; force {h['force_N'][-1]:.1f} N")  # fmt: skip
     sc, st, dt = res.final_scene, res.final_state, float(h["dt_s"][-1])
     new = remeshing.remesh(sc, st, sc.remesh)
-    new_section_mesh = remeshing.new_section_mesh
-    remeshing.new_section_mesh = identity_mesh
-    try:
-        same = remeshing.remesh(sc, st, sc.remesh)
-    finally:
-        remeshing.new_section_mesh = new_section_mesh
+    same, kept = (remeshed_with(sc, st, m) for m in (identity_mesh, kept_boundary_mesh))
     cases = {"old mesh": (sc, st), "identity remesh": (same.scene, same.state),
-             f"new mesh ({new.scene.mesh.n_nodes} nodes)": (new.scene, new.state)}  # fmt: skip
+             f"new mesh ({new.scene.mesh.n_nodes} nodes)": (new.scene, new.state),
+             f"old boundary, new interior ({kept.scene.mesh.n_nodes} nodes)":
+                 (kept.scene, kept.state)}  # fmt: skip
     for label, (s, x) in cases.items():
         for h_step in (1e-4 * dt, dt):
             out = probe(s, x, h_step, a.radii)
