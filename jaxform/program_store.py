@@ -59,6 +59,12 @@ _refused: set[str] = set()  # keys whose program could not be exported
 # compiles hundreds of programs (a test worker, a design over many meshes) lets them go
 # once it holds this share of the limit (release_if_crowded).
 MAP_SHARE = 0.5
+# A gradient replay (a remeshed scene's, a process's) needs its own programs again at its
+# next evaluation: past MAP_SHARE it first lets the stored programs go (a forward run's
+# step chunks, read back from disk in a fraction of a second), and JAX's caches only past
+# this share (make_room_for_replay).  The shipped two-stage disk's replay alone holds
+# ~75 % of the limit.
+REPLAY_SHARE = 0.85
 _MAPS = Path("/proc/self/maps")
 _MAP_LIMIT = Path("/proc/sys/vm/max_map_count")
 
@@ -137,7 +143,7 @@ def map_share() -> float:
         return 0.0
     try:
         with _MAPS.open("rb") as f:
-            return sum(1 for _ in f) / limit
+            return f.read().count(b"\n") / limit
     except OSError:
         return 0.0
 
@@ -149,6 +155,35 @@ def release_programs() -> None:
     _loaded.clear()
     jax.clear_caches()
     gc.collect()
+
+
+def release_stored_programs() -> bool:
+    """Let go of the stored programs loaded in this process (:func:`call`), keeping JAX's
+    own caches (the traced and compiled programs of a gradient replay); True when there
+    were any."""
+    if not _loaded:
+        return False
+    _loaded.clear()
+    gc.collect()
+    return True
+
+
+def make_room_for_replay() -> str | None:
+    """Before a gradient replay's next mesh or reverse pass: past :data:`MAP_SHARE` of
+    the memory-map limit the stored programs go; past :data:`REPLAY_SHARE` (still, after
+    that) every compiled program.  Below it the replay's own programs stay, so that its
+    next evaluation on the same plan traces and compiles nothing.  Returns what it let go
+    (``"stored"``, ``"all"``) or None."""
+    share = map_share()
+    if share <= MAP_SHARE:
+        return None
+    done = None
+    if release_stored_programs():
+        done, share = "stored", map_share()
+    if share > REPLAY_SHARE:
+        release_programs()
+        done = "all"
+    return done
 
 
 def release_if_crowded(share: float | None = None) -> bool:

@@ -183,8 +183,8 @@ def test_a_plan_made_at_a_design_replays_that_designs_forward_run():
 def test_a_crowded_replay_lets_its_programs_go_and_keeps_the_gradient(monkeypatch):
     """Reference: the shared start gradient (the whole replay as one program).  The replay
     mesh by mesh (separate programs, as a design runs it) with every compiled program let
-    go before each mesh and each mesh's reverse pass (the memory-map share set to 0, as in
-    a process near vm.max_map_count): at least one release per mesh each way, and the
+    go before each mesh and each mesh's reverse pass (both memory-map shares set to 0, as
+    in a process near vm.max_map_count): at least one release per mesh each way, and the
     same objective and gradient to 1e-9 of each group's largest component."""
     import jax
 
@@ -193,6 +193,7 @@ def test_a_crowded_replay_lets_its_programs_go_and_keeps_the_gradient(monkeypatc
     released = []
     real = program_store.release_programs
     monkeypatch.setattr(program_store, "MAP_SHARE", 0.0)
+    monkeypatch.setattr(program_store, "REPLAY_SHARE", 0.0)
     monkeypatch.setattr(program_store, "release_programs", lambda: (released.append(1), real()))
     _, _, plan = forward()
     pb = build_process_problem(plan, GROUPS, objective(plan))

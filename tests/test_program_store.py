@@ -124,6 +124,63 @@ def test_a_crowded_process_lets_its_programs_go(tmp_path, monkeypatch):
     assert _maps() <= grown - 2 * 19
 
 
+@pytest.mark.parametrize(
+    "share, stored, expected",
+    [(0.4, True, None), (0.7, True, "stored"), (0.7, False, None), (0.9, True, "all"),
+     (0.9, False, "all")],
+)  # fmt: skip
+def test_a_replay_lets_jax_programs_go_only_past_its_own_share(monkeypatch, share, stored,
+                                                               expected):  # fmt: skip
+    """Reference: the policy of make_room_for_replay (a gradient replay's programs are
+    needed again at its next evaluation; the shipped two-stage disk's alone hold ~75 % of
+    the map limit, and clearing them made every gradient trace again, 150-200 s against
+    3 s warm).  At or below MAP_SHARE nothing goes; between MAP_SHARE and REPLAY_SHARE
+    only the stored programs (JAX's caches stay); past REPLAY_SHARE everything.  The
+    share is read again after the stored programs went (here it does not fall)."""
+    calls = []
+    monkeypatch.setattr(program_store, "MAP_SHARE", 0.5)
+    monkeypatch.setattr(program_store, "REPLAY_SHARE", 0.85)
+    monkeypatch.setattr(program_store, "map_share", lambda: share)
+    monkeypatch.setattr(program_store, "_loaded", {"k": None} if stored else {})
+    monkeypatch.setattr(program_store, "release_programs", lambda: calls.append("all"))
+    assert program_store.make_room_for_replay() == expected
+    assert calls == (["all"] if expected == "all" else [])
+    assert bool(program_store._loaded) == (stored and share <= 0.5)
+
+
+def test_letting_the_stored_programs_go_frees_their_maps(tmp_path, monkeypatch):
+    """Reference: /proc/self/maps.  Ten stored programs add at least two maps each;
+    release_stored_programs lets them go (the table empty, at least two maps each fewer)
+    and leaves a jitted program's compiled executable in JAX's cache (called again it
+    is not traced again)."""
+    if program_store.map_share() == 0.0:
+        pytest.skip("no memory-map limit to read on this system (/proc)")
+    import jax
+
+    monkeypatch.setattr(program_store, "store_dir", lambda: tmp_path)
+    monkeypatch.setattr(program_store, "_loaded", {})
+    traces = []
+
+    @jax.jit
+    def kept(x):
+        traces.append(1)
+        return jnp.cos(x) * 3.0
+
+    x = jnp.arange(3.0)
+    kept(x)
+    before = _maps()
+    for k in range(10):
+        program_store.call(f"shift{k}", f"Shift(k={k})", lambda x, k=k: x + k * jnp.cos(x), x)
+    grown = _maps()
+    assert grown >= before + 2 * 10
+    assert program_store.release_stored_programs()
+    assert not program_store._loaded
+    assert _maps() <= grown - 2 * 10
+    assert not program_store.release_stored_programs()  # nothing left to let go
+    kept(x)
+    assert len(traces) == 1
+
+
 def test_a_source_edited_under_the_process_turns_the_store_off(tmp_path, monkeypatch):
     """A jaxform file that changes on disk after the process read the source: programs
     are neither loaded nor stored from then on (a program traced from the edited code must
