@@ -573,7 +573,7 @@ def _segment_backward(pullback, cotangent):
 
 
 def _segment_bwd(stepper, idx, pullback, cotangent):
-    program_store.make_room_for_replay()  # the reverse pass compiles a program per mesh too
+    program_store.make_room()  # the reverse pass compiles a program per mesh too
     return _segment_backward(pullback, cotangent)
 
 
@@ -582,9 +582,9 @@ _segment.defvjp(_segment_forward, _segment_bwd)
 
 def _enter_mesh(seg: MeshSegment, state, coords):
     """:func:`_entered_mesh`, after making room where the process is crowded with memory
-    maps (:func:`jaxform.program_store.make_room_for_replay`): each mesh of a replay
+    maps (:func:`jaxform.program_store.make_room`): each mesh of a replay
     compiles programs of its own (its map, its bucket's steps, their reverse passes)."""
-    program_store.make_room_for_replay()
+    program_store.make_room()
     return _entered_mesh(seg, state, coords)
 
 

@@ -59,12 +59,19 @@ _refused: set[str] = set()  # keys whose program could not be exported
 # compiles hundreds of programs (a test worker, a design over many meshes) lets them go
 # once it holds this share of the limit (release_if_crowded).
 MAP_SHARE = 0.5
-# A gradient replay (a remeshed scene's, a process's) needs its own programs again at its
-# next evaluation: past MAP_SHARE it first lets the stored programs go (a forward run's
-# step chunks, read back from disk in a fraction of a second), and JAX's caches only past
-# this share (make_room_for_replay).  The shipped two-stage disk's replay alone holds
-# ~75 % of the limit.
-REPLAY_SHARE = 0.85
+# Before a new program (a stored one, a replay's mesh or reverse pass, a design's
+# evaluation) the process makes room in two levels (make_room): past MAP_SHARE the stored
+# programs go (a forward run's step chunks, read back from disk in a fraction of a
+# second), JAX's own caches only past CLEAR_SHARE: a gradient replay needs its programs
+# again at its next evaluation, and the shipped two-stage disk's replay alone holds ~75 %
+# of the limit.
+CLEAR_SHARE = 0.85
+# Between MAP_SHARE and CLEAR_SHARE the stored programs go again only once the share has
+# grown this much since they last went: where JAX's programs hold more than MAP_SHARE (a
+# design's gradient), a forward run's stored programs would otherwise go at each new one
+# and be read back again and again.
+STORED_STEP = 0.1
+_stored_floor = 0.0  # the share just after the stored programs last went
 _MAPS = Path("/proc/self/maps")
 _MAP_LIMIT = Path("/proc/sys/vm/max_map_count")
 
@@ -152,9 +159,11 @@ def release_programs() -> None:
     """Let go of every compiled program this process keeps: the stored programs loaded
     here and JAX's in-memory caches (a program needed again comes from the persistent
     cache, or is compiled again where there is none)."""
+    global _stored_floor
     _loaded.clear()
     jax.clear_caches()
     gc.collect()
+    _stored_floor = 0.0
 
 
 def release_stored_programs() -> bool:
@@ -168,19 +177,23 @@ def release_stored_programs() -> bool:
     return True
 
 
-def make_room_for_replay() -> str | None:
-    """Before a gradient replay's next mesh or reverse pass: past :data:`MAP_SHARE` of
-    the memory-map limit the stored programs go; past :data:`REPLAY_SHARE` (still, after
-    that) every compiled program.  Below it the replay's own programs stay, so that its
-    next evaluation on the same plan traces and compiles nothing.  Returns what it let go
+def make_room() -> str | None:
+    """Before a new program: past :data:`MAP_SHARE` of the memory-map limit (and
+    :data:`STORED_STEP` above where the last such release left it) the stored programs
+    go; past :data:`CLEAR_SHARE` the stored programs, and every compiled program where
+    that is not enough.  Below it a gradient replay's own programs stay, so that its next
+    evaluation on the same plan traces and compiles nothing.  Returns what it let go
     (``"stored"``, ``"all"``) or None."""
+    global _stored_floor
     share = map_share()
-    if share <= MAP_SHARE:
+    crowded = share > CLEAR_SHARE
+    if not crowded and share <= max(MAP_SHARE, _stored_floor + STORED_STEP):
         return None
     done = None
     if release_stored_programs():
         done, share = "stored", map_share()
-    if share > REPLAY_SHARE:
+        _stored_floor = share
+    if share > CLEAR_SHARE:
         release_programs()
         done = "all"
     return done
@@ -188,7 +201,8 @@ def make_room_for_replay() -> str | None:
 
 def release_if_crowded(share: float | None = None) -> bool:
     """:func:`release_programs` when the process holds more than ``share`` (default
-    :data:`MAP_SHARE`) of its memory map limit; True when it did."""
+    :data:`MAP_SHARE`) of its memory map limit; True when it did (between tests of a
+    worker: the next test needs other programs)."""
     if map_share() <= (MAP_SHARE if share is None else share):
         return False
     release_programs()
@@ -326,7 +340,7 @@ def _prepared(key: str, fn, leaves, tree):
         return _loaded[key]
     if source_changed():
         raise NotStorable(key)  # edited under this process: run it traced (source_changed)
-    release_if_crowded()  # before a new program adds its maps
+    make_room()  # before a new program adds its maps
     register_ffi_targets()  # a loaded program calls them without being traced here
     folder = store_dir()
     blob_path, tree_path = folder / f"{key}.bin", folder / f"{key}.tree"

@@ -193,7 +193,7 @@ def test_a_crowded_replay_lets_its_programs_go_and_keeps_the_gradient(monkeypatc
     released = []
     real = program_store.release_programs
     monkeypatch.setattr(program_store, "MAP_SHARE", 0.0)
-    monkeypatch.setattr(program_store, "REPLAY_SHARE", 0.0)
+    monkeypatch.setattr(program_store, "CLEAR_SHARE", 0.0)
     monkeypatch.setattr(program_store, "release_programs", lambda: (released.append(1), real()))
     _, _, plan = forward()
     pb = build_process_problem(plan, GROUPS, objective(plan))

@@ -108,6 +108,7 @@ def test_a_crowded_process_lets_its_programs_go(tmp_path, monkeypatch):
         pytest.skip("no memory-map limit to read on this system (/proc)")
     monkeypatch.setattr(program_store, "store_dir", lambda: tmp_path)
     monkeypatch.setattr(program_store, "_loaded", {})
+    monkeypatch.setattr(program_store, "_stored_floor", 0.0)
     x = jnp.arange(3.0)
     before = _maps()
     for k in range(20):
@@ -118,6 +119,7 @@ def test_a_crowded_process_lets_its_programs_go(tmp_path, monkeypatch):
     assert not program_store.release_if_crowded(share=1.0)
     assert len(program_store._loaded) == 20
     monkeypatch.setattr(program_store, "MAP_SHARE", 0.0)
+    monkeypatch.setattr(program_store, "STORED_STEP", 0.0)
     out = program_store.call("scale20", "Scale(k=20)", lambda x: 20.0 * x + jnp.sin(x), x)
     np.testing.assert_allclose(np.asarray(out), 20.0 * np.arange(3.0) + np.sin(np.arange(3.0)))
     assert len(program_store._loaded) == 1
@@ -125,27 +127,35 @@ def test_a_crowded_process_lets_its_programs_go(tmp_path, monkeypatch):
 
 
 @pytest.mark.parametrize(
-    "share, stored, expected",
-    [(0.4, True, None), (0.7, True, "stored"), (0.7, False, None), (0.9, True, "all"),
-     (0.9, False, "all")],
+    "share, stored, floor, expected",
+    [(0.4, True, 0.0, None), (0.7, True, 0.0, "stored"), (0.7, False, 0.0, None),
+     (0.7, True, 0.65, None), (0.76, True, 0.65, "stored"), (0.9, True, 0.0, "all"),
+     (0.9, False, 0.0, "all"), (0.9, True, 0.85, "all")],
 )  # fmt: skip
-def test_a_replay_lets_jax_programs_go_only_past_its_own_share(monkeypatch, share, stored,
-                                                               expected):  # fmt: skip
-    """Reference: the policy of make_room_for_replay (a gradient replay's programs are
-    needed again at its next evaluation; the shipped two-stage disk's alone hold ~75 % of
-    the map limit, and clearing them made every gradient trace again, 150-200 s against
-    3 s warm).  At or below MAP_SHARE nothing goes; between MAP_SHARE and REPLAY_SHARE
-    only the stored programs (JAX's caches stay); past REPLAY_SHARE everything.  The
-    share is read again after the stored programs went (here it does not fall)."""
+def test_making_room_lets_the_stored_programs_go_first(monkeypatch, share, stored, floor,
+                                                       expected):  # fmt: skip
+    """Reference: the policy of make_room, before a stored program, a replay's mesh or
+    reverse pass and a design's evaluation (a gradient replay's programs are needed again
+    at its next evaluation; the shipped two-stage disk's alone hold ~75 % of the map
+    limit, and letting them go made every gradient trace again, 134-200 s against 3 s
+    warm).  At or below MAP_SHARE nothing goes; between MAP_SHARE and CLEAR_SHARE only
+    the stored programs (JAX's caches stay), and only once the share has grown by
+    STORED_STEP (0.1) since they last went (``floor``: a forward run beside a design's
+    gradient programs does not read its programs back at each new one); past CLEAR_SHARE
+    everything.  The share is read again after the stored programs went (here it does
+    not fall)."""
     calls = []
+    monkeypatch.setattr(program_store, "_stored_floor", floor)
     monkeypatch.setattr(program_store, "MAP_SHARE", 0.5)
-    monkeypatch.setattr(program_store, "REPLAY_SHARE", 0.85)
+    monkeypatch.setattr(program_store, "CLEAR_SHARE", 0.85)
     monkeypatch.setattr(program_store, "map_share", lambda: share)
     monkeypatch.setattr(program_store, "_loaded", {"k": None} if stored else {})
     monkeypatch.setattr(program_store, "release_programs", lambda: calls.append("all"))
-    assert program_store.make_room_for_replay() == expected
+    assert program_store.make_room() == expected
     assert calls == (["all"] if expected == "all" else [])
-    assert bool(program_store._loaded) == (stored and share <= 0.5)
+    assert bool(program_store._loaded) == (stored and expected is None)
+    if expected == "stored":
+        assert program_store._stored_floor == share
 
 
 def test_letting_the_stored_programs_go_frees_their_maps(tmp_path, monkeypatch):

@@ -159,7 +159,7 @@ def gradient_loop(problem, settings: OptimizerSettings, design=None, progress=No
 
     def evaluate(u, counted=True):
         hist.evaluations += int(counted)
-        program_store.release_if_crowded()  # each design's meshes compile programs of their own
+        program_store.make_room()  # each design's meshes compile programs of their own
         val, g, _ = problem.value_and_grad(u)
         return float(val), g
 

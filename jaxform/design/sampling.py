@@ -86,7 +86,7 @@ class _Runs:
 
     def __call__(self, x: np.ndarray) -> float:
         design = self.box.tree(np.clip(x, self.box.lo, self.box.hi))
-        program_store.release_if_crowded()  # each design's meshes compile programs of their own
+        program_store.make_room()  # each design's meshes compile programs of their own
         try:
             val = self._value(design)
         except GradientRunError:
