@@ -160,9 +160,9 @@ def release_programs() -> None:
     here and JAX's in-memory caches (a program needed again comes from the persistent
     cache, or is compiled again where there is none)."""
     global _stored_floor
-    _loaded.clear()
     jax.clear_caches()
-    gc.collect()
+    if not release_stored_programs():  # which collects the garbage itself
+        gc.collect()
     _stored_floor = 0.0
 
 

@@ -169,6 +169,8 @@ def test_letting_the_stored_programs_go_frees_their_maps(tmp_path, monkeypatch):
 
     monkeypatch.setattr(program_store, "store_dir", lambda: tmp_path)
     monkeypatch.setattr(program_store, "_loaded", {})
+    monkeypatch.setattr(program_store, "MAP_SHARE", 1.0)  # the ten stay until let go here
+    monkeypatch.setattr(program_store, "CLEAR_SHARE", 1.0)
     traces = []
 
     @jax.jit
