@@ -46,7 +46,7 @@ def failure_message(scene: Scene, inp: Inputs, state: SimState, step: int | None
         f"{min(t + h_min, scene.t_end):g} s) failed after {int(row['cutbacks'])} attempts, "
         f"the last at the smallest step dt = {h_min:g} s (time.dt_s / 2**solver.max_cutbacks)"
         f"{_continued(scene, int(row['code']))}: "
-        f"{CAUSES.get(int(row['code']), 'unknown')}; worst element {e} at "
+        f"{CAUSES.get(int(row['code']), 'unknown')}{_residuals(scene, row)}; worst element {e} at "
         f"({centre[0]:.4g}, {centre[1]:.4g}) mm, corner quality {q[e]:.3g}{_remedy(scene, q[e])}"
     )
 
@@ -59,6 +59,20 @@ def _continued(scene: Scene, code: int) -> str:
     return (
         f" and Newton continued there {k} times (solver.smallest_step_continuations; "
         f"{(k + 1) * scene.newton.max_iterations} iterations)"
+    )
+
+
+def _residuals(scene: Scene, row) -> str:
+    """How the last Newton solve of a step that did not converge went: its first, last and
+    least relative residual against ``solver.rtol`` (a stall a little above the tolerance
+    and a solve that never came near it call for different remedies)."""
+    hist = np.asarray(row.get("hist", ()), dtype=float).ravel()
+    e = hist[np.isfinite(hist)]
+    if int(row["code"]) != NEWTON_NOT_CONVERGED or e.size == 0:
+        return ""
+    return (
+        f" (the last solve's residual ||R||/F went {e[0]:.3g} -> {e[-1]:.3g} in {e.size} "
+        f"iterations, least {e.min():.3g}; solver.rtol = {scene.newton.rtol:g})"
     )
 
 

@@ -117,3 +117,45 @@ def pytest_collection_modifyitems(config, items):
 
 def pytest_runtest_teardown(item, nextitem):
     program_store.release_if_crowded()
+
+
+# What a worker ran, in order: a failure that a fresh process does not repeat (a flake of
+# the process's state) is reproduced by running these before it.
+_ran: list[str] = []
+_reran: list[str] = []  # the failures rerun in a fresh process (the first only)
+RERUN_TIMEOUT_S = 900
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item, call):
+    """On a worker's first failing test: rerun it alone in a fresh process and add to the
+    report whether it passes there, with the tests this worker ran before it and its
+    share of the memory-map limit.  The outcome stays a failure; this only says whether
+    the failure belongs to the test or to the state the process was in."""
+    outcome = yield
+    report = outcome.get_result()
+    if call.when != "call":
+        return
+    _ran.append(item.nodeid)
+    if not report.failed or _reran or os.environ.get("JAXFORM_TEST_RERUN") == "off":
+        return
+    _reran.append(item.nodeid)
+    import subprocess
+    import sys
+
+    cmd = [sys.executable, "-m", "pytest", item.nodeid.split("@")[0], "-n", "0", "-q",
+           "-p", "no:cacheprovider", "-m", ""]  # fmt: skip
+    env = dict(os.environ, JAXFORM_TEST_RERUN="off")
+    try:
+        done = subprocess.run(cmd, cwd=str(item.config.rootpath), env=env, timeout=RERUN_TIMEOUT_S,
+                              capture_output=True, text=True)  # fmt: skip
+        verdict = "passed" if done.returncode == 0 else f"failed (exit {done.returncode})"
+        tail = done.stdout.strip().splitlines()[-1:] if done.stdout else []
+    except subprocess.TimeoutExpired:
+        verdict, tail = f"did not end within {RERUN_TIMEOUT_S} s", []
+    report.sections.append((
+        "the same test in a fresh process",
+        f"{verdict} {' '.join(tail)}\nmap share of this worker: "
+        f"{program_store.map_share():.3f}\nthis worker ran before it ({len(_ran) - 1} tests):\n"
+        + "\n".join(_ran[:-1]),
+    ))  # fmt: skip

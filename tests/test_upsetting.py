@@ -6,6 +6,7 @@ central finite differences of the global residual, and the patch test (a distort
 must reproduce a homogeneous deformation exactly).
 """
 
+import re
 from dataclasses import replace
 from functools import cache
 
@@ -358,6 +359,11 @@ def test_impossible_scene_stops_with_message_and_state(tmp_path):
     assert code == 1
     msg = (tmp_path / "FAILED.txt").read_text()
     assert "step 1" in msg and "Newton did not converge" in msg and "target time 20 s" in msg
+    # how the solve went: 3 iterations (solver.max_newton_iterations), its residual fell
+    # but stayed above solver.rtol = 1e-10 (0.893 -> 0.0214 when written)
+    went = re.search(r"went (\S+) -> (\S+) in (\d+) iterations, least (\S+);", msg)
+    first, last, n, least = float(went[1]), float(went[2]), int(went[3]), float(went[4])
+    assert n == 3 and 1e-10 < least <= last < first, msg
     table = read_csv(tmp_path / "history.csv")
     assert np.atleast_1d(table["time_s"])[-1] == 0.0  # last converged state: the initial one
     with pytest.raises(SimulationError):
