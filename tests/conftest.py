@@ -91,13 +91,13 @@ OWN_GROUP = ("test_upsetting::test_compact_point_tangent_equals_the_plain_deriva
 
 def _group(item) -> str:
     """The file's stem, or file::test for a test of OWN_GROUP (parameters dropped)."""
-    path, _, rest = item.nodeid.partition("::")
+    path, _, rest = item.nodeid.split("@", 1)[0].partition("::")
     stem = path.rsplit("/", 1)[-1].removesuffix(".py")
     name = f"{stem}::{rest.split('[', 1)[0]}"
     return name if name in OWN_GROUP else stem
 
 
-@pytest.hookimpl(tryfirst=True)  # before xdist's worker appends the groups to the node ids
+@pytest.hookimpl(tryfirst=True)  # the order only; the groups are marked at collection
 def pytest_collection_modifyitems(config, items):
     groups = [_group(item) for item in items]
     count, first = {}, {}
@@ -109,10 +109,15 @@ def pytest_collection_modifyitems(config, items):
         g = groups[i]
         return (-GROUP_SECONDS.get(g, 0.0), -count[g], first[g], i)
 
-    order = sorted(range(len(items)), key=key)
-    items[:] = [items[i] for i in order]
-    for item, i in zip(items, order):
-        item.add_marker(pytest.mark.xdist_group(groups[i]))
+    items[:] = [items[i] for i in sorted(range(len(items)), key=key)]
+
+
+def pytest_itemcollected(item):
+    """Each test's xdist group, marked as it is collected, so that xdist's worker finds
+    the marks in its ``pytest_collection_modifyitems`` whatever the order of the hooks.
+    (It names the group in the test's node id, which works with pytest < 9.2 only:
+    pyproject.toml.)"""
+    item.add_marker(pytest.mark.xdist_group(_group(item)))
 
 
 def pytest_runtest_teardown(item, nextitem):

@@ -300,3 +300,13 @@ def test_free_in_program_frees_exactly_the_valid_factorizations(monkeypatch):
     assert closed == [int(lu[0, 0])]
     lin.release_now(Factorization(lu=lu[1], piv=None, valid=np.asarray(True), count=None))
     assert closed == [int(lu[0, 0]), int(lu[1, 0])]
+
+
+def test_a_worker_runs_its_files_tests_as_one_group(request):
+    """Under the suite's ``--dist loadgroup`` (pyproject.toml) a test's node id carries its
+    xdist group, the file's stem (tests/conftest.py): the mark that sends a file's tests to
+    one worker, which shares their compiled programs.  With pytest 9.2 and pytest-xdist 3.8
+    the suffix was lost and every file's tests were split across the workers."""
+    if not os.environ.get("PYTEST_XDIST_WORKER") or not request.config.getvalue("loadgroup"):
+        pytest.skip("a run without --dist loadgroup has no groups")
+    assert request.node.nodeid.endswith("@test_cache"), request.node.nodeid
