@@ -622,8 +622,8 @@ def test_nodes_added_along_a_die_arc_are_moved_onto_it_with_the_volume_kept():
     touching[-1] = True  # (0, 2): the arc's end on the axis
 
     def gap_fn(p):
-        r = np.linalg.norm(p, axis=1)
-        return 2.0 - r, -p / r[:, None]
+        r = np.linalg.norm(p, axis=1)  # 0 at the circle's centre, a node of the mesh
+        return 2.0 - r, -p / np.maximum(r, 1e-12)[:, None]
 
     mesh = polygon_quads(pts, labels, np.full(len(pts), 0.1))
     new = onto_dies(mesh, (pts, touching), gap_fn, axisymmetric=True)
