@@ -37,6 +37,7 @@ import os
 import pickle
 import re
 import tempfile
+import threading
 from functools import cache
 from pathlib import Path
 
@@ -370,6 +371,33 @@ def _prepared(key: str, fn, leaves, tree):
     entry = (jit(exported.call).lower(*leaves).compile(), out_tree)
     _loaded[key] = entry
     return entry
+
+
+def prefetch(name: str, static: str | None, fn, *args) -> threading.Thread | None:
+    """Start loading the stored program ``name`` for ``args`` (as :func:`call` would take
+    them) in a background thread, where it is on disk and not loaded yet (a warm start):
+    its loading (deserializing and linking the compiled program, which releases the
+    interpreter) overlaps whatever the caller does next.  Returns the thread, which the
+    caller joins before it calls the program, or None where there is nothing to load.  A
+    failure in the thread is dropped: :func:`call` then prepares the program itself."""
+    folder = store_dir()
+    leaves, tree = jax.tree_util.tree_flatten(args)
+    if folder is None or source_changed():
+        return None
+    leaves = [jnp.asarray(a, dtype=jnp.result_type(a)) for a in leaves]
+    key = program_key(name, static, jax.tree_util.tree_unflatten(tree, leaves))
+    if key is None or key in _loaded or key in _refused or not (folder / f"{key}.bin").is_file():
+        return None
+
+    def load():
+        try:
+            _prepared(key, fn, leaves, tree)
+        except Exception:  # noqa: BLE001 - the call prepares it again and reports
+            pass
+
+    thread = threading.Thread(target=load, name=f"jaxform-load-{name}", daemon=True)
+    thread.start()
+    return thread
 
 
 def call(name: str, static: str | None, fn, *args):

@@ -215,3 +215,47 @@ def test_a_source_edited_under_the_process_turns_the_store_off(tmp_path, monkeyp
         assert not (tmp_path / "exported").exists()  # nothing stored
     finally:
         program_store._source_at_start.cache_clear()
+
+
+def test_a_prefetched_program_is_loaded_beside_the_callers_work(tmp_path, monkeypatch):
+    """program_store.prefetch: nothing to load before the program is stored, nor for a
+    description with an object address; once stored, in a "new process" a thread loads
+    it, and the call after the join reads nothing from the disk and returns what the
+    function returns (to the last bit)."""
+    import jax
+
+    monkeypatch.setattr(program_store, "store_dir", lambda: tmp_path)
+    monkeypatch.setattr(program_store, "_loaded", {})
+    fn = jax.jit(lambda a, b: (jnp.sin(a) * b, jnp.sum(a)))
+    args = (jnp.arange(4.0), jnp.asarray(2.0))
+    assert program_store.prefetch("prefetched", "s", fn, *args) is None  # not stored yet
+    first = program_store.call("prefetched", "s", fn, *args)
+    assert program_store.prefetch("prefetched", "s", fn, *args) is None  # loaded already
+    assert program_store.prefetch("prefetched", "<f at 0x7f00>", fn, *args) is None
+    monkeypatch.setattr(program_store, "_loaded", {})  # as in a new process
+    thread = program_store.prefetch("prefetched", "s", fn, *args)
+    assert thread is not None
+    thread.join()
+    assert len(program_store._loaded) == 1
+
+    def no_read(*a, **k):
+        raise AssertionError("the prefetched program was read again")
+
+    monkeypatch.setattr(program_store.export, "deserialize", no_read)
+    again = program_store.call("prefetched", "s", fn, *args)
+    for a, b in zip(jax.tree_util.tree_leaves(first), jax.tree_util.tree_leaves(again)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+def test_the_guessed_step_count_is_the_forward_runs_without_cutbacks():
+    """build_problem loads the gradient program for the steps of a run at time.dt_s
+    throughout while the forward run fixes the schedule: on this scene (no cutback) the
+    guess is the run's step count; 7.5 mm x 0.2 / 0.075 mm/s = 20 s at 2 s is 10 steps,
+    and with dt 3 s the last is shorter (7)."""
+    from jaxform.design.problem import _steps_without_cutbacks
+
+    sc = build_scene(load_config(SCENE))
+    hist = simulate(sc).history
+    assert hist["cutbacks"].max() == 0
+    assert _steps_without_cutbacks(sc) == len(hist["time_s"]) - 1 == 10
+    assert _steps_without_cutbacks(build_scene(load_config(SCENE, ["time.dt_s=3.0"]))) == 7

@@ -54,10 +54,13 @@ class DesignProblem:
     def run_inputs(self, design):
         return par.apply_all(self.groups, design, self.scene.inputs, jnp.asarray(self.times))
 
-    def _j(self, design, idx, reuse_factorizations: bool = False):
-        """(J, trajectory) of a design; ``idx`` is ``scene.idx``, passed through the
-        compiled program's arguments (see :func:`jaxform.gradients.trajectory`)."""
-        inputs, times = self.run_inputs(design)
+    def _j(self, design, idx, times=None, reuse_factorizations: bool = False):
+        """(J, trajectory) of a design; ``idx`` is ``scene.idx`` and ``times`` the step
+        schedule (None: ``self.times``), passed through the compiled program's arguments
+        (see :func:`jaxform.gradients.trajectory`): the stored program is keyed by the
+        schedule's length, not its values."""
+        times = jnp.asarray(self.times) if times is None else times
+        inputs, times = par.apply_all(self.groups, design, self.scene.inputs, times)
         traj = trajectory(self.scene, inputs, times, reuse_factorizations, idx=idx, plan=self.plan)
         value = self.objective(traj, inputs)
         if any(hasattr(g, "penalty") for g in self.groups):  # the constraints' penalty
@@ -69,17 +72,35 @@ class DesignProblem:
         run the program of its capacity bucket (shared by the meshes of one bucket), which
         one program around them all would compile again for every mesh.  The program is
         stored (:mod:`jaxform.program_store`) under the problem's content (the scene but
-        its index arrays, which come in as an argument): a warm start skips its tracing."""
+        its index arrays, and the step schedule but its length: both come in as arguments):
+        a warm start skips its tracing."""
         remeshed = self.plan is not None and len(self.plan.segments) > 1
         if remeshed:
             return fn
-        compiled = jit(fn)
-        static = program_store.fingerprint(replace(self, scene=replace(self.scene, idx=None)))
+        compiled, static, times = jit(fn), self._static(), jax.device_put(np.asarray(self.times))
 
         def run(design, idx):
-            return program_store.call(name, static, compiled, design, idx)
+            return program_store.call(name, static, compiled, design, idx, times)
 
         return run
+
+    def _static(self) -> str | None:
+        """The stored programs' description of the problem (:meth:`_compiled`)."""
+        return program_store.fingerprint(
+            replace(self, scene=replace(self.scene, idx=None), times=None)
+        )
+
+    def _gradient_program(self):
+        return jax.value_and_grad(partial(self._j, reuse_factorizations=True), has_aux=True)
+
+    def prefetch_gradient(self):
+        """Start loading the stored gradient program for a schedule of ``len(self.times)``
+        steps (:func:`jaxform.program_store.prefetch`; the schedule's values do not key
+        it): the thread to join, or None."""
+        times = jax.device_put(np.asarray(self.times))
+        program = jit(self._gradient_program())
+        return program_store.prefetch("design_value_and_grad", self._static(), program,
+                                      self.start, self.scene.idx, times)  # fmt: skip
 
     @cached_property
     def _value(self):
@@ -89,8 +110,7 @@ class DesignProblem:
     def _value_and_grad(self):
         # the reverse pass reuses the forward factorizations that fit the scene's
         # adjoint_memory_mb; they are freed by _released once the program has run
-        grad = jax.value_and_grad(partial(self._j, reuse_factorizations=True), has_aux=True)
-        return self._compiled(grad, "design_value_and_grad")
+        return self._compiled(self._gradient_program(), "design_value_and_grad")
 
     def _released(self, traj):
         return release(self.scene, jax.block_until_ready(traj))
@@ -373,6 +393,12 @@ def _objective(scene: Scene, name: str):
     return obj.ShapeTarget(nodes, np.column_stack([c["r_mm"], c["z_mm"]]))
 
 
+def _steps_without_cutbacks(scene: Scene) -> int:
+    """The steps of a forward run of ``scene`` that takes ``time.dt_s`` throughout (the
+    last one shorter where the time does not divide)."""
+    return max(1, int(np.ceil((scene.t_end - 1e-9 * scene.dt) / scene.dt)))
+
+
 def build_problem(
     scene: Scene,
     groups: tuple[str, ...] | None = None,
@@ -420,7 +446,19 @@ def build_problem(
         # one program, not ~60 eager operations (each lowered and compiled or loaded)
         apply = jit(partial(par.apply_all, built))
         inputs, _ = apply(start, scene.inputs, jnp.asarray(scene.step_targets()))
-        times, plan = remeshed_schedule(scene, inputs, progress)
+        # a warm start loads the gradient program while the forward run fixes the
+        # schedule, for the step count of a run without cutbacks (the key's only
+        # dependence on the schedule)
+        loading = None
+        if scene.remesh is None or not scene.remesh.on:
+            guess = np.full(_steps_without_cutbacks(scene), scene.dt)
+            loading = DesignProblem(scene, built, objective, guess, start,
+                                    single_program).prefetch_gradient()  # fmt: skip
+        try:
+            times, plan = remeshed_schedule(scene, inputs, progress)
+        finally:
+            if loading is not None:
+                loading.join()
     elif scene.remesh is not None and scene.remesh.on:
         raise ValueError(
             "build_problem: a scene that remeshes takes its forward run's steps: no times"
