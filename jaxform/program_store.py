@@ -378,12 +378,14 @@ def prefetch(name: str, static: str | None, fn, *args) -> threading.Thread | Non
     them) in a background thread, where it is on disk and not loaded yet (a warm start):
     its loading (deserializing and linking the compiled program, which releases the
     interpreter) overlaps whatever the caller does next.  Returns the thread, which the
-    caller joins before it calls the program, or None where there is nothing to load.  A
-    failure in the thread is dropped: :func:`call` then prepares the program itself."""
+    caller joins before it calls the program, or None where there is nothing to load (or
+    the process is past :data:`MAP_SHARE`: the thread would let programs go under the
+    caller's work).  A failure in the thread is dropped: :func:`call` then prepares the
+    program itself."""
     folder = store_dir()
     leaves, tree = jax.tree_util.tree_flatten(args)
-    if folder is None or source_changed():
-        return None
+    if folder is None or source_changed() or map_share() > MAP_SHARE:
+        return None  # nothing stored, or a crowded process: the thread would make room
     leaves = [jnp.asarray(a, dtype=jnp.result_type(a)) for a in leaves]
     key = program_key(name, static, jax.tree_util.tree_unflatten(tree, leaves))
     if key is None or key in _loaded or key in _refused or not (folder / f"{key}.bin").is_file():

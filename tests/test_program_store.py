@@ -219,9 +219,9 @@ def test_a_source_edited_under_the_process_turns_the_store_off(tmp_path, monkeyp
 
 def test_a_prefetched_program_is_loaded_beside_the_callers_work(tmp_path, monkeypatch):
     """program_store.prefetch: nothing to load before the program is stored, nor for a
-    description with an object address; once stored, in a "new process" a thread loads
-    it, and the call after the join reads nothing from the disk and returns what the
-    function returns (to the last bit)."""
+    description with an object address, nor in a crowded process; once stored, in a "new
+    process" a thread loads it, and the call after the join reads nothing from the disk
+    and returns what the function returns (to the last bit)."""
     import jax
 
     monkeypatch.setattr(program_store, "store_dir", lambda: tmp_path)
@@ -233,6 +233,9 @@ def test_a_prefetched_program_is_loaded_beside_the_callers_work(tmp_path, monkey
     assert program_store.prefetch("prefetched", "s", fn, *args) is None  # loaded already
     assert program_store.prefetch("prefetched", "<f at 0x7f00>", fn, *args) is None
     monkeypatch.setattr(program_store, "_loaded", {})  # as in a new process
+    monkeypatch.setattr(program_store, "MAP_SHARE", -1.0)  # crowded: no thread
+    assert program_store.prefetch("prefetched", "s", fn, *args) is None
+    monkeypatch.setattr(program_store, "MAP_SHARE", 0.5)
     thread = program_store.prefetch("prefetched", "s", fn, *args)
     assert thread is not None
     thread.join()
