@@ -373,6 +373,16 @@ def _prepared(key: str, fn, leaves, tree):
     return entry
 
 
+def _keyed(name: str, static: str | None, args) -> tuple[str | None, list, object]:
+    """(key, leaves, tree) of program ``name`` on ``args``.  The leaves get one signature
+    whatever their weak types (a Python number passed in is weakly typed, the same value
+    coming out of a program is not): the compiled wrapper is traced and compiled once,
+    not once per weak-type pattern."""
+    leaves, tree = jax.tree_util.tree_flatten(args)
+    leaves = [jnp.asarray(a, dtype=jnp.result_type(a)) for a in leaves]
+    return program_key(name, static, jax.tree_util.tree_unflatten(tree, leaves)), leaves, tree
+
+
 def prefetch(name: str, static: str | None, fn, *args) -> threading.Thread | None:
     """Start loading the stored program ``name`` for ``args`` (as :func:`call` would take
     them) in a background thread, where it is on disk and not loaded yet (a warm start):
@@ -383,11 +393,9 @@ def prefetch(name: str, static: str | None, fn, *args) -> threading.Thread | Non
     caller's work).  A failure in the thread is dropped: :func:`call` then prepares the
     program itself."""
     folder = store_dir()
-    leaves, tree = jax.tree_util.tree_flatten(args)
     if folder is None or source_changed() or map_share() > MAP_SHARE:
         return None  # nothing stored, or a crowded process: the thread would make room
-    leaves = [jnp.asarray(a, dtype=jnp.result_type(a)) for a in leaves]
-    key = program_key(name, static, jax.tree_util.tree_unflatten(tree, leaves))
+    key, leaves, tree = _keyed(name, static, args)
     if key is None or key in _loaded or key in _refused or not (folder / f"{key}.bin").is_file():
         return None
 
@@ -406,15 +414,12 @@ def call(name: str, static: str | None, fn, *args):
     """``fn(*args)``, through the stored program ``name`` where it can be (see the module
     docstring): ``fn`` must be a function of its arguments (pytrees of arrays) and of the
     static settings described by ``static`` alone."""
-    leaves, tree = jax.tree_util.tree_flatten(args)
-    if store_dir() is None or any(isinstance(a, jax.core.Tracer) for a in leaves):
+    if store_dir() is None or any(
+        isinstance(a, jax.core.Tracer) for a in jax.tree_util.tree_leaves(args)
+    ):
         return fn(*args)  # no store, or called inside a trace (the outer program's part)
-    # one signature whatever the leaves' weak types (a Python number passed in is weakly
-    # typed, the same value coming out of a program is not): the compiled wrapper is
-    # traced and compiled once, not once per weak-type pattern
-    leaves = [jnp.asarray(a, dtype=jnp.result_type(a)) for a in leaves]
+    key, leaves, tree = _keyed(name, static, args)
     args = jax.tree_util.tree_unflatten(tree, leaves)
-    key = program_key(name, static, args)
     if key is None or key in _refused:
         return fn(*args)
     try:

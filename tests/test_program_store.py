@@ -250,15 +250,15 @@ def test_a_prefetched_program_is_loaded_beside_the_callers_work(tmp_path, monkey
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
-def test_the_guessed_step_count_is_the_forward_runs_without_cutbacks():
+def test_the_guessed_schedule_is_the_forward_runs_without_cutbacks():
     """build_problem loads the gradient program for the steps of a run at time.dt_s
-    throughout while the forward run fixes the schedule: on this scene (no cutback) the
-    guess is the run's step count; 7.5 mm x 0.2 / 0.075 mm/s = 20 s at 2 s is 10 steps,
-    and with dt 3 s the last is shorter (7)."""
-    from jaxform.design.problem import _steps_without_cutbacks
-
+    throughout (Scene.step_targets) while the forward run fixes the schedule: on this
+    scene (no cutback) the guess is the run's schedule; 7.5 mm x 0.2 / 0.075 mm/s = 20 s
+    at 2 s is 10 steps, and with dt 3 s the last is shorter (7 steps, the last of 2 s)."""
     sc = build_scene(load_config(SCENE))
     hist = simulate(sc).history
     assert hist["cutbacks"].max() == 0
-    assert _steps_without_cutbacks(sc) == len(hist["time_s"]) - 1 == 10
-    assert _steps_without_cutbacks(build_scene(load_config(SCENE, ["time.dt_s=3.0"]))) == 7
+    np.testing.assert_allclose(sc.step_targets(), hist["time_s"][1:], rtol=0, atol=1e-12)
+    assert len(sc.step_targets()) == 10
+    targets = build_scene(load_config(SCENE, ["time.dt_s=3.0"])).step_targets()
+    assert len(targets) == 7 and targets[-1] - targets[-2] == pytest.approx(2.0)

@@ -77,18 +77,20 @@ class DesignProblem:
         remeshed = self.plan is not None and len(self.plan.segments) > 1
         if remeshed:
             return fn
-        compiled, static, times = jit(fn), self._static(), jax.device_put(np.asarray(self.times))
+        static, compiled, times = self._stored(fn)
 
         def run(design, idx):
             return program_store.call(name, static, compiled, design, idx, times)
 
         return run
 
-    def _static(self) -> str | None:
-        """The stored programs' description of the problem (:meth:`_compiled`)."""
-        return program_store.fingerprint(
+    def _stored(self, fn):
+        """(description, compiled fn, schedule): what :func:`jaxform.program_store.call`
+        takes besides the program's name, the design and the index arrays."""
+        static = program_store.fingerprint(
             replace(self, scene=replace(self.scene, idx=None), times=None)
         )
+        return static, jit(fn), jax.device_put(np.asarray(self.times))
 
     def _gradient_program(self):
         return jax.value_and_grad(partial(self._j, reuse_factorizations=True), has_aux=True)
@@ -97,10 +99,9 @@ class DesignProblem:
         """Start loading the stored gradient program for a schedule of ``len(self.times)``
         steps (:func:`jaxform.program_store.prefetch`; the schedule's values do not key
         it): the thread to join, or None."""
-        times = jax.device_put(np.asarray(self.times))
-        program = jit(self._gradient_program())
-        return program_store.prefetch("design_value_and_grad", self._static(), program,
-                                      self.start, self.scene.idx, times)  # fmt: skip
+        static, program, times = self._stored(self._gradient_program())
+        return program_store.prefetch("design_value_and_grad", static, program, self.start,
+                                      self.scene.idx, times)  # fmt: skip
 
     @cached_property
     def _value(self):
@@ -393,12 +394,6 @@ def _objective(scene: Scene, name: str):
     return obj.ShapeTarget(nodes, np.column_stack([c["r_mm"], c["z_mm"]]))
 
 
-def _steps_without_cutbacks(scene: Scene) -> int:
-    """The steps of a forward run of ``scene`` that takes ``time.dt_s`` throughout (the
-    last one shorter where the time does not divide)."""
-    return max(1, int(np.ceil((scene.t_end - 1e-9 * scene.dt) / scene.dt)))
-
-
 def build_problem(
     scene: Scene,
     groups: tuple[str, ...] | None = None,
@@ -447,12 +442,11 @@ def build_problem(
         apply = jit(partial(par.apply_all, built))
         inputs, _ = apply(start, scene.inputs, jnp.asarray(scene.step_targets()))
         # a warm start loads the gradient program while the forward run fixes the
-        # schedule, for the step count of a run without cutbacks (the key's only
-        # dependence on the schedule)
+        # schedule, for the steps of a run without cutbacks (the schedule's length is
+        # all the program's key holds of it)
         loading = None
         if scene.remesh is None or not scene.remesh.on:
-            guess = np.full(_steps_without_cutbacks(scene), scene.dt)
-            loading = DesignProblem(scene, built, objective, guess, start,
+            loading = DesignProblem(scene, built, objective, scene.step_targets(), start,
                                     single_program).prefetch_gradient()  # fmt: skip
         try:
             times, plan = remeshed_schedule(scene, inputs, progress)
