@@ -333,9 +333,8 @@ def _padded(scene, bucket: Bucket) -> Padded:
     so = scene.settings.solver
     linear = choose_backend(so.linear, layout.n_dofs)
     pidx = replace(pidx, lu_symbolic=linear.analyze(pidx.rows, pidx.cols, n_dofs))
-    newton = replace(
-        scene.newton, variant=newton_variant(so.newton, linear, n_dofs, so.anderson_depth)
-    )
+    variant = newton_variant(so.newton, linear, n_dofs, so.anderson_depth, remeshes=scene.remeshes)
+    newton = replace(scene.newton, variant=variant)
     pscene = replace(
         scene,
         mesh=ghost_mesh,

@@ -318,8 +318,9 @@ def remeshed_schedule(
     scene: Scene, inputs: Inputs | None = None, progress=None
 ) -> tuple[np.ndarray, RemeshPlan | None]:
     """(step end times, :class:`RemeshPlan`) of the forward run of ``scene`` with
-    ``inputs``: the schedule of :func:`schedule` and, for a scene with ``[remesh]``, the
-    meshes the run went through and the maps between them (None without ``[remesh]``).
+    ``inputs`` by full Newton (:meth:`Scene.full_newton`, the replay's method): the
+    schedule of :func:`schedule` and, for a scene with ``[remesh]``, the meshes the run
+    went through and the maps between them (None without ``[remesh]``).
     ``progress``: the forward run's progress callback (:func:`jaxform.simulation.simulate`)."""
     from jaxform.simulation import simulate
 
@@ -329,7 +330,7 @@ def remeshed_schedule(
             "(the mesh changes between steps); set mesh.rezone_quality = 0 for "
             "gradient runs"
         )
-    run = scene if inputs is None else replace(scene, inputs=inputs)
+    run = (scene if inputs is None else replace(scene, inputs=inputs)).full_newton()
     res = simulate(run, progress)
     times = np.asarray(res.history["time_s"][1:])
     if scene.remesh is None or not scene.remesh.on:

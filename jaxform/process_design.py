@@ -60,7 +60,8 @@ def forward_plan(process: Process, progress=None, announce=None, at=None):
             announce(f"  forward run of {next(labels, 'an operation')} ({took:.1f} s)")
         if designed is not None:
             scene = designed.scene(scene)
-        return simulate(scene, step_progress, start)
+        # by the replay's full Newton: each step it converges, the replay converges
+        return simulate(scene.full_newton(), step_progress, start)
 
     result = run_process(ops, initial, progress, simulate_fn=stepped)
     plan = ProcessPlan.of(result)

@@ -122,6 +122,11 @@ class Scene:
     press: object = None
 
     @property
+    def remeshes(self) -> bool:
+        """Whether the run may go on new meshes (``[remesh]`` on)."""
+        return _remeshes(self.remesh)
+
+    @property
     def n_steps(self) -> int:
         """Steps to the end at the largest step."""
         return int(math.ceil(self.t_end / self.dt - 1e-9))
@@ -130,6 +135,17 @@ class Scene:
         """End times of the steps at the largest step (the last one ends at t_end)."""
         k = np.arange(1, self.n_steps + 1)
         return np.minimum(k * self.dt, self.t_end)
+
+    def full_newton(self) -> Scene:
+        """This scene solved by full Newton, a new Jacobian every iteration, on its new
+        meshes too (``solver.newton = 'newton'``): as a differentiable replay solves each
+        step (:meth:`jaxform.solver.NewtonSettings.exact`).  The forward run that fixes a
+        replay's steps runs it, so that every step it converged converges in the replay
+        from the same start (modified Newton may take a step at a size where full Newton
+        needs a cutback)."""
+        solver = replace(self.settings.solver, newton="newton")
+        settings = replace(self.settings, solver=solver)
+        return replace(self, settings=settings, newton=self.newton.exact())
 
 
 def _profile_points(points, kind: str, key: str, workpiece_below: bool = True) -> np.ndarray:
@@ -506,9 +522,9 @@ def scene_on_mesh(scene: Scene, mesh: meshing.Mesh) -> Scene:
     model, idx = replace(model, layout=layout).with_pattern(idx)
     so = scene.settings.solver
     linear = choose_backend(so.linear, layout.n_dofs)
-    newton = replace(
-        scene.newton, variant=newton_variant(so.newton, linear, layout.n_dofs, so.anderson_depth)
-    )
+    variant = newton_variant(so.newton, linear, layout.n_dofs, so.anderson_depth,
+                             remeshes=scene.remeshes)  # fmt: skip
+    newton = replace(scene.newton, variant=variant)
     return replace(
         scene,
         mesh=mesh,
@@ -538,6 +554,11 @@ def analyzed(scene: Scene) -> Scene:
     idx = scene.idx
     symbolic = scene.linear.analyze(idx.rows, idx.cols, scene.model.layout.n_dofs)
     return scene if symbolic is None else replace(scene, idx=replace(idx, lu_symbolic=symbolic))
+
+
+def _remeshes(remesh: RemeshConfig | None) -> bool:
+    """Whether a scene with these [remesh] settings (None: none) may get new meshes."""
+    return remesh is not None and remesh.on
 
 
 def _remesh_settings(settings: RemeshConfig, mesh: meshing.Mesh) -> RemeshConfig | None:
@@ -619,7 +640,8 @@ def build_scene(cfg: dict | Config, mesh: meshing.Mesh | None = None) -> Scene:
         )
     linear = choose_backend(so.linear, layout.n_dofs)
     try:
-        variant = newton_variant(so.newton, linear, layout.n_dofs, so.anderson_depth)
+        variant = newton_variant(so.newton, linear, layout.n_dofs, so.anderson_depth,
+                                 remeshes=_remeshes(remesh))  # fmt: skip
     except ValueError as err:
         raise ConfigError(str(err)) from None
     # a symbolic analysis once per pattern, outside jit (KLU's; None for the others)

@@ -59,7 +59,9 @@ from jaxform.status import NEWTON_NOT_CONVERGED, OK
 
 STALE_PER_ITERATION = 3  # modified Newton: iterations with a kept factorization allowed
 # per iteration with a new one, on top of it
-MODIFIED_MIN_UNKNOWNS = 5_000  # 'auto' picks modified Newton on the sparse backend from here
+# 'auto' picks modified Newton on the sparse backend from here even where the scene
+# remeshes (below it, only on a scene that keeps its mesh: newton_variant)
+MODIFIED_MIN_UNKNOWNS = 5_000
 
 
 @dataclass(frozen=True)
@@ -145,15 +147,20 @@ NewtonVariant = FullNewton | ModifiedNewton
 VARIANTS = {"newton": FullNewton, "modified": ModifiedNewton}
 
 
-def newton_variant(name: str, linear, n_unknowns: int, anderson_depth: int = 0) -> NewtonVariant:
+def newton_variant(
+    name: str, linear, n_unknowns: int, anderson_depth: int = 0, remeshes: bool = False
+) -> NewtonVariant:
     """The Newton variant for ``solver.newton = name`` with the chosen linear solver
     (:class:`jaxform.linear.LinearSolver`) on ``n_unknowns`` unknowns: 'auto' picks modified
-    Newton from MODIFIED_MIN_UNKNOWNS unknowns where the solver says it pays (klujax),
-    full Newton below; modified Newton needs a solver that keeps a factorization.
+    Newton where the solver says it pays (klujax), on a scene that keeps its mesh at any
+    size and on one that ``remeshes`` from MODIFIED_MIN_UNKNOWNS unknowns (below that,
+    its new meshes' first steps and the flash's contact changes cost modified Newton
+    more refreshes than full Newton's iterations: docs, benchmarks, "Scale and speed");
+    full Newton otherwise.  Modified Newton needs a solver that keeps a factorization.
     ``anderson_depth``: modified Newton's (``solver.anderson_depth``)."""
     if name == "auto":
-        big = n_unknowns >= MODIFIED_MIN_UNKNOWNS
-        name = "modified" if big and linear.modified_when_large else "newton"
+        pays = n_unknowns >= MODIFIED_MIN_UNKNOWNS or not remeshes
+        name = "modified" if pays and linear.modified_when_large else "newton"
     if name not in VARIANTS:
         raise ValueError(f"solver.newton = {name!r}: must be one of auto, newton, modified")
     variant = VARIANTS[name]

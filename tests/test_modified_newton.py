@@ -9,7 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from test_upsetting import scene, seed_run
+from test_upsetting import newton_seed_run, scene
 
 from jaxform.config import ConfigError
 from jaxform.linear import KLU, DenseLU
@@ -117,7 +117,7 @@ def test_modified_newton_on_seed_scene_matches_full_newton():
     """klujax kept across steps: the same force history and final unknowns as full Newton
     to 1e-9 relative (both stop at rtol = 1e-10 of the force scale; measured 3.6e-11 on
     this scene), with more, cheaper iterations and at most a tenth of the factorizations."""
-    sc, ref = seed_run()
+    sc, ref = newton_seed_run()
     res = simulate(scene("solver.newton=modified"))
     assert isinstance(res.scene.newton.variant, ModifiedNewton)
     assert res.scene.linear.backend == "sparse"
@@ -157,11 +157,13 @@ def test_backend_that_cannot_keep_a_factorization_is_refused():
         newton_variant("secant", KLU(), 10)
 
 
-def test_auto_picks_modified_newton_for_large_sparse_systems():
+def test_auto_picks_modified_newton_on_the_sparse_backend_unless_a_small_scene_remeshes():
     from jaxform.solver import MODIFIED_MIN_UNKNOWNS as M
 
     assert newton_variant("auto", KLU(), M, anderson_depth=2) == ModifiedNewton(anderson_depth=2)
-    assert newton_variant("auto", KLU(), M - 1) == FullNewton()
+    assert newton_variant("auto", KLU(), M, remeshes=True) == ModifiedNewton()
+    assert newton_variant("auto", KLU(), M - 1, remeshes=True) == FullNewton()
+    assert newton_variant("auto", KLU(), 100) == ModifiedNewton()
     assert newton_variant("auto", DenseLU(), 10 * M) == FullNewton()
     assert newton_variant("newton", KLU(), 10 * M) == FullNewton()
     assert newton_variant("modified", DenseLU(), 10) == ModifiedNewton()
@@ -233,7 +235,8 @@ def test_anderson_depth_reaches_the_solver_from_the_config():
     assert mixed.anderson_depth == 3 and mixed.refresh_below == 0.3
     plain = scene("solver.newton=modified", "solver.anderson_depth=0").newton.variant
     assert plain.anderson_depth == 0 and plain.refresh_below == 0.1
-    assert scene().newton.variant == FullNewton()  # 'auto' on a small scene: no depth
+    assert scene("solver.newton=newton").newton.variant == FullNewton()  # no depth
+    assert scene().newton.variant == mixed  # 'auto' on klujax, no remeshing
 
 
 def test_steps_grow_on_the_same_effort_for_both_methods():

@@ -1090,7 +1090,8 @@ def test_a_last_step_that_breaks_the_kept_mesh_is_taken_again_on_a_new_one(monke
     quality falls from 1 at every step.)"""
     import jaxform.triggers as triggers
 
-    over = QUIET + ["mesh.nr=4", "mesh.nz=6", "die.reduction=0.15"]
+    # full Newton with and without [remesh] ('auto' keeps a factorization only without)
+    over = QUIET + ["mesh.nr=4", "mesh.nz=6", "die.reduction=0.15", "solver.newton=newton"]
     plain = jaxform.run(SEED, over).history
     q = plain["mesh_quality"]
     assert q[13] > q[14] > q[15]

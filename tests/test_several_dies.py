@@ -34,6 +34,9 @@ BILLET = {
     "friction": {"model": "coulomb", "mu": 0.3},
     "time": {"dt_s": 0.5},
     "output": {"plots": False},
+    # the half model's 56 unknowns solve by dense LU and the twin's 100 by klujax, where
+    # 'auto' would keep a factorization: one method for both, that the two runs step alike
+    "solver": {"newton": "newton"},
 }
 # the full-height twin: twice the elements over twice the height, the bottom die the top
 # die's mirror image rising at half the ram speed
@@ -75,6 +78,24 @@ def test_full_height_twin_equals_half_model():
     key = np.lexsort((np.round(upper[:, 0], 6), np.round(upper[:, 1], 6)))
     key_ref = np.lexsort((np.round(ref[:, 0], 6), np.round(ref[:, 1], 6)))
     np.testing.assert_allclose(upper[key], ref[key_ref], rtol=0, atol=1e-8)
+
+
+def test_a_replays_schedule_comes_from_full_newton():
+    """The forward run that fixes a differentiable replay's steps solves by full Newton,
+    the replay's method, whatever ``solver.newton`` says.  On the twin, 'auto' keeps a
+    factorization (klujax, 100 unknowns) and takes the first 0.5 s step whole, where
+    full Newton cuts it back to 0.25 s (measured: 25 iterations against 43 and a
+    cutback), so a replay on modified Newton's steps would fail its first step.  The
+    schedule is full Newton's: that of ``_run(TWIN)`` (BILLET sets solver.newton)."""
+    from jaxform.gradients import schedule
+    from jaxform.solver import ModifiedNewton
+
+    sc = build_scene(load_config(BILLET, TWIN + ("solver.newton=auto",)))
+    assert isinstance(sc.newton.variant, ModifiedNewton)
+    _, full = _run(TWIN)
+    times = schedule(sc)
+    np.testing.assert_allclose(times, full.history["time_s"][1:], rtol=0, atol=1e-12)
+    assert times[0] == 0.25
 
 
 def test_fixed_anvil_stroke_and_forces():
@@ -140,6 +161,9 @@ RING = {
     "friction": {"model": "coulomb", "mu": 0.3},
     "time": {"dt_s": 0.5},
     "output": {"plots": False},
+    # the half model's 56 unknowns solve by dense LU and the twin's 100 by klujax, where
+    # 'auto' would keep a factorization: one method for both, that the two runs step alike
+    "solver": {"newton": "newton"},
 }
 # a fixed mandrel in the bore (radius 7.5 mm) with 0.5 mm clearance: a vertical line at
 # r = 7 mm walked upwards

@@ -98,8 +98,8 @@ class SolverConfig:
         doc="newton: a new Jacobian and factorization every iteration; modified: one "
         "factorization kept across iterations and steps, refreshed when a step contracts the "
         "residual by less than 2x (needs linear = dense or sparse); auto: modified on the "
-        "sparse backend from MODIFIED_MIN_UNKNOWNS unknowns, newton below (see "
-        "jaxform/solver.py)",
+        "sparse backend, where the scene remeshes only from MODIFIED_MIN_UNKNOWNS unknowns "
+        "(newton below; see jaxform/solver.py)",
     )
     anderson_depth: int = key(
         3,
