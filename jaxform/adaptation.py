@@ -198,7 +198,7 @@ class Remeshing:
 def adaptation_of(scene: Scene) -> NoAdaptation | Rezoning | Remeshing:
     """The scene's adaptation: remeshing where ``[remesh]`` sets a trigger, rezoning where
     ``mesh.rezone_quality`` > 0, else none."""
-    if scene.remesh is not None and scene.remesh.on:
+    if scene.remeshes:
         return Remeshing(scene.remesh)
     if scene.rezone_quality > 0.0:
         return Rezoning()

@@ -252,7 +252,7 @@ def trajectory(
             f"trajectory: a {scene.press.name} press moves the die with the work done; "
             "its differentiable run is jaxform.blows.blow_run"
         )
-    if scene.remesh is not None and scene.remesh.on and plan is None:
+    if scene.remeshes and plan is None:
         raise ValueError(
             "trajectory: this scene remeshes ([remesh]); pass the forward run's plan "
             "(times, plan = jaxform.gradients.remeshed_schedule(scene, inputs))"
@@ -333,7 +333,7 @@ def remeshed_schedule(
     run = (scene if inputs is None else replace(scene, inputs=inputs)).full_newton()
     res = simulate(run, progress)
     times = np.asarray(res.history["time_s"][1:])
-    if scene.remesh is None or not scene.remesh.on:
+    if not scene.remeshes:
         return times, None
     return times, RemeshPlan.of(res)
 

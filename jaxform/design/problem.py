@@ -445,7 +445,7 @@ def build_problem(
         # schedule, for the steps of a run without cutbacks (the schedule's length is
         # all the program's key holds of it)
         loading = None
-        if scene.remesh is None or not scene.remesh.on:
+        if not scene.remeshes:
             loading = DesignProblem(scene, built, objective, scene.step_targets(), start,
                                     single_program).prefetch_gradient()  # fmt: skip
         try:
@@ -453,7 +453,7 @@ def build_problem(
         finally:
             if loading is not None:
                 loading.join()
-    elif scene.remesh is not None and scene.remesh.on:
+    elif scene.remeshes:
         raise ValueError(
             "build_problem: a scene that remeshes takes its forward run's steps: no times"
         )
