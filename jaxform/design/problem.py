@@ -51,16 +51,17 @@ class DesignProblem:
     # the forward run's meshes when the scene remeshes (jaxform.gradients.RemeshPlan)
     plan: object = None
 
-    def run_inputs(self, design):
-        return par.apply_all(self.groups, design, self.scene.inputs, jnp.asarray(self.times))
+    def run_inputs(self, design, times=None):
+        """(inputs, times) of a design on the schedule ``times`` (None: ``self.times``)."""
+        times = jnp.asarray(self.times) if times is None else times
+        return par.apply_all(self.groups, design, self.scene.inputs, times)
 
     def _j(self, design, idx, times=None, reuse_factorizations: bool = False):
         """(J, trajectory) of a design; ``idx`` is ``scene.idx`` and ``times`` the step
         schedule (None: ``self.times``), passed through the compiled program's arguments
         (see :func:`jaxform.gradients.trajectory`): the stored program is keyed by the
         schedule's length, not its values."""
-        times = jnp.asarray(self.times) if times is None else times
-        inputs, times = par.apply_all(self.groups, design, self.scene.inputs, times)
+        inputs, times = self.run_inputs(design, times)
         traj = trajectory(self.scene, inputs, times, reuse_factorizations, idx=idx, plan=self.plan)
         value = self.objective(traj, inputs)
         if any(hasattr(g, "penalty") for g in self.groups):  # the constraints' penalty
