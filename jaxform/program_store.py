@@ -38,6 +38,7 @@ import pickle
 import re
 import tempfile
 import threading
+import time
 from functools import cache
 from pathlib import Path
 
@@ -73,6 +74,13 @@ CLEAR_SHARE = 0.85
 # and be read back again and again.
 STORED_STEP = 0.1
 _stored_floor = 0.0  # the share just after the stored programs last went
+# make_room reads the process's map table (/proc/self/maps: 2-10 ms in a process holding
+# hundreds of programs) at most once in this many seconds: no compile adds maps that fast,
+# and a loop of cheap evaluations (a sampling optimizer on a closed form) would otherwise
+# spend most of its time there.
+ROOM_CHECK_INTERVAL_S = 0.25
+_room_checked_at = -float("inf")  # _clock() at make_room's last reading
+_clock = time.monotonic
 _MAPS = Path("/proc/self/maps")
 _MAP_LIMIT = Path("/proc/sys/vm/max_map_count")
 
@@ -183,9 +191,14 @@ def make_room() -> str | None:
     :data:`STORED_STEP` above where the last such release left it) the stored programs
     go; past :data:`CLEAR_SHARE` the stored programs, and every compiled program where
     that is not enough.  Below it a gradient replay's own programs stay, so that its next
-    evaluation on the same plan traces and compiles nothing.  Returns what it let go
-    (``"stored"``, ``"all"``) or None."""
-    global _stored_floor
+    evaluation on the same plan traces and compiles nothing.  Within
+    :data:`ROOM_CHECK_INTERVAL_S` of its last reading it reads nothing.  Returns what it
+    let go (``"stored"``, ``"all"``) or None."""
+    global _stored_floor, _room_checked_at
+    now = _clock()
+    if now - _room_checked_at < ROOM_CHECK_INTERVAL_S:
+        return None
+    _room_checked_at = now
     share = map_share()
     crowded = share > CLEAR_SHARE
     if not crowded and share <= max(MAP_SHARE, _stored_floor + STORED_STEP):
