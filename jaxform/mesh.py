@@ -211,6 +211,25 @@ def billet_quarter(
     return Mesh(coords, mesh.elements, nodes, facets)
 
 
+def check_sheet(elements: np.ndarray) -> None:
+    """Raise MeshError unless the counter-clockwise quads form one sheet: no element
+    walks an edge that another walks the same way (two elements on the same side of it:
+    they overlap), and the boundary is one loop that does not touch itself."""
+    e = np.asarray(elements, dtype=np.int64)
+    edges = np.stack([e, np.roll(e, -1, axis=1)], axis=-1).reshape(-1, 2)
+    if len(np.unique(edges, axis=0)) != len(edges):
+        raise MeshError("overlapping elements (an edge walked twice the same way)")
+    b = boundary_edges(e)
+    if len(np.unique(b[:, 0])) != len(b):
+        raise MeshError("the section's boundary touches itself at a node")
+    nxt = dict(zip(b[:, 0].tolist(), b[:, 1].tolist()))
+    loop, a = 1, nxt[int(b[0, 0])]
+    while a != b[0, 0] and loop <= len(b):
+        a, loop = nxt[a], loop + 1
+    if loop != len(b):
+        raise MeshError("the section's boundary is not one closed loop (a hole?)")
+
+
 def boundary_edges(elements: np.ndarray) -> np.ndarray:
     """(n_b, 2) directed boundary edges of a mesh of counter-clockwise quads (the material
     on their left)."""
@@ -403,7 +422,9 @@ def polygon_quads(points, labels, sizes, split: bool = False) -> Mesh:
 
     Each edge is split into round(length / size) segments (at least one), one more on the
     edge whose segments are longest when the total is odd: Blossom recombination gives an
-    all-quad mesh for an even number of boundary segments.  Raises MeshError when no
+    all-quad mesh for an even number of boundary segments.  An algorithm's mesh that is
+    not one sheet (:func:`check_sheet`: gmsh can fold a quad over its neighbours where
+    the polygon nearly touches itself) counts as its failure.  Raises MeshError when no
     algorithm gives an all-quad mesh.
 
     ``split``: mesh at twice the sizes and split every element through its edge midpoints
@@ -426,6 +447,7 @@ def polygon_quads(points, labels, sizes, split: bool = False) -> Mesh:
     for algorithm in QUAD_ALGORITHMS:
         try:
             mesh = _gmsh_quads(pts, labels, sizes, segments, (algorithm, split))
+            check_sheet(mesh.elements)
         except MeshError as err:
             errors.append(f"algorithm {algorithm}: {err}")
             continue

@@ -1105,3 +1105,49 @@ def test_a_last_step_that_breaks_the_kept_mesh_is_taken_again_on_a_new_one(monke
     assert len(res.remeshes) == 1 and len(res.history["force_N"]) == 16
     # frictionless upsetting is homogeneous: the new mesh's last step carries the same force
     assert res.history["force_N"][-1] == pytest.approx(plain["force_N"][-1], rel=1e-8)
+
+
+def test_a_mesh_that_is_not_one_sheet_is_refused_and_gmsh_tries_the_next_algorithm(monkeypatch):
+    """Reference: the definition of a sheet of counter-clockwise quads (each edge walked
+    once each way at most, the boundary one loop).  A gmsh mesh of the shipped two-stage
+    disk's finisher folded one quad over its neighbours near the flash land (an edge
+    walked twice the same way, the boundary touching itself at a node) and the run then
+    ended in a traceback; such a mesh now counts as that algorithm's failure."""
+    import jaxform.mesh as mesh_mod
+    from jaxform.mesh import MeshError, check_sheet, mapped_quad
+
+    good = mapped_quad(np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 1.0], [0.0, 1.0]]), 4, 2)
+    check_sheet(good.elements)
+    overlapping = np.vstack([good.elements, good.elements[:1]])
+    sq = np.array([[0, 1, 2, 3]])
+    pinched = np.vstack([sq, np.array([[2, 4, 5, 6]])])  # two squares sharing node 2
+    apart = np.vstack([sq, sq + 4])
+    for bad, why in ((overlapping, "overlapping"), (pinched, "touches itself"),
+                     (apart, "not one closed loop")):  # fmt: skip
+        with pytest.raises(MeshError, match=why):
+            check_sheet(bad)
+
+    pts = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 1.0], [0.0, 1.0]])
+    labels = ["bottom", "outer", "top", "axis"]
+    real = mesh_mod._gmsh_quads
+    tried = []
+
+    def first_folds(p, lab, sizes, segments, how):
+        tried.append(how[0])
+        m = real(p, lab, sizes, segments, how)
+        if how[0] == mesh_mod.QUAD_ALGORITHMS[0]:
+            m = replace(m, elements=np.vstack([m.elements, m.elements[:1]]))
+        return m
+
+    monkeypatch.setattr(mesh_mod, "_gmsh_quads", first_folds)
+    mesh = polygon_quads(pts, labels, np.full(4, 0.25))
+    check_sheet(mesh.elements)
+    assert tried[:2] == list(mesh_mod.QUAD_ALGORITHMS[:2])
+
+    def always_folds(p, lab, sizes, segments, how):
+        m = real(p, lab, sizes, segments, how)
+        return replace(m, elements=np.vstack([m.elements, m.elements[:1]]))
+
+    monkeypatch.setattr(mesh_mod, "_gmsh_quads", always_folds)
+    with pytest.raises(MeshError, match="overlapping"):
+        polygon_quads(pts, labels, np.full(4, 0.25))
