@@ -64,8 +64,9 @@ def main(argv=None) -> int:
         ref = dict(np.load(path))
         for k in sorted(set(ref) | set(cols)):
             if k not in ref or k not in cols or ref[k].shape != cols[k].shape:
-                print(f"  {k}: shape {ref.get(k, np.empty(0)).shape} -> "
-                      f"{cols.get(k, np.empty(0)).shape}")  # fmt: skip
+                a, b = ref.get(k, np.empty(0)), cols.get(k, np.empty(0))
+                ends = f", last {a[-1]:.9g} -> {b[-1]:.9g}" if a.size and b.size else ""
+                print(f"  {k}: shape {a.shape} -> {b.shape}{ends}")
                 bad += 1
                 continue
             scale = max(np.max(np.abs(ref[k])), 1e-300)
