@@ -215,30 +215,45 @@ def check_sheet(elements: np.ndarray) -> None:
     """Raise MeshError unless the counter-clockwise quads form one sheet: no element
     walks an edge that another walks the same way (two elements on the same side of it:
     they overlap), and the boundary is one loop that does not touch itself."""
-    e = np.asarray(elements, dtype=np.int64)
-    edges = np.stack([e, np.roll(e, -1, axis=1)], axis=-1).reshape(-1, 2)
+    edges = _element_edges(elements)
     if len(np.unique(edges, axis=0)) != len(edges):
         raise MeshError("overlapping elements (an edge walked twice the same way)")
-    b = boundary_edges(e)
-    if len(np.unique(b[:, 0])) != len(b):
-        raise MeshError("the section's boundary touches itself at a node")
-    nxt = dict(zip(b[:, 0].tolist(), b[:, 1].tolist()))
-    loop, a = 1, nxt[int(b[0, 0])]
-    while a != b[0, 0] and loop <= len(b):
-        a, loop = nxt[a], loop + 1
-    if loop != len(b):
-        raise MeshError("the section's boundary is not one closed loop (a hole?)")
+    boundary_loop(elements)
+
+
+def _element_edges(elements: np.ndarray) -> np.ndarray:
+    """(4 n_el, 2) the edges each counter-clockwise quad walks, in its order."""
+    e = np.asarray(elements, dtype=np.int64)
+    return np.stack([e, np.roll(e, -1, axis=1)], axis=-1).reshape(-1, 2)
 
 
 def boundary_edges(elements: np.ndarray) -> np.ndarray:
     """(n_b, 2) directed boundary edges of a mesh of counter-clockwise quads (the material
     on their left)."""
-    e = np.asarray(elements, dtype=np.int64)
-    edges = np.stack([e, np.roll(e, -1, axis=1)], axis=-1).reshape(-1, 2)
-    n = int(e.max()) + 1 if e.size else 1
+    edges = _element_edges(elements)
+    n = int(edges.max()) + 1 if edges.size else 1
     # an edge is on the boundary when no element walks it the other way
     inner = np.isin(edges[:, 1] * n + edges[:, 0], edges[:, 0] * n + edges[:, 1])
     return edges[~inner]
+
+
+def boundary_loop(elements: np.ndarray) -> np.ndarray:
+    """The boundary nodes of a mesh of counter-clockwise quads as one counter-clockwise
+    loop (each once).  Raises MeshError where the boundary touches itself at a node or
+    is not one closed loop."""
+    edges = boundary_edges(elements)
+    nxt = dict(zip(edges[:, 0].tolist(), edges[:, 1].tolist()))
+    if len(nxt) != len(edges):
+        raise MeshError("the section's boundary touches itself at a node")
+    start = int(edges[0, 0])
+    loop = [start]
+    while (a := nxt[loop[-1]]) != start:
+        loop.append(a)
+        if len(loop) > len(edges):
+            break
+    if len(loop) != len(edges):
+        raise MeshError("the section's boundary is not one closed loop (a hole?)")
+    return np.asarray(loop)
 
 
 # where two sets meet on an edge's nodes, the edge takes the first that has it: held
@@ -262,19 +277,7 @@ def boundary_polygon(mesh, pos: np.ndarray):
     ``pos`` as one counter-clockwise loop, ``labels[i]`` the set of the edge from node
     ``nodes[i]`` to the next ("" where no set has it).  Raises MeshError for a section
     whose boundary is not one loop."""
-    edges = boundary_edges(mesh.elements)
-    nxt = dict(zip(edges[:, 0].tolist(), edges[:, 1].tolist()))
-    if len(nxt) != len(edges):
-        raise MeshError("the section's boundary touches itself at a node")
-    start = int(edges[0, 0])
-    loop = [start]
-    while (a := nxt[loop[-1]]) != start:
-        loop.append(a)
-        if len(loop) > len(edges):
-            break
-    if len(loop) != len(edges):
-        raise MeshError("the section's boundary is not one closed loop (a hole?)")
-    loop = np.asarray(loop)
+    loop = boundary_loop(mesh.elements)
     n = mesh.n_nodes
     keys = {}
     for name in sorted(mesh.facet_sets, key=lambda s: _SET_ORDER.index(s)
