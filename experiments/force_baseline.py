@@ -64,9 +64,9 @@ def main(argv=None) -> int:
         ref = dict(np.load(path))
         for k in sorted(set(ref) | set(cols)):
             if k not in ref or k not in cols or ref[k].shape != cols[k].shape:
-                a, b = ref.get(k, np.empty(0)), cols.get(k, np.empty(0))
-                ends = f", last {a[-1]:.9g} -> {b[-1]:.9g}" if a.size and b.size else ""
-                print(f"  {k}: shape {a.shape} -> {b.shape}{ends}")
+                old, new = ref.get(k, np.empty(0)), cols.get(k, np.empty(0))
+                ends = f", last {old[-1]:.9g} -> {new[-1]:.9g}" if old.size and new.size else ""
+                print(f"  {k}: shape {old.shape} -> {new.shape}{ends}")
                 bad += 1
                 continue
             scale = max(np.max(np.abs(ref[k])), 1e-300)

@@ -91,8 +91,16 @@ class OwnedFactorization:
         self.renew(scene)
 
     def lend(self):
+        """The factorization for the next chunk; a new empty one where the last chunk
+        returned none (a chunk that stopped on a singular Jacobian frees its own)."""
+        if self._fac is None:
+            self._fac = self._empty(self._scene)
         fac, self._fac = self._fac, None
         return fac
+
+    def _empty(self, scene: Scene):
+        n = scene.model.layout.n_dofs
+        return scene.newton.variant.factorization(scene.linear, n, self._dtype)
 
     def keep(self, fac) -> None:
         self._fac = fac
@@ -100,8 +108,7 @@ class OwnedFactorization:
     def renew(self, scene: Scene) -> None:
         self.release()
         self._scene = scene
-        n = scene.model.layout.n_dofs
-        self._fac = scene.newton.variant.factorization(scene.linear, n, self._dtype)
+        self._fac = self._empty(scene)
 
     def release(self) -> None:
         if self._fac is not None:

@@ -265,3 +265,30 @@ def test_steps_grow_on_the_same_effort_for_both_methods():
         # 12 iterations, 3 of them with a new factorization (count 4 -> 7)
         expected = 3 if method == "modified" else 12
         assert int(_jacobians(st, sol(12, 7), fac(4))) == expected
+
+
+def test_a_chunk_after_one_that_returned_no_factorization_gets_a_new_one():
+    """A chunk that stops on a singular Jacobian at its smallest step hands back no
+    factorization (jaxform.chunks.chunk); the host loop may run the step again (the first
+    step on a new mesh, once more from time.dt_s: simulation._stepped_on), and modified
+    Newton needs one to start from: the owner lends a new, empty one and the step
+    converges (before, modified Newton was handed None and the run stopped on an
+    AttributeError: the asymmetric closed die after a remesh to over 5000 unknowns)."""
+    from jaxform.adaptation import OwnedFactorization
+    from jaxform.chunks import chunk
+    from jaxform.simulation import init
+    from jaxform.stepping import stepper_of
+
+    sc = scene("mesh.nr=3", "mesh.nz=3", "solver.chunk_steps=4", "die.reduction=0.03",
+               "solver.linear=sparse", "solver.newton=modified")  # fmt: skip
+    owned = OwnedFactorization(sc, jnp.float64)
+    owned.lend()
+    owned.keep(None)  # what chunk() returns after a singular stop
+    fac = owned.lend()
+    assert fac is not None and fac.count == 0
+    state, control = init(sc)
+    state, control, outs, fac = chunk(sc, stepper_of(sc), state, control, sc.inputs, fac)
+    owned.keep(fac)
+    owned.release()
+    assert np.all(np.asarray(outs["code"])[np.asarray(outs["active"])] == OK)
+    assert float(state.t) == pytest.approx(3.0)
