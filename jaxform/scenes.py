@@ -116,6 +116,8 @@ class Scene:
     continuations: int = 0
     # a converged step whose element corner quality falls by more is cut back (0: no limit)
     max_quality_drop: float = 0.0
+    # a step from rest first solves this fraction of itself for its predictor (0: never)
+    first_step_probe: float = 0.0
     # when and how to remesh (element_size_mm resolved); None: never
     remesh: RemeshConfig | None = None
     # the machine that drives the top die (jaxform.presses); None: no die (a membrane)
@@ -675,6 +677,7 @@ def build_scene(cfg: dict | Config, mesh: meshing.Mesh | None = None) -> Scene:
         max_cutbacks=so.max_cutbacks,
         continuations=so.smallest_step_continuations,
         max_quality_drop=so.max_quality_drop,
+        first_step_probe=tm.first_step_probe,
         dt_growth=tm.dt_growth,
         chunk=so.chunk_steps,
         symmetric_z=piece.half_height,

@@ -512,6 +512,7 @@ def init(scene: Scene) -> tuple[SimState, StepControl]:
         t_end=jnp.asarray(scene.t_end),
         continuations=jnp.asarray(scene.continuations),
         max_quality_drop=jnp.asarray(scene.max_quality_drop),
+        probe=jnp.asarray(scene.first_step_probe),
         thresholds=off(stepper_of(scene).triggers),
     )
     return initial_state(scene.model, scene.inputs), control

@@ -416,6 +416,9 @@ class StepControl:
     # a converged attempt in which an element corner's quality falls by more is halved like
     # a failed one while a smaller step is left (:func:`distorted`; 0: no limit)
     max_quality_drop: jax.Array
+    # a step from rest first solves this fraction of itself for its predictor (0: never;
+    # :func:`attempt_step`)
+    probe: jax.Array
     thresholds: tuple = ()
 
 
@@ -429,7 +432,9 @@ def attempt_step(
 ):
     """One converged step from ``state``: tried with ``control.h`` (the last step snapped to
     end exactly at t_end), halved on failure until it converges or reaches the smallest
-    step (there continued, ``StepControl.continuations``); a solve that stalls
+    step (there continued, ``StepControl.continuations``); a step from rest first solves
+    ``control.probe`` of itself, whose rate is the step's predictor (a probe that fails
+    leaves the step to start at rest, and is no cutback); a solve that stalls
     (``solver.stall_iterations``, :func:`jaxform.solver.stalled`) stops early where a
     smaller step is left to try.  Returns (state, info dict, fac):
     info has the step size taken (h_used), iterations and cutbacks (failed attempts,
@@ -444,48 +449,70 @@ def attempt_step(
         return ~c["done"]
 
     def body(c):
-        st, h = c["state"], c["h"]
+        st, h, probing = c["state"], c["h"], c["probing"]
         t_new = jnp.where(st.t + h >= control.t_end - snap, control.t_end, st.t + h)
+        # a probe solves the first fraction of the step (the step itself is solved next)
+        t_new = jnp.where(probing, st.t + control.probe * (t_new - st.t), t_new)
         hh = t_new - st.t
-        # predictor: the last step's rate, extrapolated (exact for steady motion); not
-        # after a failure in this step (the rate may be what failed), and never an invalid one
+        # predictor: the last step's rate (or the probe's), extrapolated (exact for steady
+        # motion); not after a failure in this step (the rate may be what failed), and
+        # never an invalid one
         use_rate = (c["cutbacks"] == 0).astype(st.x.dtype)
-        guess = st.x + use_rate * hh * st.x_rate
+        guess = st.x + use_rate * hh * c["rate"]
         # a continuation goes on from the last iterate of the solve before it
         guess = jnp.where(c["continued"] > 0, c["guess"], guess)
         smallest = h <= h_min * (1.0 + 1e-9)  # nothing smaller to try
-        # a solve that stalls stops early where a smaller step is left to try
-        sol = _attempt_solve(stepper, st, t_new, inp, idx, guess, c["fac"], ~smallest)
+        # a solve that stalls stops early where a smaller step is left to try (a probe
+        # always may: the step is tried without it)
+        give_up = ~smallest | probing
+        sol = _attempt_solve(stepper, st, t_new, inp, idx, guess, c["fac"], give_up)
         jump = distorted(stepper.model, st.x, sol.x, inp, idx, control.max_quality_drop)
         ok = (sol.code == OK) & ~(~smallest & jump)
         conv = converged_state(stepper.model, st, sol.x, sol.gauss, t_new, inp, sol.cstep, idx)
         go_on = (
             ~ok
             & smallest
+            & ~probing
             & (sol.code == NEWTON_NOT_CONVERGED)
             & (c["continued"] < control.continuations)
             & jnp.isfinite(sol.x).all()
         )
-        failed = ~ok & smallest & ~go_on
+        failed = ~ok & smallest & ~go_on & ~probing
+        # after a probe (converged or not) the step itself, at the same size; a converged
+        # probe's rate is its predictor
+        keep = ok | go_on | probing
         return dict(
-            state=_tree_where(ok, conv, st),
-            h=jnp.where(ok | go_on, h, 0.5 * h),
+            state=_tree_where(ok & ~probing, conv, st),
+            probing=jnp.asarray(False),
+            rate=jnp.where(probing, jnp.where(ok, conv.x_rate, 0.0), c["rate"]),
+            h=jnp.where(keep, h, 0.5 * h),
             h_used=hh,
-            done=ok | failed,
+            done=(ok & ~probing) | failed,
             continued=c["continued"] + go_on.astype(jnp.int32),
             guess=sol.x,
             iterations=c["iterations"] + sol.iterations,
             last_jacobians=_jacobians(stepper, sol, c["fac"]),
-            cutbacks=c["cutbacks"] + (~ok).astype(jnp.int32),
+            cutbacks=c["cutbacks"] + (~ok & ~probing).astype(jnp.int32),
             code=jnp.where(ok, OK, sol.code),
             hist=sol.hist,
             fac=sol.fac,
         )
 
     zero = jnp.zeros_like(control.h)
+    # a step from rest (a run's or an operation's first: at t = 0, every rate 0) starts
+    # from an elastic overshoot of the whole step's size, which a fine mesh's Newton
+    # cannot always climb down from; a probe of a fraction of it lands nearer the flow,
+    # and its rate extrapolated is a predictor of the step (the same step, the same root).
+    # Not the first step on a new mesh (also without rates): there the probe changed
+    # which steps cut back, for fewer in one scene and more in another (docs/benchmarks.md)
+    at_rest = (state.t == 0) & ~jnp.any(state.x_rate != 0)
+    h0 = jnp.maximum(control.h, h_min)
+    probing = at_rest & (control.probe > 0) & (control.probe * h0 >= h_min)
     init = dict(
         state=state,
-        h=jnp.maximum(control.h, h_min),
+        probing=probing,
+        rate=state.x_rate,
+        h=h0,
         h_used=zero,
         done=jnp.asarray(False),
         iterations=jnp.asarray(0),

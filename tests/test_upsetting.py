@@ -290,6 +290,25 @@ def test_cutback_completes_a_step_made_to_fail():
     assert abs(res.history["stroke_mm"][-1] - 0.3 * 7.5) <= 1e-12
 
 
+def test_a_large_step_from_rest_converges_at_its_size_through_a_probe():
+    """A step from rest first solves a quarter of itself (time.first_step_probe) and takes
+    the probe's rate as its predictor.  On 10 x 10 at dt = 16 s (16 % strain in one step,
+    hundreds of times the yield strain: Newton starts from a far elastic overshoot) the
+    step from rest fails without the probe and is cut back; with it the step converges at
+    16 s, to the force of a 3 x 3 mesh's step solved from rest without a probe (frictionless
+    upsetting is homogeneous: the same force on any mesh, 1e-9 relative, both solves
+    converge to rtol 1e-10)."""
+    one_step = ("time.dt_s=16.0", "die.reduction=0.16", "output.fields=false")
+    plain = simulate(scene(*one_step, "time.first_step_probe=0"))
+    assert plain.history["cutbacks"][1] >= 1
+    probed = simulate(scene(*one_step))
+    h = probed.history
+    assert h["cutbacks"][1] == 0 and np.array_equal(h["time_s"], [0.0, 16.0])
+    coarse = simulate(scene(*one_step, "time.first_step_probe=0", "mesh.nr=3", "mesh.nz=3"))
+    assert coarse.history["cutbacks"][1] == 0
+    np.testing.assert_allclose(h["force_N"][1], coarse.history["force_N"][1], rtol=1e-9)
+
+
 def test_klujax_raises_on_a_singular_matrix():
     """The assumption the host loop's singular cutback rests on: klujax raises a
     JaxRuntimeError naming a singular matrix instead of returning a status."""

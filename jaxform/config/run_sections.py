@@ -25,6 +25,15 @@ class TimeConfig:
     alpha: float = key(
         0.5, low=0.0, high=1.0, doc="generalized mid-point parameter of the strain increment"
     )
+    first_step_probe: float = key(
+        0.25,
+        low=0.0,
+        high=1.0,
+        high_open=True,
+        doc="a step from rest (a run's or an operation's first: t = 0, every rate 0) first solves "
+        "this fraction of itself, and the probe's rate is the predictor of the step, which "
+        "converges to the same root (0: no probe; see jaxform/stepping.py attempt_step)",
+    )
 
 
 @section("solver")
