@@ -144,10 +144,13 @@ class Scene:
         step (:meth:`jaxform.solver.NewtonSettings.exact`).  The forward run that fixes a
         replay's steps runs it, so that every step it converged converges in the replay
         from the same start (modified Newton may take a step at a size where full Newton
-        needs a cutback)."""
+        needs a cutback), and with no probe of a step from rest
+        (``time.first_step_probe = 0``): a replay starts each step from the last one's
+        rate alone, and a first step that converges only after a probe would fail there."""
         solver = replace(self.settings.solver, newton="newton")
-        settings = replace(self.settings, solver=solver)
-        return replace(self, settings=settings, newton=self.newton.exact())
+        timing = replace(self.settings.time, first_step_probe=0.0)
+        settings = replace(self.settings, solver=solver, time=timing)
+        return replace(self, settings=settings, newton=self.newton.exact(), first_step_probe=0.0)
 
 
 def _profile_points(points, kind: str, key: str, workpiece_below: bool = True) -> np.ndarray:

@@ -275,13 +275,16 @@ def test_a_pressure_dependent_law_is_one_class():
 def test_one_law_everywhere_is_the_scene_wide_law():
     """The mandrel given the scene's own law in its table runs the same numbers as the
     scene-wide law alone (every history column identical), and those are the numbers of
-    the code before friction laws were objects (1e-10 relative)."""
+    the code before friction laws were objects (1e-10 relative), which took the step from
+    rest without a probe (time.first_step_probe = 0; with it the first 0.5 s step of this
+    coarse Coulomb ring is solved from another start and the history ends 0.28 %
+    higher)."""
     _, ref = _ring()
     _, res = _ring("side_die.friction.model=coulomb", "side_die.friction.mu=0.3")
     for k, v in ref.history.items():
         if np.asarray(v).dtype.kind == "f":
             np.testing.assert_array_equal(res.history[k], v, err_msg=k)
-    h = ref.history
+    h = _ring("time.first_step_probe=0")[1].history
     for k, before in zip(("force_N", "force_side_N", "friction_work_Nmm"), BEFORE):
         assert h[k][-1] == pytest.approx(before, rel=1e-10), k
 
@@ -334,7 +337,10 @@ BILLET = {
     "material": {"preset": "al1100_673K"},
     "die": {"speed_mm_s": 1.0, "reduction": 0.3},
     "friction": {"model": "coulomb", "mu": 0.3},
-    "time": {"dt_s": 0.5},
+    # no probe of the step from rest: with it the first 0.5 s step converges whole (not
+    # cut back to 0.25 s) and on those coarse steps the half model's last one lands on a
+    # lower root of the Coulomb conditions (2525 -> 2469 N), not this file's question
+    "time": {"dt_s": 0.5, "first_step_probe": 0.0},
     "output": {"plots": False, "fields": False},
     # the half model's 56 unknowns solve by dense LU and the twin's 100 by klujax, where
     # 'auto' would keep a factorization: one method for both, that the two runs step alike

@@ -63,11 +63,13 @@ def process():
 
 def test_one_operation_process_and_seed_history_unchanged():
     """A single-operation config gives the history it gave before processes existed
-    (the force and time of commit 8fca7bd's run, to 1e-12 relative), and a process of
-    that one forming operation gives the same history (1e-12)."""
+    (the times of commit 8fca7bd's run to 1e-12, its forces to 1e-10 relative: the same
+    roots to the solver's rtol, the step from rest now solved from a probe's predictor,
+    2.2e-11 apart), and a process of that one forming operation gives the same history
+    (1e-12)."""
     h = single().history
     np.testing.assert_allclose(h["time_s"], [0.0, 2.5, 5.0, 7.5, 10.0], rtol=0, atol=1e-12)
-    np.testing.assert_allclose(h["force_N"], SEED_FORCE_N, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(h["force_N"], SEED_FORCE_N, rtol=1e-10, atol=1e-12)
     one = run(seed_document([FIRST])).history
     for k in ("time_s", "stroke_mm", "force_N", "friction_work_Nmm"):
         np.testing.assert_allclose(one[k], h[k], rtol=1e-12, atol=1e-12, err_msg=k)

@@ -86,16 +86,19 @@ def test_a_replays_schedule_comes_from_full_newton():
     factorization (klujax, 100 unknowns) and takes the first 0.5 s step whole, where
     full Newton cuts it back to 0.25 s (measured: 25 iterations against 43 and a
     cutback), so a replay on modified Newton's steps would fail its first step.  The
-    schedule is full Newton's: that of ``_run(TWIN)`` (BILLET sets solver.newton)."""
+    schedule is full Newton's from the replay's start, the step from rest without a
+    probe: that of ``_run(TWIN)`` with time.first_step_probe = 0 (BILLET sets
+    solver.newton).  With the probe, full Newton too takes the first step whole."""
     from jaxform.gradients import schedule
     from jaxform.solver import ModifiedNewton
 
     sc = build_scene(load_config(BILLET, TWIN + ("solver.newton=auto",)))
     assert isinstance(sc.newton.variant, ModifiedNewton)
-    _, full = _run(TWIN)
+    _, full = _run((*TWIN, "time.first_step_probe=0"))
     times = schedule(sc)
     np.testing.assert_allclose(times, full.history["time_s"][1:], rtol=0, atol=1e-12)
     assert times[0] == 0.25
+    assert _run(TWIN)[1].history["time_s"][1] == 0.5
 
 
 def test_fixed_anvil_stroke_and_forces():
