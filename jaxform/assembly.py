@@ -710,14 +710,34 @@ class Model:
     def residual_and_jacobian(self, x, ctx: StepContext):
         """(R, Jacobian values on the pattern, new Gauss state, status code, force scale).
         A dead load ctx.f_ext adds nothing to the Jacobian."""
-        element = self.element
-        ep = element.residual_pass(x, ctx, self.layout)
-        k_e, _ = element.jacobians(element.element_fn(ctx, self.layout), ep, ctx.gauss)
+        ep = self.element.residual_pass(x, ctx, self.layout)
         r, gnew, ok, scale = self._finish_residual(x, ep, ctx)
-        return r, self._jacobian_values(x, ep._replace(k_e=k_e), ctx), gnew, ok, scale
+        return r, self._pass_jacobian(x, ep, ctx), gnew, ok, scale
 
-    def jacobian_and_state_vjp(self, x, ctx: StepContext, g_bar: GaussState):
-        """(Jacobian values on the pattern, (dG/dx)^T g_bar) at x, G the new Gauss state.
+    def jacobian(self, x, ctx: StepContext, gauss: GaussState):
+        """Jacobian values on the pattern at x, given ``gauss``, the new Gauss state of
+        :meth:`residual` at the same x: the element Jacobians start from its local
+        solutions, and no residual pass is repeated (a Newton iteration holds the
+        residual of its iterate already)."""
+        return self._pass_jacobian(x, self._pass_at(x, ctx, gauss), ctx)
+
+    def _pass_at(self, x, ctx: StepContext, gauss: GaussState) -> ElementPass:
+        """What a Jacobian pass reads of the element pass at x whose new Gauss state is
+        ``gauss`` (the dofs, the element data and that state), without the pass."""
+        edofs = ctx.idx.edofs
+        return ElementPass(x[edofs], self.element.element_data(ctx), None, gauss, None, None)
+
+    def _pass_jacobian(self, x, ep: ElementPass, ctx: StepContext):
+        """Jacobian values on the pattern from an element pass at x (its dofs, element
+        data and new Gauss state)."""
+        element = self.element
+        k_e, _ = element.jacobians(element.element_fn(ctx, self.layout), ep, ctx.gauss)
+        return self._jacobian_values(x, ep._replace(k_e=k_e), ctx)
+
+    def jacobian_and_state_vjp(self, x, ctx: StepContext, gauss: GaussState,
+                               g_bar: GaussState):  # fmt: skip
+        """(Jacobian values on the pattern, (dG/dx)^T g_bar) at x, G the new Gauss state
+        (``gauss`` its value at x: no residual pass is repeated).
 
         For the reverse pass of a converged step: the forward-mode pass over the element
         dofs that gives the element Jacobians carries the derivative of each element's
@@ -731,7 +751,7 @@ class Model:
             r, (_, gnew, code, _) = fn(dofs_flat, elem, gs, solution)
             return (r, gnew), code
 
-        ep = element.residual_pass(x, ctx, self.layout)
+        ep = self._pass_at(x, ctx, gauss)
         (k_e, dg_e), _ = element.jacobians(fn_state, ep, ctx.gauss)
         n_e, n_d = k_e.shape[0], k_e.shape[-1]
         xg_e = sum(

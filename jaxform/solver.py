@@ -41,7 +41,9 @@ at it.
 
 Each call site of ``residual`` is compiled separately (each costs seconds of XLA time),
 so the start (x0, else the fallback) and the line search each evaluate it from one site
-inside a while loop.
+inside a while loop, and an iteration's Jacobian is that at the iterate whose residual
+the solve holds already (``jacobian(x, aux)``, given the residual's auxiliary output at
+x: the element Jacobians reuse its local solves), with no residual of its own.
 """
 
 from __future__ import annotations
@@ -87,9 +89,8 @@ class FullNewton:
               kept: Kept | None = None, give_up=None):  # fmt: skip
         """:func:`newton` (factoring through ``kept`` where given; stopping early where it
         stalls and ``give_up``, :func:`stalled`)."""
-        residual, jacobian = fns.residual, fns.residual_and_jacobian
-        return newton(residual, jacobian, fns.linear_solve, x0, settings, x_fallback, kept,
-                      give_up)  # fmt: skip
+        return newton(fns.residual, fns.jacobian, fns.linear_solve, x0, settings, x_fallback,
+                      kept, give_up)  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -138,8 +139,8 @@ class ModifiedNewton:
               kept: Kept | None = None, give_up=None):  # fmt: skip
         """:func:`modified_newton` from the factorization ``kept`` (stopping early where it
         stalls and ``give_up``, :func:`stalled`)."""
-        residual, jacobian = fns.residual, fns.residual_and_jacobian
-        return modified_newton(residual, jacobian, kept, x0, settings, x_fallback, give_up)
+        return modified_newton(fns.residual, fns.jacobian, kept, x0, settings, x_fallback,
+                               give_up)  # fmt: skip
 
 
 NewtonVariant = FullNewton | ModifiedNewton
@@ -208,12 +209,12 @@ class NewtonSettings:
 
 @dataclass(frozen=True)
 class NewtonFunctions:
-    """What a Newton solve evaluates: residual(x) -> (R, aux, code, scale);
-    residual_and_jacobian(x) -> (R, vals, aux, code, scale); linear_solve(vals, b) -> the
+    """What a Newton solve evaluates: residual(x) -> (R, aux, code, scale); jacobian(x,
+    aux) -> vals, the Jacobian at x given aux of residual(x); linear_solve(vals, b) -> the
     solution of J y = b (None where every solve goes through a kept factorization)."""
 
     residual: Callable
-    residual_and_jacobian: Callable
+    jacobian: Callable
     linear_solve: Callable | None = None
 
 
@@ -272,7 +273,7 @@ class Kept:
 
 def newton(
     residual,
-    residual_and_jacobian,
+    jacobian,
     linear_solve,
     x0,
     settings: NewtonSettings,
@@ -283,9 +284,10 @@ def newton(
     """Solve R(x) = 0 from x0 (or from x_fallback if x0 is not a valid state, e.g. a
     predictor that inverts an element).
 
-    residual(x) -> (R, aux, code, scale); residual_and_jacobian(x) -> (R, vals, aux, code,
-    scale); linear_solve(vals, b) -> solution.  Returns (x, aux, iterations, code,
-    history, fac) with history[k] = ||R_k|| / scale_k (NaN-free; inf where not reached).
+    residual(x) -> (R, aux, code, scale); jacobian(x, aux) -> vals, the Jacobian at x
+    given the auxiliary output of residual(x); linear_solve(vals, b) -> solution.  Returns
+    (x, aux, iterations, code, history, fac) with history[k] = ||R_k|| / scale_k
+    (NaN-free; inf where not reached).
 
     With ``kept`` (:class:`Kept`), each iteration factors and then solves with the factors
     (the same work as linear_solve), and the factorization of the last iteration is
@@ -301,19 +303,18 @@ def newton(
     conv0 = (code0 == OK) & (n0 <= s.rtol * scale0)
 
     def cond(c):
-        x, aux, it, code, rn, conv, hist, fac = c
+        x, r, aux, scale, it, code, rn, conv, hist, fac = c
         going = (~conv) & (code == OK) & (it < s.max_iterations)
         return going & ~stalled(hist, it, s, give_up)
 
     def body(c):
-        x, aux, it, code, rn, conv, hist, fac = c
-        r, vals, _, code_j, scale = residual_and_jacobian(x)
+        x, r, aux, scale, it, code_j, rnorm, conv, hist, fac = c  # R(x) held: code_j OK
+        vals = jacobian(x, aux)
         if kept is None:
             dx = linear_solve(vals, -r)
         else:
             fac = kept.factor(vals, fac)
             dx = kept.solve_factored(fac, -r)
-        rnorm = jnp.linalg.norm(r)
 
         def trial(alpha):
             xt = x + alpha * dx
@@ -349,10 +350,11 @@ def newton(
         conv = (codet == OK) & (rtn <= s.rtol * scalet)
         hist = hist.at[it + 1].set(rtn / scalet)
         code = jnp.where(jnp.isfinite(dx).all(), codet, jnp.maximum(codet, 4))
-        return xt, auxt, it + 1, code, rtn, conv, hist, fac
+        return xt, rt, auxt, scalet, it + 1, code, rtn, conv, hist, fac
 
-    init = (x0, aux0, jnp.asarray(0), code0, n0, conv0, hist0, None if kept is None else kept.fac)
-    x, aux, it, code, rn, conv, hist, fac = jax.lax.while_loop(cond, body, init)
+    fac0 = None if kept is None else kept.fac
+    init = (x0, r0, aux0, scale0, jnp.asarray(0), code0, n0, conv0, hist0, fac0)
+    x, _, aux, _, it, code, _, conv, hist, fac = jax.lax.while_loop(cond, body, init)
     code = jnp.where(conv, OK, jnp.where(code == OK, NEWTON_NOT_CONVERGED, code))
     return x, aux, it, code, hist, fac
 
@@ -391,7 +393,7 @@ def _anderson_memory(depth, x):
 
 def modified_newton(
     residual,
-    residual_and_jacobian,
+    jacobian,
     kept: Kept,
     x0,
     settings: NewtonSettings,
@@ -437,15 +439,11 @@ def modified_newton(
         x, fac = c["x"], c["fac"]
         fresh = c["refresh"] | ~fac.valid
 
-        def refreshed(_):
-            r, vals, aux, code_j, scale = residual_and_jacobian(x)
-            fac_new = jax.lax.cond(code_j == OK, lambda: factor(vals, fac), lambda: fac)
-            return r, aux, code_j, scale, fac_new
+        def refreshed(_):  # at x, whose residual the solve holds (its code OK)
+            return factor(jacobian(x, c["aux"]), fac)
 
-        def kept(_):
-            return c["r"], c["aux"], c["code"], c["scale"], fac
-
-        r, aux, code_j, scale, fac = jax.lax.cond(fresh, refreshed, kept, None)
+        fac = jax.lax.cond(fresh, refreshed, lambda _: fac, None)
+        r, aux, code_j, scale = c["r"], c["aux"], c["code"], c["scale"]
         rnorm = jnp.linalg.norm(r)
         dx = jax.lax.cond(
             fac.valid, lambda: solve_factored(fac, -r), lambda: jnp.full_like(r, jnp.nan)
@@ -622,8 +620,9 @@ def solve_implicit(
     derivative).
 
     ``problem`` (:class:`ImplicitProblem`): fn(x, args) -> (R, aux, code, scale);
-    fn_jac(x, args) -> (R, vals, aux, code, scale); fn_adj(x, args, aux_bar) -> (vals,
-    (daux/dx)^T aux_bar), for the reverse pass;
+    fn_jac(x, args, aux) -> vals, the Jacobian at x given aux of fn(x, args); fn_adj(x,
+    args, aux, aux_bar) -> (vals, (daux/dx)^T aux_bar) at the root x with its aux, for
+    the reverse pass;
     linear(vals, b, args, transpose) -> solution of J y = b (or J^T y = b); where
     factorizations are kept also linear.factor(vals, args, old) -> a
     :class:`jaxform.linear.Factorization` (freeing ``old``), linear.solve_factored(fac, b,
@@ -656,7 +655,7 @@ def solve_implicit(
         )
     fns = NewtonFunctions(
         lambda x: fn(x, args),
-        lambda x: fn_jac(x, args),
+        lambda x, aux: fn_jac(x, args, aux),
         lambda vals, b: linear(vals, b, args, False),
     )
     return settings.variant.solve(fns, x0, settings, x_fallback, kept, give_up)
@@ -664,7 +663,7 @@ def solve_implicit(
 
 def _solve_implicit_fwd(problem, x0, x_fallback, args, fac=None, adjoint_fac=None, give_up=None):
     out = solve_implicit(problem, x0, x_fallback, args, fac, adjoint_fac, give_up)
-    return out, (out[0], out[2], args, fac, adjoint_fac, give_up)
+    return out, (out[0], out[1], out[2], args, fac, adjoint_fac, give_up)
 
 
 def _solve_implicit_bwd(problem, res, cot):
@@ -677,9 +676,9 @@ def _solve_implicit_bwd(problem, res, cot):
     linearization and one transposition instead of a linearization in (x, args) and two
     transpositions (measured on the seed scene: see experiments/bench_gradient.py)."""
     fn, fn_adj, linear = problem.fn, problem.fn_adj, problem.linear
-    x, its, args, fac, adjoint_fac, give_up = res
+    x, aux, its, args, fac, adjoint_fac, give_up = res
     x_bar, aux_bar = cot[0], cot[1]
-    vals, xg_bar = fn_adj(x, args, aux_bar)
+    vals, xg_bar = fn_adj(x, args, aux, aux_bar)
     use = None if adjoint_fac is None else adjoint_fac.valid & (its == 0)
     y = adjoint_solve(linear, vals, x_bar + xg_bar, args, adjoint_fac, use)
 

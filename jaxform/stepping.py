@@ -165,8 +165,13 @@ def _step_residual_and_jacobian(model: Model, x, ctx: StepContext):
 
 
 @partial(jax.jit, static_argnums=0)
-def _step_adjoint(model: Model, x, ctx: StepContext, gauss_bar):
-    return model.jacobian_and_state_vjp(x, ctx, gauss_bar)
+def _step_jacobian(model: Model, x, ctx: StepContext, gauss):
+    return model.jacobian(x, ctx, gauss)
+
+
+@partial(jax.jit, static_argnums=0)
+def _step_adjoint(model: Model, x, ctx: StepContext, gauss, gauss_bar):
+    return model.jacobian_and_state_vjp(x, ctx, gauss, gauss_bar)
 
 
 @partial(jax.jit, static_argnums=0)  # one program on the host, not an eager op each
@@ -263,7 +268,7 @@ def step_problem(stepper: Stepper) -> ImplicitProblem:
     model = stepper.model
     return ImplicitProblem(
         partial(_step_residual, model),
-        partial(_step_residual_and_jacobian, model),
+        partial(_step_jacobian, model),
         partial(_step_adjoint, model),
         StepLinear(model.layout.n_dofs, stepper.linear),
         stepper.newton,
