@@ -39,9 +39,10 @@ piecewise smooth (contact and friction switch between branches at an active-set 
 the derivative is that of the branch active at x*: exact away from a switch, one-sided
 at it.
 
-Each call site of ``residual`` is compiled separately (each costs seconds of XLA time),
-so the start (x0, else the fallback) and the line search each evaluate it from one site
-inside a while loop, and an iteration's Jacobian is that at the iterate whose residual
+Each call site of ``residual`` is compiled separately (each costs about a second of XLA
+time), so a solve evaluates it at one site (:func:`_trials`): the first pass of its loop
+takes the start (x0, else the fallback) there, each later one the line search's trial
+points; and an iteration's Jacobian is that at the iterate whose residual
 the solve holds already (``jacobian(x, aux)``, given the residual's auxiliary output at
 x: the element Jacobians reuse its local solves), with no residual of its own.
 """
@@ -218,29 +219,44 @@ class NewtonFunctions:
     linear_solve: Callable | None = None
 
 
-def _start(residual, x0, x_fallback):
-    """The residual at x0, or at x_fallback if x0 is not a valid state (e.g. a predictor
-    that inverts an element), through one call site of the residual."""
-    if x_fallback is None:
-        r0, aux0, code0, scale0 = residual(x0)
-        return x0, r0, aux0, code0, scale0
-    blank = jax.tree_util.tree_map(
-        lambda a: jnp.zeros(a.shape, a.dtype), jax.eval_shape(residual, x0)
-    )
+def _blank(residual, x0):
+    """Zeros shaped like residual(x0)'s outputs (R, aux, code, scale): a solve's values
+    before its start is evaluated (the code OK, which is 0)."""
+    out = jax.eval_shape(residual, x0)
+    return jax.tree_util.tree_map(lambda a: jnp.zeros(a.shape, a.dtype), out)
 
-    def start_cond(c):
-        k, _, out = c
-        return (k == 0) | ((k == 1) & (out[2] != OK))
 
-    def start_body(c):
-        k = c[0]
-        xk = jnp.where(k == 0, x0, x_fallback)
-        return k + 1, xk, tuple(residual(xk))
+def _trials(residual, point, bad, limit, held):
+    """Evaluate the residual at trial points through its one call site in a solve:
+    ``point(k, alpha)`` the k-th (alpha = 1, 1/2, 1/4, ...), taken once not
+    ``bad(alpha, r, code)`` or once k = ``limit`` (traced).  ``held``: (done, x, R, aux,
+    code, scale), returned as they are where done already.  Returns (x, R, aux, code,
+    scale) of the trial taken."""
 
-    _, x0, (r0, aux0, code0, scale0) = jax.lax.while_loop(
-        start_cond, start_body, (jnp.asarray(0), x0, tuple(blank))
-    )
-    return x0, r0, aux0, code0, scale0
+    def ls_cond(lc):
+        return ~lc[2]
+
+    def ls_body(lc):
+        k, alpha = lc[0], lc[1]
+        xt = point(k, alpha)
+        rt, auxt, codet, scalet = residual(xt)
+        done = ~(bad(alpha, rt, codet) & (k < limit))  # k trials done before this one
+        return (k + 1, 0.5 * alpha, done, xt, rt, auxt, codet, scalet)
+
+    x = held[1]
+    lc0 = (jnp.asarray(0), jnp.asarray(1.0, x.dtype)) + tuple(held)
+    return jax.lax.while_loop(ls_cond, ls_body, lc0)[3:]
+
+
+def _start_point(x0, x_fallback):
+    """(point of the start's trials: x0, then x_fallback; the start's trials after the
+    first: 1 where there is a fallback, else 0)."""
+    fallback = x0 if x_fallback is None else x_fallback
+
+    def point(k):
+        return jnp.where(k == 0, x0, fallback)
+
+    return point, int(x_fallback is not None)
 
 
 def stalled(hist, it, settings: NewtonSettings, give_up):
@@ -297,64 +313,50 @@ def newton(
     converged, where it stalls (:func:`stalled`).
     """
     s = settings
-    x0, r0, aux0, code0, scale0 = _start(residual, x0, x_fallback)
-    n0 = jnp.linalg.norm(r0)
-    hist0 = jnp.full(s.max_iterations + 1, jnp.inf).at[0].set(n0 / scale0)
-    conv0 = (code0 == OK) & (n0 <= s.rtol * scale0)
+    r0, aux0, code0, scale0 = _blank(residual, x0)
+    start, n_start = _start_point(x0, x_fallback)
+    max_bt = s.max_backtracks if s.line_search else 0
 
-    def cond(c):
-        x, r, aux, scale, it, code, rn, conv, hist, fac = c
-        going = (~conv) & (code == OK) & (it < s.max_iterations)
-        return going & ~stalled(hist, it, s, give_up)
-
-    def body(c):
-        x, r, aux, scale, it, code_j, rnorm, conv, hist, fac = c  # R(x) held: code_j OK
+    def direction(x, r, aux, fac):  # Newton's step from x (R(x) = r, held)
         vals = jacobian(x, aux)
         if kept is None:
-            dx = linear_solve(vals, -r)
-        else:
-            fac = kept.factor(vals, fac)
-            dx = kept.solve_factored(fac, -r)
+            return linear_solve(vals, -r), fac
+        fac = kept.factor(vals, fac)
+        return kept.solve_factored(fac, -r), fac
 
-        def trial(alpha):
-            xt = x + alpha * dx
-            rt, auxt, codet, scalet = residual(xt)
-            return xt, rt, auxt, codet, scalet
+    def body(c):
+        # the trials: the start at the first pass, then the line search along dx from x
+        x, r, aux, scale, dx, fac, it, code, rnorm, _, hist, _, started = c
 
-        if s.line_search:  # alpha = 1, 1/2, 1/4, ... while the decrease is insufficient
+        def point(k, alpha):  # alpha = 1, 1/2, ... (1 only without the line search)
+            return jnp.where(started, x + alpha * dx, start(k))
 
-            def ls_cond(lc):
-                return ~lc[2]
+        def bad(alpha, rt, codet):  # invalid, or (an iteration's) decrease insufficient
+            worse = jnp.linalg.norm(rt) > (1.0 - 1e-4 * alpha) * rnorm
+            return (codet != OK) | (started & worse)
 
-            def ls_body(lc):
-                k, alpha = lc[0], lc[1]
-                xt, rt, auxt, codet, scalet = trial(alpha)
-                bad = (codet != OK) | (jnp.linalg.norm(rt) > (1.0 - 1e-4 * alpha) * rnorm)
-                done = ~(bad & (k < s.max_backtracks))  # k backtracks done before this trial
-                return (k + 1, 0.5 * alpha, done, xt, rt, auxt, codet, scalet)
-
-            lc0 = (
-                jnp.asarray(0),
-                jnp.asarray(1.0, x.dtype),
-                jnp.asarray(False),
-                x,
-                r,
-                aux,
-                code_j,
-                scale,
-            )
-            _, _, _, xt, rt, auxt, codet, scalet = jax.lax.while_loop(ls_cond, ls_body, lc0)
-        else:  # full steps: the backtracking loop is not compiled at all
-            xt, rt, auxt, codet, scalet = trial(jnp.asarray(1.0, x.dtype))
-        rtn = jnp.linalg.norm(rt)
-        conv = (codet == OK) & (rtn <= s.rtol * scalet)
-        hist = hist.at[it + 1].set(rtn / scalet)
-        code = jnp.where(jnp.isfinite(dx).all(), codet, jnp.maximum(codet, 4))
-        return xt, rt, auxt, scalet, it + 1, code, rtn, conv, hist, fac
+        limit = jnp.where(started, max_bt, n_start)
+        held = (jnp.asarray(False), x, r, aux, code, scale)
+        x, r, aux, code, scale = _trials(residual, point, bad, limit, held)
+        rnorm = jnp.linalg.norm(r)
+        conv = (code == OK) & (rnorm <= s.rtol * scale)
+        it = it + started.astype(it.dtype)
+        hist = hist.at[it].set(rnorm / scale)
+        code = jnp.where(jnp.isfinite(dx).all(), code, jnp.maximum(code, 4))
+        # the next step, where the solve goes on
+        going = (~conv) & (code == OK) & (it < s.max_iterations)
+        going = going & ~stalled(hist, it, s, give_up)
+        no_step = (jnp.zeros_like(x), fac)
+        dx, fac = jax.lax.cond(going, lambda: direction(x, r, aux, fac), lambda: no_step)
+        return x, r, aux, scale, dx, fac, it, code, rnorm, conv, hist, going, jnp.asarray(True)
 
     fac0 = None if kept is None else kept.fac
-    init = (x0, r0, aux0, scale0, jnp.asarray(0), code0, n0, conv0, hist0, fac0)
-    x, _, aux, _, it, code, _, conv, hist, fac = jax.lax.while_loop(cond, body, init)
+    hist0 = jnp.full(s.max_iterations + 1, jnp.inf)
+    zero, yes, no = jnp.zeros((), r0.dtype), jnp.asarray(True), jnp.asarray(False)
+    init = (x0, r0, aux0, scale0, jnp.zeros_like(x0), fac0, jnp.asarray(0), code0, zero, no,
+            hist0, yes, no)  # fmt: skip
+    out = jax.lax.while_loop(lambda c: c[11], body, init)
+    x, _, aux, _, _, fac, it, code, _, conv, hist, _, _ = out
     code = jnp.where(conv, OK, jnp.where(code == OK, NEWTON_NOT_CONVERGED, code))
     return x, aux, it, code, hist, fac
 
@@ -419,100 +421,102 @@ def modified_newton(
     """
     s, v = settings, settings.variant
     factor, solve_factored, fac0 = kept.factor, kept.solve_factored, kept.fac
-    x0, r0, aux0, code0, scale0 = _start(residual, x0, x_fallback)
+    r0, aux0, code0, scale0 = _blank(residual, x0)
+    start, n_start = _start_point(x0, x_fallback)
     count0 = fac0.count
-    n0 = jnp.linalg.norm(r0)
-    hist0 = jnp.full(s.max_total_iterations + 1, jnp.inf).at[0].set(n0 / scale0)
-    conv0 = (code0 == OK) & (n0 <= s.rtol * scale0)
     max_bt = s.max_backtracks if s.line_search else 0
 
-    def cond(c):
-        return (
-            (~c["conv"])
-            & (c["code"] == OK)
-            & (c["it"] < s.max_total_iterations)
-            & ((c["fac"].count - count0 < s.max_iterations) | ~c["refresh"])
-            & ~stalled(c["hist"], c["it"], s, give_up)
-        )
-
-    def body(c):
-        x, fac = c["x"], c["fac"]
-        fresh = c["refresh"] | ~fac.valid
-
-        def refreshed(_):  # at x, whose residual the solve holds (its code OK)
-            return factor(jacobian(x, c["aux"]), fac)
-
-        fac = jax.lax.cond(fresh, refreshed, lambda _: fac, None)
-        r, aux, code_j, scale = c["r"], c["aux"], c["code"], c["scale"]
-        rnorm = jnp.linalg.norm(r)
+    def direction(c, fresh):
+        """The step from c's x (its residual held): with the kept factorization, or a new
+        one where ``fresh``; Anderson-mixed where on (a refresh empties the memory)."""
+        x, r, fac = c["x"], c["r"], c["fac"]
+        fac = jax.lax.cond(fresh, lambda: factor(jacobian(x, c["aux"]), fac), lambda: fac)
         dx = jax.lax.cond(
             fac.valid, lambda: solve_factored(fac, -r), lambda: jnp.full_like(r, jnp.nan)
         )  # never solve with no factors
+        out = dict(dx=dx, fac=fac, fresh=fresh)
         if v.anderson_depth > 0:  # a refreshed step is Newton's, and starts the memory
             mem = dict(c["aa"], n=jnp.where(fresh, -1, c["aa"]["n"]))  # n < 0: empty
-            dx, mem = _anderson_step(mem, x, dx)
+            out["dx"], out["aa"] = _anderson_step(mem, x, dx)
+        return out
+
+    def body(c):
+        # the trials: the start at the first pass, then the step dx from x (refreshed
+        # steps with the line search, stale ones once)
+        x, r, aux, scale, dx, started = c["x"], c["r"], c["aux"], c["scale"], c["dx"], c["started"]
+        fresh = c["fresh"]
+        rnorm = jnp.linalg.norm(r)
         finite = jnp.isfinite(dx).all()
 
-        def ls_cond(lc):
-            return ~lc[2]
+        def point(k, alpha):
+            return jnp.where(started, x + alpha * dx, start(k))
 
-        def ls_body(lc):  # alpha = 1, 1/2, ... (refreshed steps only: stale ones get one try)
-            k, alpha = lc[0], lc[1]
-            xt = x + alpha * dx
-            rt, auxt, codet, scalet = residual(xt)
-            bad = (codet != OK) | (jnp.linalg.norm(rt) > (1.0 - 1e-4 * alpha) * rnorm)
-            done = ~(bad & fresh & (k < max_bt))
-            return (k + 1, 0.5 * alpha, done, xt, rt, auxt, codet, scalet)
+        def bad(alpha, rt, codet):
+            worse = jnp.linalg.norm(rt) > (1.0 - 1e-4 * alpha) * rnorm
+            return (codet != OK) | (started & worse)
 
-        lc0 = (jnp.asarray(0), jnp.asarray(1.0, x.dtype), code_j != OK, x, r, aux, code_j, scale)
-        _, _, _, xt, rt, auxt, codet, scalet = jax.lax.while_loop(ls_cond, ls_body, lc0)
+        limit = jnp.where(started, jnp.where(fresh, max_bt, 0), n_start)
+        held = (jnp.asarray(False), x, r, aux, c["code"], scale)
+        xt, rt, auxt, codet, scalet = _trials(residual, point, bad, limit, held)
         rtn = jnp.linalg.norm(rt)
         ratio = rtn / rnorm
         # a stale step that does not contract (or leaves the valid states) is rejected;
-        # a refreshed one is taken as in newton()
-        reject = (~fresh) & ((codet != OK) | ~finite | ~(ratio <= v.accept_ratio))
-        take = ~reject & (code_j == OK)
-        code = jnp.where(
-            code_j != OK,
-            code_j,
-            jnp.where(reject, OK, jnp.where(finite, codet, jnp.maximum(codet, 4))),
-        )
-        conv = take & (codet == OK) & (rtn <= s.rtol * scalet)
-        it = c["it"] + 1
+        # a refreshed one is taken as in newton(); the start is taken
+        reject = started & (~fresh) & ((codet != OK) | ~finite | ~(ratio <= v.accept_ratio))
+        code = jnp.where(reject, OK, jnp.where(finite, codet, jnp.maximum(codet, 4)))
+        conv = ~reject & (codet == OK) & (rtn <= s.rtol * scalet)
+        it = c["it"] + started.astype(c["it"].dtype)
         new = dict(
-            x=jnp.where(take, xt, x),
-            r=jnp.where(take, rt, r),
-            aux=jax.tree_util.tree_map(lambda u, v: jnp.where(take, u, v), auxt, aux),
-            scale=jnp.where(take, scalet, scale),
+            x=jnp.where(reject, x, xt),
+            r=jnp.where(reject, r, rt),
+            aux=jax.tree_util.tree_map(lambda u, w: jnp.where(reject, w, u), auxt, aux),
+            scale=jnp.where(reject, scale, scalet),
             it=it,
             code=code,
             conv=conv,
-            hist=c["hist"].at[it].set(jnp.where(take, rtn / scalet, rnorm / scale)),
-            fac=fac,
-            refresh=reject | (ratio > v.refresh_below),
+            hist=c["hist"].at[it].set(jnp.where(reject, rnorm / scale, rtn / scalet)),
+            fac=c["fac"],
+            started=jnp.asarray(True),
         )
+        refresh = started & (reject | (ratio > v.refresh_below))
         if v.anderson_depth > 0:
             # a mixed step that is rejected is retried plainly, with the same factorization
-            mixed = reject & (mem["n"] > 0)
-            new["refresh"] = jnp.where(mixed, False, new["refresh"])
-            new["aa"] = dict(mem, n=jnp.where(mixed, -1, mem["n"]))
-        return new
+            mixed = reject & (c["aa"]["n"] > 0)
+            refresh = jnp.where(mixed, False, refresh)
+            new["aa"] = dict(c["aa"], n=jnp.where(mixed, -1, c["aa"]["n"]))
+        # the next step, where the solve goes on
+        going = (
+            (~conv)
+            & (code == OK)
+            & (it < s.max_total_iterations)
+            & ((new["fac"].count - count0 < s.max_iterations) | ~refresh)
+            & ~stalled(new["hist"], it, s, give_up)
+        )
+        fresh = going & (refresh | ~new["fac"].valid)
+        none = dict(dx=jnp.zeros_like(x), fac=new["fac"], fresh=fresh)
+        if v.anderson_depth > 0:
+            none["aa"] = new["aa"]
+        nxt = jax.lax.cond(going, lambda: direction(new, fresh), lambda: none)
+        return dict(new, **nxt, going=going)
 
     init = dict(
         x=x0,
         r=r0,
         aux=aux0,
         scale=scale0,
+        dx=jnp.zeros_like(x0),
+        fresh=jnp.asarray(False),
         it=jnp.asarray(0),
         code=code0,
-        conv=conv0,
-        hist=hist0,
+        conv=jnp.asarray(False),
+        hist=jnp.full(s.max_total_iterations + 1, jnp.inf),
         fac=fac0,
-        refresh=jnp.asarray(False),
+        going=jnp.asarray(True),
+        started=jnp.asarray(False),
     )
     if v.anderson_depth > 0:
         init["aa"] = _anderson_memory(v.anderson_depth, x0)
-    out = jax.lax.while_loop(cond, body, init)
+    out = jax.lax.while_loop(lambda c: c["going"], body, init)
     code = jnp.where(
         out["conv"], OK, jnp.where(out["code"] == OK, NEWTON_NOT_CONVERGED, out["code"])
     )

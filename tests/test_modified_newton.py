@@ -6,6 +6,7 @@ configuration contract (a backend that cannot keep a factorization is refused by
 """
 
 import jax
+import jax.extend as jex
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -291,3 +292,55 @@ def test_a_chunk_after_one_that_returned_no_factorization_gets_a_new_one():
     owned.release()
     assert np.all(np.asarray(outs["code"])[np.asarray(outs["active"])] == OK)
     assert float(state.t) == pytest.approx(3.0)
+
+
+def _call_sites(closed_jaxpr, name):
+    """How many equations of the program (nested ones included) call the jitted function
+    ``name``: each is compiled on its own (XLA inlines every call)."""
+    count = 0
+
+    def walk(jaxpr):
+        nonlocal count
+        for eqn in jaxpr.eqns:
+            if eqn.primitive.name in ("pjit", "jit") and eqn.params.get("name") == name:
+                count += 1
+            for p in eqn.params.values():
+                for sub in p if isinstance(p, (tuple, list)) else (p,):
+                    if isinstance(sub, jex.core.ClosedJaxpr):
+                        walk(sub.jaxpr)
+                    elif isinstance(sub, jex.core.Jaxpr):
+                        walk(sub)
+
+    walk(closed_jaxpr.jaxpr)
+    return count
+
+
+@pytest.mark.parametrize("variant", ["newton", "modified"])
+def test_a_solve_evaluates_the_residual_and_the_jacobian_at_one_site_each(variant):
+    """Reference: the program's equations.  Each call site of the residual is compiled
+    separately (about a second of XLA time each on the seed scene), so a solve, start
+    with a fallback and line search included, calls it from one site, and the Jacobian
+    (at an iterate whose residual the solve holds) from one other."""
+    res_fn, jac_fn = jax.jit(residual), jax.jit(jacobian)
+    lin = DenseLU()
+    settings = NewtonSettings(rtol=1e-14)
+
+    def solve(x0, fac):
+        if variant == "newton":
+            solve_dense = lambda v, b: lin.solve(ROWS, COLS, v, b, N)  # noqa: E731
+            return newton(res_fn, jac_fn, solve_dense, x0, settings, x_fallback=0.0 * x0)
+        kept = Kept(
+            lambda vals, old: lin.refactor(ROWS, COLS, vals, N, None, old),
+            lambda f, b: lin.solve_factored(f, b, None),
+            fac,
+        )
+        mod = NewtonSettings(rtol=1e-14, variant=ModifiedNewton())
+        return modified_newton(res_fn, jac_fn, kept, x0, mod, x_fallback=0.0 * x0)
+
+    args = (jnp.ones(N), lin.empty_factorization(N, B.dtype))
+    program = jax.make_jaxpr(solve)(*args)
+    assert _call_sites(program, "residual") == 1
+    assert _call_sites(program, "jacobian") == 1
+    x, _, its, code, _, _ = jax.jit(solve)(*args)
+    assert int(code) == OK and int(its) >= 3
+    np.testing.assert_allclose(np.asarray(residual(x)[0]), 0.0, atol=1e-12)
