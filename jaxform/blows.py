@@ -47,6 +47,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxform.forming_outputs import damage_columns
 from jaxform.presses import EnergyPress, capacity_message, first_over_capacity
 from jaxform.scenes import Inputs, Scene
 from jaxform.status import CAUSES, OK
@@ -244,6 +245,7 @@ def simulate_blows(scene: Scene, progress=None):
         row.update(dt_s=float(times[i + 1] - times[i]), factorizations=row["iterations"],
                    cutbacks=0, mesh_quality=np.nan, rezoned=0, remeshed=0, new_nodes=0,
                    pause_cause=0, blow=int(blow[i]))  # fmt: skip
+        row.update(damage_columns(run_scene, row["x"], row["damage"]))
         rows.append(row)
         if progress is not None:
             progress(dict(step=i + 1, n_steps=n, chunk_end=i == stop - 1, remeshed=0,

@@ -280,7 +280,7 @@ def _run(args) -> int:
     t0 = time.perf_counter()
     progress = Progress(sys.stdout)
     try:
-        result = run(cfg, (), out_dir=args.out, progress=progress)
+        result = run(cfg, (), out_dir=args.out, progress=progress, lean=True)
     except ConfigError as err:
         progress.close()
         print(f"config error: {err}", file=sys.stderr)
@@ -533,9 +533,11 @@ def _scene_arguments(parser, config_help: str) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from jaxform.host_memory import map_large_blocks
     from jaxform.precision import enable_x64
 
     enable_x64()
+    map_large_blocks()  # freed chunks' blocks go back to the system (jaxform.host_memory)
     parser = _Parser(
         prog="jaxform", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )

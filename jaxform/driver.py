@@ -27,6 +27,7 @@ from jaxform.precision import require_x64
 from jaxform.process_config import Process, load_typed
 from jaxform.scenes import build_scene
 from jaxform.simulation import (
+    FIELD_KEYS,
     HISTORY_KEYS,
     Result,
     SimulationError,
@@ -40,6 +41,7 @@ def run(
     overrides=(),
     out_dir: str | Path | None = None,
     progress: Callable[[dict], None] | None = None,
+    lean: bool = False,
 ) -> Result:
     """Validate, build and run a scene; write outputs to out_dir if given.
 
@@ -52,6 +54,10 @@ def run(
         out_dir: folder for history.csv, config.toml, fields and plots (None: none written).
         progress: called after each compiled chunk with a dict (step, n_steps, time_s,
             stroke_mm, force_N, iterations, cutbacks).
+        lean: the result holds for every row only the fields the outputs read
+            (:func:`fields_written`; the others for the last row), as ``jaxform run``
+            asks: without a ParaView series a large mesh's stresses and damage are not
+            held for every step.  False: every field of every row.
 
     Returns:
         the :class:`jaxform.simulation.Result` (history and fields).
@@ -65,8 +71,9 @@ def run(
         return _run_process(loaded, out_dir, progress)
     enable_compilation_cache(loaded.solver.compilation_cache_dir)
     scene = build_scene(loaded)
+    keep = fields_written(loaded) if lean else FIELD_KEYS
     try:
-        result = simulate(scene, progress)
+        result = simulate(scene, progress, keep_fields=keep)
     except SimulationError as err:
         if out_dir is not None:
             write_outputs(out_dir, err.result)
@@ -74,6 +81,19 @@ def run(
     if out_dir is not None:
         write_outputs(out_dir, result)
     return result
+
+
+def fields_written(cfg: Config) -> tuple[str, ...]:
+    """The output fields :func:`write_outputs` reads at rows before the last: every one
+    for the ParaView series; else the unknowns (history columns, flow lines), the contact
+    fields of the contact-profile plot and the strain of the animation's frames."""
+    out = cfg.output
+    if out.fields:
+        return FIELD_KEYS
+    keep = {"x"}
+    if out.plots:
+        keep |= {"slip_mm", "contact_status"} | ({"eqps"} if out.animation else set())
+    return tuple(k for k in FIELD_KEYS if k in keep)
 
 
 def _loaded(config, overrides, load: Callable):

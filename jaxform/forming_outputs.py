@@ -1,6 +1,6 @@
 """Host-side damage and die-wear results of a run (NumPy): what a forging engineer judges.
 
-* :func:`damage_history`: per history row and damage criterion
+* :func:`damage_columns`: per history row and damage criterion
   (:data:`jaxform.damage.CRITERIA`), the largest Gauss-point value and where it is
   (``damage_<name>_max``, ``damage_<name>_r_mm``, ``damage_<name>_z_mm``), and with a
   critical value the number of elements that reach it (``damage_flagged``);
@@ -28,23 +28,23 @@ def damage_flags(damage: np.ndarray, critical: float, criterion: str) -> np.ndar
     return (d.max(axis=1) >= critical).astype(float)
 
 
-def damage_history(scene, xs, damages, critical: float = 0.0, criterion: str = "cl") -> dict:
-    """History columns of one mesh's rows: ``xs`` their unknowns (displacement from
-    ``scene.inputs.coords``), ``damages`` their Gauss-point damage (rows, ne, 4, 3)."""
-    elements = np.asarray(scene.mesh.elements)
-    out: dict[str, list] = {}
-    for x, dmg in zip(xs, damages):
-        gp = gauss_points(positions(scene, x), elements).reshape(-1, 2)
-        flat = np.asarray(dmg).reshape(-1, len(CRITERIA))
-        for i, name in enumerate(CRITERIA):
-            j = int(np.argmax(flat[:, i]))
-            out.setdefault(f"damage_{name}_max", []).append(flat[j, i])
-            out.setdefault(f"damage_{name}_r_mm", []).append(gp[j, 0])
-            out.setdefault(f"damage_{name}_z_mm", []).append(gp[j, 1])
-        if critical > 0.0:
-            flagged = damage_flags(dmg, critical, criterion).sum()
-            out.setdefault("damage_flagged", []).append(flagged)
-    return {k: np.asarray(v, dtype=float) for k, v in out.items()}
+def damage_columns(scene, x, damage) -> dict[str, float]:
+    """The history columns of one row on ``scene``'s mesh: ``x`` its unknowns (displacement
+    from ``scene.inputs.coords``), ``damage`` its Gauss-point damage (ne, 4, 3); the
+    critical value and criterion of the flag count from ``scene.settings.output``."""
+    out = scene.settings.output
+    gp = gauss_points(positions(scene, x), np.asarray(scene.mesh.elements)).reshape(-1, 2)
+    flat = np.asarray(damage).reshape(-1, len(CRITERIA))
+    cols = {}
+    for i, name in enumerate(CRITERIA):
+        j = int(np.argmax(flat[:, i]))
+        cols[f"damage_{name}_max"] = float(flat[j, i])
+        cols[f"damage_{name}_r_mm"] = float(gp[j, 0])
+        cols[f"damage_{name}_z_mm"] = float(gp[j, 1])
+    if out.damage_critical > 0.0:
+        flags = damage_flags(damage, out.damage_critical, out.damage_criterion)
+        cols["damage_flagged"] = float(flags.sum())
+    return cols
 
 
 def wear_profiles(scene, wear_mm) -> dict[str, dict[str, np.ndarray]]:

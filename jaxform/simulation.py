@@ -31,7 +31,7 @@ import numpy as np
 from jaxform.adaptation import Adapted, OnMesh, OwnedFactorization, adaptation_of
 from jaxform.chunks import converged_rows, failure_message, host_failure, run_on
 from jaxform.fields import OUTPUT_FIELDS
-from jaxform.forming_outputs import damage_history
+from jaxform.forming_outputs import damage_columns
 from jaxform.geometry import min_quality
 from jaxform.laps import laps, pockets
 from jaxform.postprocess import HEAT_COLUMNS, extra_history
@@ -90,7 +90,9 @@ class Result:
 
     history: dict[str, np.ndarray]
     # per row: x, stress, s, eqps, slip_mm, contact_status, damage; arrays stacked over the rows, or
-    # after remeshing a list of per-row arrays (each on its row's mesh, scene_at(row))
+    # after remeshing a list of per-row arrays (each on its row's mesh, scene_at(row)); a
+    # field simulate() was not asked to keep for every row (keep_fields): the last row's
+    # alone (one entry)
     fields: dict
     scene: Scene
     final_state: SimState
@@ -148,6 +150,7 @@ def _initial_row(scene: Scene, state: SimState) -> dict:
     """History row 0: the initial state."""
     out = jax.device_get(_outputs(scene.model, state, scene.inputs, scene.idx, scene.symmetric_z))
     q = min_quality(np.asarray(scene.inputs.coords), np.asarray(scene.mesh.elements))
+    out.update(damage_columns(scene, out["x"], out["damage"]))
     return dict(out, iterations=0, factorizations=0, cutbacks=0, code=OK, rezoned=0,
                 remeshed=0, new_nodes=0, dt_s=0.0, mesh_quality=float(q),
                 pause_cause=0)  # fmt: skip
@@ -176,7 +179,8 @@ class Run:
     state on it and the step control, the rows so far (row 0 the initial state), the
     meshes (:class:`Segment`) and the adaptation's reports, the converged steps since the
     last new mesh, the armed triggers, the compiled step programs (layouts) used, the
-    failure (None: going on), and the (state, mesh) before the last new mesh."""
+    failure (None: going on), the (state, mesh) before the last new mesh, and the output
+    fields every row keeps (the others only the last row: :func:`_thinned`)."""
 
     mesh: OnMesh
     state: SimState
@@ -189,9 +193,23 @@ class Run:
     programs: frozenset = frozenset()
     failure: str | None = None
     before: tuple | None = None
+    keep: tuple = FIELD_KEYS
 
 
-def _started(scene: Scene, adaptation, start: SimState | None) -> Run:
+def _thinned(rows: tuple, first: int, keep: tuple) -> tuple:
+    """``rows`` with the rows from ``first`` to the one before the last without the
+    output fields not in ``keep``: a row's fields live as long as a row holds them
+    (a chunk's outputs, one array per field over its steps), and the 200 x 200 seed
+    scene's stresses, damage and strains are 18 MB a row."""
+    drop = [k for k in FIELD_KEYS if k not in keep]
+    if not drop:
+        return rows
+    first = max(first, 0)
+    lean = tuple({k: v for k, v in r.items() if k not in drop} for r in rows[first:-1])
+    return rows[:first] + lean + rows[-1:]
+
+
+def _started(scene: Scene, adaptation, start: SimState | None, keep: tuple) -> Run:
     """The run at its start: the adaptation's first mesh, the state (``start`` or the
     scene's initial one), the triggers armed from the scene's thresholds."""
     state, control = init(scene)
@@ -206,6 +224,7 @@ def _started(scene: Scene, adaptation, start: SimState | None) -> Run:
         rows=(_initial_row(scene, state),),
         segments=(Segment(0, scene, padded=mesh.padded),),
         programs=frozenset({mesh.stepped.model.layout}),
+        keep=keep,
     )
 
 
@@ -217,11 +236,13 @@ def _stepped(run: Run, owned: OwnedFactorization) -> Run:
     state, control, outs, fac = run_on(run.mesh, run.state, control, owned.lend())
     owned.keep(fac)
     rows, failure = converged_rows(run.mesh, state, outs, len(run.rows))
+    for row in rows:  # computed while the row has its damage field
+        row.update(damage_columns(run.mesh.scene, row["x"], row["damage"]))
     return replace(
         run,
         state=state,
         control=control,
-        rows=run.rows + tuple(rows),
+        rows=_thinned(run.rows + tuple(rows), len(run.rows) - 1, run.keep),
         since=run.since + len(rows),
         failure=failure,
     )
@@ -329,7 +350,7 @@ def _without_empty_mesh(run: Run) -> Run:
 def _result(scene: Scene, run: Run, adaptation) -> Result:
     """The :class:`Result` of a finished (or stopped) run."""
     rows, segments = list(run.rows), list(run.segments)
-    fields = _fields(rows, len(segments) == 1)
+    fields = _fields(rows, len(segments) == 1, run.keep)
     history = _history(segments, rows, fields)
     # a remeshed scene may switch Newton variant with its size ('auto'), and with it the
     # length of the residual history: shorter ones are padded with inf
@@ -353,12 +374,14 @@ def _result(scene: Scene, run: Run, adaptation) -> Result:
     )
 
 
-def _fields(rows: list[dict], one_mesh: bool) -> dict:
-    """The fields of every row: arrays stacked over the rows on one mesh, else a list per
-    field with one array per row (each on its row's mesh)."""
+def _fields(rows: list[dict], one_mesh: bool, keep: tuple = FIELD_KEYS) -> dict:
+    """The fields of every row (those not in ``keep``: of the last row alone): arrays
+    stacked over the rows on one mesh, else a list per field with one array per row
+    (each on its row's mesh)."""
+    picked = {k: rows if k in keep else rows[-1:] for k in FIELD_KEYS}
     if one_mesh:
-        return {k: np.stack([np.asarray(r[k]) for r in rows]) for k in FIELD_KEYS}
-    return {k: [np.asarray(r[k]) for r in rows] for k in FIELD_KEYS}
+        return {k: np.stack([np.asarray(r[k]) for r in picked[k]]) for k in FIELD_KEYS}
+    return {k: [np.asarray(r[k]) for r in picked[k]] for k in FIELD_KEYS}
 
 
 def _history(segments: list[Segment], rows: list[dict], fields: dict) -> dict:
@@ -373,18 +396,8 @@ def _history(segments: list[Segment], rows: list[dict], fields: dict) -> dict:
         for seg, end in zip(segments, ends)
     ]
     history.update({k: np.concatenate([p[k] for p in parts]) for k in parts[0]})
-    out = segments[0].scene.settings.output
-    damage = [
-        damage_history(
-            seg.scene,
-            fields["x"][seg.first_row : end],
-            fields["damage"][seg.first_row : end],
-            out.damage_critical,
-            out.damage_criterion,
-        )  # fmt: skip
-        for seg, end in zip(segments, ends)
-    ]
-    history.update({k: np.concatenate([p[k] for p in damage]) for k in damage[0]})
+    names = [k for k in rows[0] if k.startswith("damage_")]  # forming_outputs.damage_columns
+    history.update({k: np.array([float(r[k]) for r in rows]) for k in names})
     die = segments[0].scene.inputs.die
     if "die_forces_N" in rows[0]:  # several dies: the force each carries
         per_die = np.array([np.asarray(r["die_forces_N"]) for r in rows])
@@ -399,6 +412,7 @@ def simulate(
     scene: Scene,
     progress: Callable[[dict], None] | None = None,
     start: SimState | PartState | None = None,
+    keep_fields: tuple[str, ...] = FIELD_KEYS,
 ) -> Result:
     """Run the scene to its end; raises SimulationError (with .result) on failure.
 
@@ -422,6 +436,10 @@ def simulate(
         start: the state to start from, on ``scene`` (a :class:`PartState` whose scene
             is ``scene``, or its state; None: the scene's initial state): an operation of
             a process starts from the part the one before it left (:mod:`jaxform.process`).
+        keep_fields: the output fields (:data:`FIELD_KEYS`) :attr:`Result.fields` holds
+            for every row; the others it holds for the last row alone (one entry), and a
+            row lets go of them once the next row has come (``x`` is always kept: the
+            history's columns are read from it).  Default: every field.
 
     A press capacity (``scene.press.capacity_N`` > 0) stops the run after the first step
     whose ram force reaches it: SimulationError ("press capacity ... reached at stroke
@@ -439,7 +457,8 @@ def simulate(
             raise ValueError("simulate: a screw press or hammer run starts from t = 0")
         return simulate_blows(scene, progress)
     adaptation = adaptation_of(scene)
-    run = _started(scene, adaptation, start.state if isinstance(start, PartState) else start)
+    keep = tuple(k for k in FIELD_KEYS if k in keep_fields or k == "x")
+    run = _started(scene, adaptation, start.state if isinstance(start, PartState) else start, keep)
     owned = OwnedFactorization(run.mesh.stepped, run.state.x.dtype)
     t_stop = scene.t_end - 1e-9 * scene.dt
     reporting, host_error = False, None  # host_error: what a host-loop failure chains

@@ -29,13 +29,15 @@ import numpy as np
 import pytest
 
 import jaxform
-from jaxform.config import ConfigError, load_config
+from jaxform.config import ConfigError, load_config, typed
 from jaxform.damage import CRITERIA, integrands, largest_principal
-from jaxform.driver import write_outputs
+from jaxform.driver import fields_written, write_outputs
 from jaxform.flowlines import flow_lines, largest_turn, self_folds, straightness
+from jaxform.host_memory import map_large_blocks
 from jaxform.materialpoint import Ram, uniaxial_compression
 from jaxform.postprocess import positions
 from jaxform.scenes import build_scene
+from jaxform.simulation import FIELD_KEYS
 from jaxform.transfer import gauss_points
 from jaxform.wear import WearInputs, node_wear
 
@@ -172,6 +174,37 @@ def test_barrelled_upsetting_damage_is_largest_at_the_free_equator():
     assert not res.remeshes and np.all(np.diff(h["damage_cl_max"]) >= -1e-15)
     lines = flow_lines(res, 0.5)
     assert not self_folds(lines, 0.5)
+
+
+def test_a_lean_run_keeps_the_unknowns_of_every_row_and_the_rest_of_the_last():
+    """``jaxform run`` (``lean``: the result holds for every row only the fields its
+    outputs read, :func:`jaxform.driver.fields_written`; here without plots or ParaView
+    fields, the unknowns) gives the same history to the last digit, damage columns
+    included (computed as each row comes, before its damage field is let go), and the
+    last row's every field: equal to the full run's."""
+    full = barrelled()
+    cfg = typed(load_config(FRICTION, COMMON + ["die.reduction=0.3",
+                                           "time.dt_s=4.0", "remesh.every_steps=100"]))  # fmt: skip
+    assert fields_written(cfg) == ("x",)
+    lean = jaxform.run(cfg, lean=True)
+    assert set(lean.history) == set(full.history)
+    for k, v in full.history.items():
+        np.testing.assert_array_equal(lean.history[k], v, err_msg=k)
+    assert len(full.history["time_s"]) > 3 and any(k.startswith("damage_") for k in full.history)
+    np.testing.assert_array_equal(lean.fields["x"], full.fields["x"])
+    for k in FIELD_KEYS:
+        assert len(lean.fields[k]) == (len(full.fields[k]) if k == "x" else 1), k
+        np.testing.assert_array_equal(lean.fields[k][-1], full.fields[k][-1], err_msg=k)
+    plotted = replace(cfg, output=replace(cfg.output, plots=True, animation=True))
+    assert fields_written(plotted) == ("x", "eqps", "slip_mm", "contact_status")
+    written = replace(cfg, output=replace(cfg.output, fields=True))
+    assert fields_written(written) == FIELD_KEYS
+
+
+def test_the_command_line_maps_large_blocks():
+    """The heap policy ``jaxform`` sets for its process (:mod:`jaxform.host_memory`):
+    glibc accepts it here (the CI machine's C library)."""
+    assert map_large_blocks()
 
 
 def test_node_wear_exponents():
