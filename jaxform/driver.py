@@ -21,7 +21,7 @@ from jaxform.config import Config, dump_config, load_config, typed
 from jaxform.damage import CRITERIA
 from jaxform.flowlines import flow_lines
 from jaxform.forming_outputs import damage_flags, wear_profiles
-from jaxform.io import write_csv, write_flow_lines, write_vtu_series, write_wear
+from jaxform.io import VtuSeries, write_csv, write_flow_lines, write_vtu_series, write_wear
 from jaxform.postprocess import die_outlines, nodal_temperature, positions
 from jaxform.precision import require_x64
 from jaxform.process_config import Process, load_typed
@@ -55,9 +55,10 @@ def run(
         progress: called after each compiled chunk with a dict (step, n_steps, time_s,
             stroke_mm, force_N, iterations, cutbacks).
         lean: the result holds for every row only the fields the outputs read
-            (:func:`fields_written`; the others for the last row), as ``jaxform run``
-            asks: without a ParaView series a large mesh's stresses and damage are not
-            held for every step.  False: every field of every row.
+            (:func:`fields_written`; the others for the last row), and the ParaView
+            series is written row by row as the run goes (:class:`jaxform.io.VtuSeries`),
+            as ``jaxform run`` asks: a large mesh's stresses and damage are not held for
+            every step.  False: every field of every row.
 
     Returns:
         the :class:`jaxform.simulation.Result` (history and fields).
@@ -71,24 +72,26 @@ def run(
         return _run_process(loaded, out_dir, progress)
     enable_compilation_cache(loaded.solver.compilation_cache_dir)
     scene = build_scene(loaded)
-    keep = fields_written(loaded) if lean else FIELD_KEYS
+    series = VtuSeries(out_dir) if lean and out_dir is not None and loaded.output.fields else None
+    keep = fields_written(loaded, series is not None) if lean else FIELD_KEYS
     try:
-        result = simulate(scene, progress, keep_fields=keep)
+        result = simulate(scene, progress, keep_fields=keep, on_row=series)
     except SimulationError as err:
         if out_dir is not None:
-            write_outputs(out_dir, err.result)
+            write_outputs(out_dir, err.result, series)
         raise
     if out_dir is not None:
-        write_outputs(out_dir, result)
+        write_outputs(out_dir, result, series)
     return result
 
 
-def fields_written(cfg: Config) -> tuple[str, ...]:
+def fields_written(cfg: Config, streamed: bool = False) -> tuple[str, ...]:
     """The output fields :func:`write_outputs` reads at rows before the last: every one
-    for the ParaView series; else the unknowns (history columns, flow lines), the contact
-    fields of the contact-profile plot and the strain of the animation's frames."""
+    for the ParaView series (unless ``streamed``: written as the rows came); else the
+    unknowns (history columns, flow lines), the contact fields of the contact-profile
+    plot and the strain of the animation's frames."""
     out = cfg.output
-    if out.fields:
+    if out.fields and not streamed:
         return FIELD_KEYS
     keep = {"x"}
     if out.plots:
@@ -132,7 +135,9 @@ def _run_process(process: Process, out_dir, progress):
     return result
 
 
-def write_outputs(out_dir: str | Path, result: Result) -> None:
+def write_outputs(out_dir: str | Path, result: Result, series: VtuSeries | None = None) -> None:
+    """history.csv, config.toml, the ParaView series (``series``: the one written as the
+    run went, closed here; None: written here from ``result.fields``), the plots."""
     from jaxform import plot
 
     out = Path(out_dir)
@@ -159,7 +164,9 @@ def write_outputs(out_dir: str | Path, result: Result) -> None:
         (out / "FAILED.txt").write_text(result.failure + "\n")
     else:  # a failure an earlier run left in this folder is not this run's
         (out / "FAILED.txt").unlink(missing_ok=True)
-    if cfg.output.fields:
+    if cfg.output.fields and series is not None:
+        series.close(h["time_s"])
+    elif cfg.output.fields:
         write_vtu_series(out, result)
     _forming_outputs(out, result)
     if cfg.output.plots:

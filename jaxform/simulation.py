@@ -115,8 +115,7 @@ class Result:
         """The scene (mesh, sets, reference coordinates) of history row ``row``."""
         if not self.segments:
             return self.scene
-        row = row % len(self.history["time_s"])
-        return next(s.scene for s in reversed(self.segments) if s.first_row <= row)
+        return _scene_of_row(self.segments, row % len(self.history["time_s"]))
 
     @property
     def final_scene(self) -> Scene:
@@ -166,6 +165,22 @@ def _progress(scene: Scene, step: int, row: dict, chunk_end: bool) -> dict:
     return dict(step=step, n_steps=n_steps, chunk_end=chunk_end, remeshed=remeshed,
                 remesh_trigger=causes(int(row["pause_cause"])) if remeshed else "",
                 **{k: row[k] for k in PROGRESS_KEYS})  # fmt: skip
+
+
+def _scene_of_row(segments, row: int) -> Scene:
+    """The scene of the segment that holds row ``row`` (``row`` >= 0)."""
+    return next(s.scene for s in reversed(segments) if s.first_row <= row)
+
+
+def _report(scene: Scene, run: Run, first: int, progress, on_row) -> None:
+    """Hand the rows from ``first`` on to the caller: each row with its scene and every
+    output field to ``on_row``, its scalars to ``progress`` (either may be None)."""
+    for k in range(first, len(run.rows)):
+        row = run.rows[k]
+        if on_row is not None:
+            on_row(k, _scene_of_row(run.segments, k), {f: row[f] for f in FIELD_KEYS})
+        if progress is not None:
+            progress(_progress(scene, k, row, k == len(run.rows) - 1))
 
 
 def die_force_column(name: str) -> str:
@@ -242,7 +257,7 @@ def _stepped(run: Run, owned: OwnedFactorization) -> Run:
         run,
         state=state,
         control=control,
-        rows=_thinned(run.rows + tuple(rows), len(run.rows) - 1, run.keep),
+        rows=run.rows + tuple(rows),
         since=run.since + len(rows),
         failure=failure,
     )
@@ -413,6 +428,7 @@ def simulate(
     progress: Callable[[dict], None] | None = None,
     start: SimState | PartState | None = None,
     keep_fields: tuple[str, ...] = FIELD_KEYS,
+    on_row: Callable[[int, Scene, dict], None] | None = None,
 ) -> Result:
     """Run the scene to its end; raises SimulationError (with .result) on failure.
 
@@ -440,6 +456,11 @@ def simulate(
             for every row; the others it holds for the last row alone (one entry), and a
             row lets go of them once the next row has come (``x`` is always kept: the
             history's columns are read from it).  Default: every field.
+        on_row: called with (row number, its scene, its output fields) for every row as
+            the run accepts it, row 0 first, before the row lets go of the fields not
+            kept: a writer of every row's fields that holds none of them (the command
+            line's ParaView series, :class:`jaxform.io.VtuSeries`).  A row taken again
+            (the last step on an adapted mesh) comes again under its number.
 
     A press capacity (``scene.press.capacity_N`` > 0) stops the run after the first step
     whose ram force reaches it: SimulationError ("press capacity ... reached at stroke
@@ -462,6 +483,8 @@ def simulate(
     owned = OwnedFactorization(run.mesh.stepped, run.state.x.dtype)
     t_stop = scene.t_end - 1e-9 * scene.dt
     reporting, host_error = False, None  # host_error: what a host-loop failure chains
+    _report(scene, run, 0, None, on_row)
+    reported = 1  # the rows handed to on_row
     try:
         declined = False  # the run paused before its last step and kept its mesh for it
         while float(run.state.t) < t_stop and run.failure is None:
@@ -482,16 +505,17 @@ def simulate(
                     run = _adapted_paused(run, adaptation, owned)
                 else:
                     declined = float(run.state.t) < t_stop
-            reporting = True  # an error of the caller's callback is the caller's
-            for k in range(first, len(run.rows) if progress is not None else first):
-                progress(_progress(scene, k, run.rows[k], k == len(run.rows) - 1))
-            reporting = False
+            reporting = True  # an error of the caller's callbacks is the caller's
+            _report(scene, run, first, progress, on_row)
+            reporting, reported = False, len(run.rows)
+            run = replace(run, rows=_thinned(run.rows, first - 1, run.keep))
     except Exception as err:  # a failure of the host loop itself: the last state is kept
         if reporting:
             raise
         run, host_error = replace(run, failure=host_failure(run.rows[-1], err)), err
     finally:
         owned.release()  # the last factorization kept; one a raising chunk held is lost
+    _report(scene, run, reported, None, on_row)  # rows a failure between chunks left
     result = _result(scene, _without_empty_mesh(run), adaptation)
     if result.failure:
         raise SimulationError(result.failure, result) from host_error

@@ -201,6 +201,24 @@ def test_a_lean_run_keeps_the_unknowns_of_every_row_and_the_rest_of_the_last():
     assert fields_written(written) == FIELD_KEYS
 
 
+def test_a_series_written_as_the_run_goes_equals_the_one_written_at_the_end(tmp_path):
+    """The ParaView series ``jaxform run`` writes row by row (``lean``: each row's VTU as
+    the run accepts it, through two remeshes: each row on its own mesh) is the series
+    written at the end from every row's fields, file for file to the byte, and the lean
+    result holds the stresses of the last row alone."""
+    over = COMMON + ["friction.mu=0", "die.reduction=0.15", "remesh.every_steps=5",
+                     "output.fields=true"]  # fmt: skip
+    full = jaxform.run(FRICTION, over, out_dir=tmp_path / "full")
+    lean = jaxform.run(FRICTION, over, out_dir=tmp_path / "lean", lean=True)
+    assert len(lean.remeshes) == 2 and len(lean.fields["stress"]) == 1
+    names = sorted(p.name for p in (tmp_path / "full" / "fields").glob("step_*.vtu"))
+    assert len(names) == len(full.history["time_s"]) > 10
+    for name in ["../fields.pvd"] + names:
+        a = (tmp_path / "full" / "fields" / name).read_bytes()
+        assert a == (tmp_path / "lean" / "fields" / name).read_bytes(), name
+    assert sorted(p.name for p in (tmp_path / "lean" / "fields").glob("step_*.vtu")) == names
+
+
 def test_the_command_line_maps_large_blocks():
     """The heap policy ``jaxform`` sets for its process (:mod:`jaxform.host_memory`):
     glibc accepts it here (the CI machine's C library)."""
