@@ -24,7 +24,7 @@ from jaxform.presses import capacity_message
 from jaxform.rezone import corner_qualities
 from jaxform.scenes import Inputs, Scene
 from jaxform.status import CAUSES, NEWTON_NOT_CONVERGED, NOT_FINITE, OK, SINGULAR
-from jaxform.stepping import SimState, StepControl, Stepper, run_chunk
+from jaxform.stepping import SimState, StepControl, Stepper, output_fields, run_chunk
 from jaxform.triggers import CAPACITY
 
 
@@ -164,14 +164,23 @@ def _run_chunk(stepper: Stepper, state, control, inp: Inputs, idx, n: int, fac):
     )
 
 
+def chunk_steps(scene: Scene, state: SimState) -> int:
+    """The steps of a chunk from ``state``: ``scene.chunk``, fewer where their output
+    fields (:func:`jaxform.stepping.output_fields`, one array per field over the steps,
+    held while the chunk runs and until the host has read them) would take more than
+    ``scene.chunk_output_mb``; at least one."""
+    per_step = sum(a.size * a.dtype.itemsize for a in output_fields(state).values())
+    return max(1, min(scene.chunk, int(scene.chunk_output_mb * 1e6 // max(per_step, 1))))
+
+
 def chunk(scene: Scene, stepper: Stepper, state: SimState, control, inp: Inputs, fac):
-    """:func:`run_chunk` over ``scene.chunk`` steps.  A linear solver that finds the
+    """:func:`run_chunk` over :func:`chunk_steps` steps.  A linear solver that finds the
     Jacobian singular raises (klujax does, instead of returning a status); then the steps
     are retried one at a time, the step halved after each singular attempt as after any
     failed one, down to the smallest step, where the outputs carry the code SINGULAR."""
     try:  # blocking: an error of the asynchronous run surfaces here, not at the caller
         return jax.block_until_ready(
-            _run_chunk(stepper, state, control, inp, scene.idx, scene.chunk, fac)
+            _run_chunk(stepper, state, control, inp, scene.idx, chunk_steps(scene, state), fac)
         )
     except JaxRuntimeError as err:
         if not _singular(err):

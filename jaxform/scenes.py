@@ -107,6 +107,7 @@ class Scene:
     t_end: float
     max_cutbacks: int
     chunk: int
+    chunk_output_mb: float = 64.0  # the most a chunk's output fields take (chunks.chunk_steps)
     symmetric_z: bool = True  # half-height model: stroke = 2 x die travel
     rezone_quality: float = 0.0  # rezone when the worst corner quality drops below (0: never)
     grid: tuple[int, int] | None = None  # (nr, nz) of a structured mesh (rezoning needs it)
@@ -683,6 +684,7 @@ def build_scene(cfg: dict | Config, mesh: meshing.Mesh | None = None) -> Scene:
         first_step_probe=tm.first_step_probe,
         dt_growth=tm.dt_growth,
         chunk=so.chunk_steps,
+        chunk_output_mb=so.chunk_output_mb,
         symmetric_z=piece.half_height,
         rezone_quality=m.rezone_quality,
         grid=grid,

@@ -33,6 +33,7 @@ from jaxform.chunks import converged_rows, failure_message, host_failure, run_on
 from jaxform.fields import OUTPUT_FIELDS
 from jaxform.forming_outputs import damage_columns
 from jaxform.geometry import min_quality
+from jaxform.host_memory import give_back
 from jaxform.laps import laps, pockets
 from jaxform.postprocess import HEAT_COLUMNS, extra_history
 from jaxform.precision import require_x64
@@ -250,6 +251,7 @@ def _stepped(run: Run, owned: OwnedFactorization) -> Run:
     control = replace(run.control, thresholds=thresholds)
     state, control, outs, fac = run_on(run.mesh, run.state, control, owned.lend())
     owned.keep(fac)
+    give_back()  # what compiling and the chunk's buffers left free in the heap
     rows, failure = converged_rows(run.mesh, state, outs, len(run.rows))
     for row in rows:  # computed while the row has its damage field
         row.update(damage_columns(run.mesh.scene, row["x"], row["damage"]))

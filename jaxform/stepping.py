@@ -599,6 +599,19 @@ def die_force(model: Model, x, inp: Inputs, t, idx: Indices):
     return die_forces(model, x, inp, t, idx)[0]
 
 
+def output_fields(state: SimState) -> dict:
+    """The fields of ``state`` a step records (:data:`jaxform.fields.OUTPUT_FIELDS`)."""
+    return dict(
+        x=state.x,
+        stress=state.gauss.mat.stress,
+        s=state.gauss.mat.s,
+        eqps=state.gauss.mat.eqps,
+        slip_mm=state.slip_mm,
+        contact_status=state.contact_status,
+        damage=state.damage,
+    )
+
+
 def step_outputs(model: Model, state: SimState, inp: Inputs, idx: Indices, symmetric_z: bool):
     """Scalars and fields recorded after each step."""
     return dict(
@@ -615,14 +628,8 @@ def step_outputs(model: Model, state: SimState, inp: Inputs, idx: Indices, symme
             else {}
         ),
         friction_work_Nmm=state.friction_work,
-        x=state.x,
-        stress=state.gauss.mat.stress,
-        s=state.gauss.mat.s,
-        eqps=state.gauss.mat.eqps,
-        slip_mm=state.slip_mm,
-        contact_status=state.contact_status,
+        **output_fields(state),
         heat_mJ=state.heat_mJ,
-        damage=state.damage,
         wear_mm=state.wear_mm,
     )
 

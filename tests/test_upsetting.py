@@ -211,6 +211,35 @@ def newton_seed_run():
     return sc, simulate(sc)
 
 
+def test_a_chunk_takes_fewer_steps_where_their_fields_would_take_more():
+    """``solver.chunk_output_mb`` bounds a chunk's per-step output fields (the 10 x 10 seed
+    mesh: 405 unknowns, 100 elements x 4 Gauss points x (9 stress components, s, eqps, 3
+    damage integrals), 21 contact candidates' slip and status: 48 292 bytes a step), so
+    0.1 MB gives chunks of 2 steps (the progress callback's chunk ends), and
+    the run is the 8-step chunks' run: the same steps and force history (1e-12
+    relative) and iterations."""
+    from jaxform.chunks import chunk_steps
+    from jaxform.stepping import initial_state
+
+    sc, ref = seed_run()
+    small = replace(sc, chunk_output_mb=0.1)
+    state = initial_state(sc.model, sc.inputs)
+    n_cand = len(sc.idx.contact_nodes)
+    per_step = 8 * (405 + 100 * 4 * 14) + n_cand * (8 + 4)
+    assert per_step == 48_292 and state.x.shape == (405,) and n_cand == 21
+    assert chunk_steps(small, state) == int(0.1e6 // per_step) == 2
+    assert chunk_steps(sc, state) == sc.chunk == 8
+    ends = []
+    res = simulate(small, lambda p: ends.append(p["chunk_end"]))
+    steps = len(ref.history["time_s"]) - 1
+    assert sum(ends) == -(-steps // 2) and len(ends) == steps
+    np.testing.assert_array_equal(res.history["time_s"], ref.history["time_s"])
+    its = "newton_iterations"
+    np.testing.assert_array_equal(res.history[its], ref.history[its])
+    f, f_ref = res.history["force_N"][1:], ref.history["force_N"][1:]
+    assert np.max(np.abs(f - f_ref) / np.abs(f_ref)) <= 1e-12
+
+
 def test_joint_local_solve_runs_the_seed_scene_as_the_nested_one():
     """A scene's Anand law picks its local solve by size (``Anand.for_points``: the nested
     bracketed solve alone below JOINT_MIN_POINTS Gauss points, as on this 10 x 10 mesh;

@@ -133,6 +133,15 @@ class SolverConfig:
         high=10000,
         doc="load steps per compiled chunk (progress is reported between chunks)",
     )
+    chunk_output_mb: float = key(
+        64.0,
+        low=0.01,
+        high=1e6,
+        doc="the most a chunk's per-step output fields (unknowns, stresses, strains, damage) "
+        "may take together, MB: a chunk takes fewer than solver.chunk_steps steps on a mesh "
+        "whose fields take more (200 x 200 seed scene: 18.5 MB a step, 3 steps a chunk; "
+        "up to 100 x 100 the 8 steps stay)",
+    )
     compilation_cache_dir: str = key(
         "auto",
         doc="where compiled programs are kept for the next run: a directory, 'off', or 'auto' "
