@@ -387,6 +387,29 @@ def test_singular_jacobian_cuts_back_like_any_failed_step(monkeypatch):
     assert e.value.result.history["time_s"][-1] == pytest.approx(2.0)
 
 
+def test_a_stopped_run_writes_the_series_of_its_converged_rows(tmp_path, monkeypatch):
+    """``jaxform run`` writes the ParaView series row by row; a run that stops (the step
+    from t = 2 s singular at every size, as above) ends with FAILED.txt, and the series
+    indexes exactly the converged rows (t = 0, 1, 2 s), each with its file."""
+    from jaxform import chunks
+
+    monkeypatch.setattr(chunks, "_run_chunk", _singular_after(2.0, 0.0))
+    over = ["mesh.nr=3", "mesh.nz=3", "die.reduction=0.05", "solver.chunk_steps=1",
+            "output.fields=true", "output.plots=false"]  # fmt: skip
+    args = ["run", "configs/upsetting_seed.toml", "--out", str(tmp_path)]
+    assert main(args + [a for o in over for a in ("--set", o)]) == 1
+    assert "step 3" in (tmp_path / "FAILED.txt").read_text()
+    times = np.atleast_1d(read_csv(tmp_path / "history.csv")["time_s"])
+    np.testing.assert_allclose(times, [0.0, 1.0, 2.0], rtol=1e-12)
+    pvd = (tmp_path / "fields.pvd").read_text()
+    listed = re.findall(r'timestep="([^"]+)" part="0" file="([^"]+)"', pvd)
+    assert [(float(t), f) for t, f in listed] == [
+        (float(t), f"fields/step_{k:05d}.vtu") for k, t in enumerate(times)
+    ]
+    written = sorted(p.name for p in (tmp_path / "fields").glob("step_*.vtu"))
+    assert written == [f"step_{k:05d}.vtu" for k in range(3)]
+
+
 def test_impossible_scene_stops_with_message_and_state(tmp_path):
     code = main(
         [
