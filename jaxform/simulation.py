@@ -184,6 +184,15 @@ def _report(scene: Scene, run: Run, first: int, progress, on_row) -> None:
             progress(_progress(scene, k, row, k == len(run.rows) - 1))
 
 
+def _each_row(result: Result, on_row) -> None:
+    """Hand every row of a finished ``result`` to ``on_row`` (a run whose rows came at
+    once: a screw press's or a hammer's blows)."""
+    if on_row is None:
+        return
+    for k in range(len(result.history["time_s"])):
+        on_row(k, result.scene_at(k), {f: result.fields[f][k] for f in FIELD_KEYS})
+
+
 def die_force_column(name: str) -> str:
     """The history column of the force die ``name`` carries (N)."""
     return f"force_{name}_N"
@@ -457,7 +466,8 @@ def simulate(
         keep_fields: the output fields (:data:`FIELD_KEYS`) :attr:`Result.fields` holds
             for every row; the others it holds for the last row alone (one entry), and a
             row lets go of them once the next row has come (``x`` is always kept: the
-            history's columns are read from it).  Default: every field.
+            history's columns are read from it; a screw press's or a hammer's run,
+            one compiled program, keeps every field).  Default: every field.
         on_row: called with (row number, its scene, its output fields) for every row as
             the run accepts it, row 0 first, before the row lets go of the fields not
             kept: a writer of every row's fields that holds none of them (the command
@@ -473,12 +483,21 @@ def simulate(
         A :class:`Result`: the history (one row per converged step, row 0 the initial
         state), the fields, the final state (:attr:`Result.part`) and the reports of the
         rezonings or remeshes."""
+    unknown = sorted(set(keep_fields) - set(FIELD_KEYS))
+    if unknown:
+        raise ValueError(f"simulate: keep_fields {unknown} are not output fields {FIELD_KEYS}")
     if scene.press is not None and scene.press.energy_limited:  # a screw press, a hammer
         from jaxform.blows import simulate_blows
 
         if start is not None:
             raise ValueError("simulate: a screw press or hammer run starts from t = 0")
-        return simulate_blows(scene, progress)
+        try:  # its rows come out of one compiled program: handed on at the end
+            result = simulate_blows(scene, progress)
+        except SimulationError as err:
+            _each_row(err.result, on_row)
+            raise
+        _each_row(result, on_row)
+        return result
     adaptation = adaptation_of(scene)
     keep = tuple(k for k in FIELD_KEYS if k in keep_fields or k == "x")
     run = _started(scene, adaptation, start.state if isinstance(start, PartState) else start, keep)

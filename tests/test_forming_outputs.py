@@ -195,6 +195,8 @@ def test_a_lean_run_keeps_the_unknowns_of_every_row_and_the_rest_of_the_last():
     for k in FIELD_KEYS:
         assert len(lean.fields[k]) == (len(full.fields[k]) if k == "x" else 1), k
         np.testing.assert_array_equal(lean.fields[k][-1], full.fields[k][-1], err_msg=k)
+    with pytest.raises(ValueError, match=r"keep_fields \['strain'\] are not output fields"):
+        jaxform.simulate(full.scene, keep_fields=("x", "strain"))
     plotted = replace(cfg, output=replace(cfg.output, plots=True, animation=True))
     assert fields_written(plotted) == ("x", "eqps", "slip_mm", "contact_status")
     written = replace(cfg, output=replace(cfg.output, fields=True))

@@ -116,6 +116,24 @@ def test_hammer_blow_does_efficiency_times_energy_of_work():
     assert np.all(np.diff(h["time_s"]) > 0)
 
 
+def test_a_hammer_run_writes_its_series_as_jaxform_run_does(tmp_path):
+    """``jaxform run`` (``lean``: the series written row by row through simulate's
+    ``on_row``) on a hammer, whose rows come at once out of one program: the series has
+    every row (1 + 3 blows x 4 steps), each at its time, as written at the end from the
+    result's fields (file for file to the byte)."""
+    over = HAMMER + ["output.fields=true"]
+    full = run(SEED, over, out_dir=tmp_path / "full")
+    lean = run(SEED, over, out_dir=tmp_path / "lean", lean=True)
+    assert len(lean.history["time_s"]) == 13
+    names = [f"step_{k:05d}.vtu" for k in range(13)]
+    for out in ("full", "lean"):
+        assert sorted(p.name for p in (tmp_path / out / "fields").glob("*.vtu")) == names
+    for name in ["../fields.pvd"] + names:
+        a = (tmp_path / "full" / "fields" / name).read_bytes()
+        assert a == (tmp_path / "lean" / "fields" / name).read_bytes(), name
+    assert np.array_equal(full.history["force_N"], lean.history["force_N"])
+
+
 def test_a_failed_blow_step_ends_the_history_before_it():
     """Reference: the hammer scene of the test above with a NaN contact scale (as
     tests/test_layout.py breaks a step): its first step cannot converge, so the run
