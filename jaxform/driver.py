@@ -58,7 +58,8 @@ def run(
             (:func:`fields_written`; the others for the last row), and the ParaView
             series is written row by row as the run goes (:class:`jaxform.io.VtuSeries`),
             as ``jaxform run`` asks: a large mesh's stresses and damage are not held for
-            every step.  False: every field of every row.
+            every step (a process of several operations keeps every field and writes its
+            series at the end).  False: every field of every row.
 
     Returns:
         the :class:`jaxform.simulation.Result` (history and fields).
