@@ -21,6 +21,7 @@ operations of a process pass the part through (:mod:`jaxform.process`).
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
@@ -33,7 +34,7 @@ from jaxform.chunks import converged_rows, failure_message, host_failure, run_on
 from jaxform.fields import OUTPUT_FIELDS
 from jaxform.forming_outputs import damage_columns
 from jaxform.geometry import min_quality
-from jaxform.host_memory import give_back
+from jaxform.host_memory import give_back_after
 from jaxform.laps import laps, pockets
 from jaxform.postprocess import HEAT_COLUMNS, extra_history
 from jaxform.precision import require_x64
@@ -258,9 +259,10 @@ def _stepped(run: Run, owned: OwnedFactorization) -> Run:
     and converged rows, and the failure that ends it (:func:`jaxform.chunks.converged_rows`)."""
     thresholds = run.armed.for_chunk(run.control.thresholds, run.since)
     control = replace(run.control, thresholds=thresholds)
+    started = time.perf_counter()
     state, control, outs, fac = run_on(run.mesh, run.state, control, owned.lend())
     owned.keep(fac)
-    give_back()  # what compiling and the chunk's buffers left free in the heap
+    give_back_after(time.perf_counter() - started)  # what a long chunk left free in the heap
     rows, failure = converged_rows(run.mesh, state, outs, len(run.rows))
     for row in rows:  # computed while the row has its damage field
         row.update(damage_columns(run.mesh.scene, row["x"], row["damage"]))
