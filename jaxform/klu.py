@@ -1,12 +1,20 @@
 """klujax internals in one place: the pattern's symbolic analysis, KLU's fill estimate read
-from the analysis handle, and freeing numeric factorizations from Python.
+from the analysis handle, the solve with the analysis of a pattern already in order, and
+freeing numeric factorizations from Python.
 
 klujax hands out raw handles (pointers held in uint64 arrays).  Reading a field behind
 one (``klu_symbolic``'s ``lnz``/``unz``) depends on the klujax build, so it is guarded
 by :data:`RAW_READS_VERSION`: with another klujax, :func:`fill_estimate` returns None and
-callers fall back to a conservative estimate.  Freeing a factorization from inside a
-compiled program is :mod:`jaxform.klu_free` (an XLA FFI call).  klujax is imported
-lazily: importing it switches JAX to CPU and float64 process-wide.
+callers fall back to a conservative estimate.  klujax's ``solve_with_symbol`` (and its
+transpose) sorts the pattern row-major inside the program at every call (a lexsort of all
+the entries, about as dear as KLU's factorization on small meshes: the benchmarks page,
+"klujax's sort"); jaxform's
+patterns are built sorted (:meth:`jaxform.assembly.Model.with_pattern`), so
+:func:`solve_with_symbol` binds klujax's solve primitive to them as they are (the same
+primitive, so the same derivative and batching rules), in that series only.  Freeing a
+factorization from inside a compiled program is :mod:`jaxform.klu_free` (an XLA FFI
+call).  klujax is imported lazily: importing it switches JAX to CPU and float64
+process-wide.
 """
 
 from __future__ import annotations
@@ -58,6 +66,24 @@ def fill_estimate(symbolic_handle) -> tuple[float, float] | None:
             f"installed klujax lays out its analysis differently"
         )
     return lnz, unz
+
+
+def solve_with_symbol(rows, cols, vals, b, symbolic, transpose: bool = False):
+    """x with A x = b (A^T x = b for ``transpose``), A given by ``vals`` on the pattern
+    (rows, cols), int32 and sorted row-major, factored with the pattern's analysis
+    ``symbolic`` and freed within the call: klujax's ``(t)solve_with_symbol`` without its
+    sort of the pattern (the klujax series of :data:`RAW_READS_VERSION`, float64), else
+    that function itself."""
+    import jax.numpy as jnp
+    import klujax
+
+    if not raw_reads_supported() or vals.dtype != jnp.float64 or b.dtype != jnp.float64:
+        solve = klujax.tsolve_with_symbol if transpose else klujax.solve_with_symbol
+        return solve(rows, cols, vals, b, symbolic)
+    prim = klujax.tsolve_with_symbol_f64 if transpose else klujax.solve_with_symbol_f64
+    x = prim.bind(rows, cols, vals[None, :], b.reshape(1, b.shape[0], -1),
+                  jnp.asarray(symbolic).astype(jnp.uint64))  # fmt: skip
+    return x.reshape(b.shape)
 
 
 def free_now(handles, valid) -> None:

@@ -161,16 +161,13 @@ class KLU:
         rows, cols = rows.astype(jnp.int32), cols.astype(jnp.int32)
         if symbolic is None:
             return klujax.solve(rows, cols, vals, b)
-        return klujax.solve_with_symbol(rows, cols, vals, b, symbolic)
+        return klu.solve_with_symbol(rows, cols, vals, b, symbolic)
 
     def solve_transpose(self, rows, cols, vals, b, n: int, symbolic=None):
         if symbolic is None:
             return self.solve(cols, rows, vals, b, n)
-        import klujax
-
-        return klujax.tsolve_with_symbol(
-            rows.astype(jnp.int32), cols.astype(jnp.int32), vals, b, symbolic
-        )
+        rows, cols = rows.astype(jnp.int32), cols.astype(jnp.int32)
+        return klu.solve_with_symbol(rows, cols, vals, b, symbolic, transpose=True)
 
     def empty_factorization(self, n: int, dtype) -> Factorization:
         return _empty(jnp.zeros(1, jnp.uint64), jnp.zeros(0, jnp.int32))

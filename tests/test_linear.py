@@ -106,3 +106,54 @@ def test_chosen_backend_solves_and_transposes_in_jit_and_vmap(name):
         ak = a + (float(scale[k]) - 1.0) * np.diag(np.diag(a))
         assert np.max(np.abs(ak @ np.asarray(xb[k]) - np.asarray(bb[k]))) <= 1e-12
         assert np.max(np.abs(ak.T @ np.asarray(yb[k]) - np.asarray(bb[k]))) <= 1e-12
+
+
+def test_klu_solve_with_the_analysis_equals_klujax_without_its_sort():
+    """jaxform.klu.solve_with_symbol binds klujax's solve primitive to the pattern as it
+    is (klujax's own function sorts it row-major first, inside the program, at every
+    call): on a row-major pattern (the assembly's order) the same solution to the last
+    bit, plain and transposed, under jit and vmap, with the same forward derivative (of
+    the plain solve: klujax has none of the transposed one); and
+    a pattern out of order still solves the system (KLU takes the columns in any order)."""
+    import klujax
+
+    from jaxform import klu
+
+    a, rows, cols, rng = _system()
+    n = a.shape[0]
+    vals = jnp.asarray(a[np.asarray(rows), np.asarray(cols)])
+    b = jnp.asarray(rng.standard_normal(n))
+    sym = KLU().analyze(rows, cols, n)
+    for transpose, theirs in ((False, klujax.solve_with_symbol), (True, klujax.tsolve_with_symbol)):
+        ours = jax.jit(lambda v, b, t=transpose: klu.solve_with_symbol(rows, cols, v, b, sym, t))
+        ref = jax.jit(lambda v, b, f=theirs: f(rows, cols, v, b, sym))
+        assert np.array_equal(np.asarray(ours(vals, b)), np.asarray(ref(vals, b)))
+        m = a.T if transpose else a
+        assert np.max(np.abs(m @ np.asarray(ours(vals, b)) - np.asarray(b))) <= 1e-12
+        vb = jnp.stack([vals, 2.0 * vals])
+        bb = jnp.stack([b, -b])
+        assert np.array_equal(np.asarray(jax.vmap(ours)(vb, bb)), np.asarray(jax.vmap(ref)(vb, bb)))
+        if transpose:  # klujax defines no derivative of its transposed solve
+            continue
+        dv, db = jnp.asarray(rng.standard_normal(vals.shape)), jnp.asarray(rng.standard_normal(n))
+        _, t_ours = jax.jvp(ours, (vals, b), (dv, db))
+        _, t_ref = jax.jvp(ref, (vals, b), (dv, db))
+        np.testing.assert_allclose(np.asarray(t_ours), np.asarray(t_ref), rtol=1e-12, atol=1e-14)
+    order = np.asarray(rng.permutation(len(rows)))
+    r2, c2, v2 = rows[order], cols[order], vals[order]
+    x2 = klu.solve_with_symbol(r2, c2, v2, b, KLU().analyze(r2, c2, n))
+    assert np.max(np.abs(a @ np.asarray(x2) - np.asarray(b))) <= 1e-12
+
+
+def test_scene_patterns_are_row_major():
+    """The order klu.solve_with_symbol's shortcut keeps bit for bit: the assembled pattern
+    of a scene with contact (the seed) is sorted row-major without repeats."""
+    import jaxform
+    from jaxform.config import load_config
+    from jaxform.scenes import build_scene
+
+    jaxform.enable_x64()
+    scene = build_scene(load_config("configs/upsetting_seed.toml", ["mesh.nr=3", "mesh.nz=3"]))
+    rows, cols = np.asarray(scene.idx.rows, np.int64), np.asarray(scene.idx.cols, np.int64)
+    key = rows * (int(cols.max()) + 1) + cols
+    assert np.all(np.diff(key) > 0)
