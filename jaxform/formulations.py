@@ -91,7 +91,7 @@ class Formulation:
         if self.mean_dilatation:
             jbar = jnp.sum(det_f * weight) / jnp.sum(weight)
             safe = jnp.where(det_f > 0.0, det_f, 1.0)
-            f_mat = f * (jnp.abs(jbar) / safe)[:, None, None] ** (1.0 / 3.0)
+            f_mat = f * cube_root(jnp.abs(jbar) / safe)[:, None, None]
         else:
             f_mat = f
         f_rel = jnp.einsum("gij,gjk->gik", f_mat, inv3(gstate.F))
@@ -136,6 +136,13 @@ class Formulation:
         r = jnp.einsum("ga,g,g->a", el.N_GP, (p_mat - p_hat) / k, dv)
         r = r - jnp.einsum("g,gai,gi,g->a", tau, grad_n, grad_p, dv)
         return r * (k / h0)
+
+
+def cube_root(x):
+    """x^(1/3) for x > 0 as exp(log(x) / 3): XLA's CPU programs evaluate exp and log
+    vectorized, a fractional power one element at a time through libm (the benchmarks
+    page, "Powers through exp and log")."""
+    return jnp.exp(jnp.log(x) / 3.0)
 
 
 def flow_shear_modulus(g, sigma, d_eqps):
