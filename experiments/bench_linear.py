@@ -29,9 +29,9 @@ import numpy as np
 SEED = "configs/upsetting_seed.toml"
 
 
-def jacobian(n: int):
-    """(rows, cols, vals, rhs, n_dofs) of the seed scene's Jacobian on an n x n mesh."""
-    import jax
+def first_step_state(n: int, element: str = "q1q1"):
+    """(scene, x, ctx): the seed scene on an n x n mesh of ``element`` at its first step's
+    homogeneous compression (u_r = e r / 2, u_z = -e z) and that step's context."""
     import jax.numpy as jnp
 
     import jaxform
@@ -41,25 +41,33 @@ def jacobian(n: int):
 
     jaxform.enable_x64()
     cfg = load_config(
-        SEED, [f"mesh.nr={n}", f"mesh.nz={n}", "output.fields=false", "output.plots=false"]
-    )
+        SEED,
+        [f"mesh.nr={n}", f"mesh.nz={n}", f"mesh.element={element}", "output.fields=false",
+         "output.plots=false"],
+    )  # fmt: skip
     sc = build_scene(cfg)
     lay, idx, inp, model = sc.model.layout, sc.idx, sc.inputs, sc.model
-    st = initial_state(sc.model, sc.inputs)
     coords = np.asarray(inp.coords)
     e = cfg["die"]["speed_mm_s"] * sc.dt / cfg["billet"]["height_mm"]
     x = np.zeros(lay.n_dofs)
     u = x[: lay.n_node_dofs].reshape(-1, lay.n_fields)
     u[:, 0], u[:, 1] = 0.5 * e * coords[:, 0], -e * coords[:, 1]
     t = jnp.asarray(sc.dt)
-    ctx = step_context(model, st, inp, idx, t, t)
-    r, vals, *_ = jax.jit(model.residual_and_jacobian)(jnp.asarray(x), ctx)
+    return sc, jnp.asarray(x), step_context(model, initial_state(model, inp), inp, idx, t, t)
+
+
+def jacobian(n: int):
+    """(rows, cols, vals, rhs, n_dofs) of the seed scene's Jacobian on an n x n mesh."""
+    import jax
+
+    sc, x, ctx = first_step_state(n)
+    r, vals, *_ = jax.jit(sc.model.residual_and_jacobian)(x, ctx)
     return (
-        np.asarray(idx.rows),
-        np.asarray(idx.cols),
+        np.asarray(sc.idx.rows),
+        np.asarray(sc.idx.cols),
         np.asarray(vals),
         -np.asarray(r),
-        lay.n_dofs,
+        sc.model.layout.n_dofs,
     )
 
 
