@@ -70,10 +70,11 @@ def fill_estimate(symbolic_handle) -> tuple[float, float] | None:
 
 def solve_with_symbol(rows, cols, vals, b, symbolic, transpose: bool = False):
     """x with A x = b (A^T x = b for ``transpose``), A given by ``vals`` on the pattern
-    (rows, cols), int32 and sorted row-major, factored with the pattern's analysis
-    ``symbolic`` and freed within the call: klujax's ``(t)solve_with_symbol`` without its
-    sort of the pattern (the klujax series of :data:`RAW_READS_VERSION`, float64), else
-    that function itself."""
+    (rows, cols), int32, factored with the pattern's analysis ``symbolic`` and freed
+    within the call: klujax's ``(t)solve_with_symbol`` without its sort of the pattern
+    (the klujax series of :data:`RAW_READS_VERSION`, float64), else that function
+    itself.  KLU takes a pattern in any order; in row-major order (the assembly's) the
+    solution is klujax's own to the last bit."""
     import jax.numpy as jnp
     import klujax
 
