@@ -6,11 +6,15 @@ again; the key changes with anything that shapes the program."""
 
 from __future__ import annotations
 
+import contextlib
+
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from jaxform import program_store
+from jaxform.cache import enable_compilation_cache
 from jaxform.config import load_config
 from jaxform.scenes import build_scene
 from jaxform.simulation import simulate
@@ -30,29 +34,62 @@ def _force(sc):
 
 
 def test_a_stored_program_runs_like_the_traced_one(tmp_path, monkeypatch):
-    """Store off, then exported and stored, then loaded from the disk with nothing in the
-    process: the three force histories agree to 1e-12 of the peak; the load exports
-    nothing."""
+    """Store off, then exported, compiled and stored, then loaded from the disk with nothing
+    in the process (from the kept executable: neither exported nor its exported program
+    read), then again with the executable damaged (the file removed, the exported program
+    compiled: JAX's cache serves it, and an executable read back from there is not kept,
+    since it does not serialize whole): the four force histories agree to 1e-12 of the
+    peak.  JAX's cache is a fresh directory here (the first compile is this test's)."""
     sc = build_scene(load_config(SCENE))
     monkeypatch.setenv(program_store.ENV_VAR, "off")
     plain = _force(sc)
     monkeypatch.delenv(program_store.ENV_VAR)
     monkeypatch.setattr(program_store, "store_dir", lambda: tmp_path / "exported")
     monkeypatch.setattr(program_store, "_loaded", {})
-    stored = _force(sc)
+    with _jax_cache_in(tmp_path / "jax"):
+        stored = _force(sc)
+        _loaded_and_damaged(sc, tmp_path, monkeypatch, plain, stored)
+
+
+@contextlib.contextmanager
+def _jax_cache_in(path):
+    """JAX's persistent compilation cache in ``path`` (fresh) for the block."""
+    from jax.experimental.compilation_cache import compilation_cache as cc
+
+    before = jax.config.jax_compilation_cache_dir
+    enable_compilation_cache(path)
+    try:
+        yield
+    finally:
+        jax.config.update("jax_compilation_cache_dir", before)
+        cc.reset_cache()
+
+
+def _loaded_and_damaged(sc, tmp_path, monkeypatch, plain, stored):
     files = sorted(p.suffix for p in (tmp_path / "exported").iterdir())
-    assert files == [".bin", ".tree"]
+    assert files == [".bin", ".tree", ".xla"]
 
     def no_export(*args):
         raise AssertionError("a stored program was exported again")
 
+    def no_read(*args):
+        raise AssertionError("the exported program was read where its executable is kept")
+
+    read_exported = program_store.export.deserialize
     monkeypatch.setattr(program_store, "_loaded", {})  # as in a new process
     monkeypatch.setattr(program_store, "_export", no_export)
+    monkeypatch.setattr(program_store.export, "deserialize", no_read)
     loaded = _force(sc)
+    (kept,) = (tmp_path / "exported").glob("*.xla")
+    kept.write_bytes(b"not an executable")
+    monkeypatch.setattr(program_store.export, "deserialize", read_exported)
+    monkeypatch.setattr(program_store, "_loaded", {})
+    again = _force(sc)
+    assert not kept.exists()  # removed, and not kept from JAX's cache
     peak = np.max(plain)
     assert peak > 10.0 and len(plain) >= 3
-    assert np.max(np.abs(stored - plain)) <= 1e-12 * peak
-    assert np.max(np.abs(loaded - plain)) <= 1e-12 * peak
+    for run in (stored, loaded, again):
+        assert np.max(np.abs(run - plain)) <= 1e-12 * peak
 
 
 def test_the_key_follows_what_shapes_the_program(monkeypatch):
