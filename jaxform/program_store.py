@@ -19,8 +19,8 @@ milliseconds; its XLA compile comes from the persistent cache), so a warm first 
 skips the tracing and lowering.  Where that wrapper was compiled in this process, its
 compiled executable is kept too (``{key}-{machine_tag}.xla``: the CPU and the XLA flags
 it was compiled for), and a later process loads it directly, without deserializing the
-exported program, lowering the wrapper or hashing it for JAX's cache (~0.4 s of the 10 x
-10 seed's gradient program).  What a program reads must come in through its
+exported program, lowering the wrapper or hashing it for JAX's cache.  What a program
+reads must come in through its
 arguments or be described by ``static``: a closed-over array that the description left
 out would be baked in unseen by the key.
 
@@ -450,8 +450,8 @@ def machine_tag() -> str:
 def _write_executable(path: Path, compiled) -> None:
     """Keep the compiled wrapper itself (``{key}-{machine_tag}.xla``, zlib-compressed):
     a warm start then loads it without deserializing the exported program, lowering the
-    wrapper and hashing it for JAX's cache (~0.6 s of the 10 x 10 seed's gradient
-    program).  Nothing where the program cannot be serialized or the disk refuses."""
+    wrapper and hashing it for JAX's cache.  Nothing where the program cannot be
+    serialized or the disk refuses."""
     try:
         data, in_tree, out_tree = serialize_executable.serialize(compiled)
         _write(path, zlib.compress(pickle.dumps((data, in_tree, out_tree)), 1))
