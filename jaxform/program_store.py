@@ -20,9 +20,8 @@ skips the tracing and lowering.  Where that wrapper was compiled in this process
 compiled executable is kept too (``{key}-{machine_tag}.xla``: the CPU and the XLA flags
 it was compiled for), and a later process loads it directly, without deserializing the
 exported program, lowering the wrapper or hashing it for JAX's cache.  What a program
-reads must come in through its
-arguments or be described by ``static``: a closed-over array that the description left
-out would be baked in unseen by the key.
+reads must come in through its arguments or be described by ``static``: a closed-over
+array that the description left out would be baked in unseen by the key.
 
 Static settings whose ``repr`` shows an object address (no stable description), a
 program that cannot be exported, no cache directory (``jaxform.cache`` off) or
