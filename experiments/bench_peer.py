@@ -55,11 +55,13 @@ and the split of an iteration: jaxform -- its compiled pieces timed separately a
 final state, best of 3 (``assembly_s`` = ``Model.residual_and_jacobian``: element
 residuals, their jacfwd Jacobians, contact blocks, scatter onto the pattern;
 ``element_s`` = the vmapped element jacfwd alone; ``residual_s`` = one line-search trial;
-``linear_s`` = the klujax solve); JAX-FEM -- wall time inside its functions during the
-timed run, per call (``element_s`` = ``Problem.newton_update``, ``assembly_s`` = that
-plus building the row-eliminated matrix: one more call per step than iterations, the
-step's first residual; ``linear_s`` = the linear solve, one per iteration).  Prints a
-table; writes ``bench_peer.csv``.
+``linear_s`` = one solve by the backend ``solver.linear = 'auto'`` picks, factorization
+included: klujax, MKL PARDISO from 20 000 unknowns where installed); JAX-FEM -- wall
+time inside its functions during the timed run, per call (``element_s`` =
+``Problem.newton_update``, ``assembly_s`` = that plus building the row-eliminated
+matrix: one more call per step than iterations, the step's first residual;
+``linear_s`` = the linear solve, one per iteration).  Prints a table; writes
+``bench_peer.csv``.
 
 Installing the peer (benchmark only, NOT a project dependency; keep it out of the project
 environment).  jax-fem 0.0.11 declares no dependencies but imports pyfiglet, basix
@@ -143,7 +145,7 @@ def jaxform_config(n: int, element: str) -> dict:
         "time": {"dt_s": TRAVEL / STEPS},
         "solver": {
             "rtol": RTOL,
-            "linear": "sparse",
+            "linear": "auto",
             "chunk_steps": STEPS,
             "newton": newton or "auto",
         },
@@ -198,7 +200,8 @@ def run_jaxform(n: int, element: str, split: bool = True) -> dict:
         x = st.x
         rj = jax.jit(model.residual_and_jacobian)
         rf = jax.jit(model.residual)
-        solve = jax.jit(lambda r, c, v, b: scene.linear.solve(r, c, v, b, lay.n_dofs))
+        sym = idx.lu_symbolic
+        solve = jax.jit(lambda r, c, v, b: scene.linear.solve(r, c, v, b, lay.n_dofs, sym))
         r, vals, *_ = rj(x, ctx)
 
         def element_jacobians(x, ctx):

@@ -54,7 +54,7 @@ from jax.experimental import serialize_executable
 
 from jaxform.cache import OFF, version_tag
 from jaxform.host_memory import give_back_after
-from jaxform.klu_free import register_ffi_targets
+from jaxform.linear import register_ffi_targets
 from jaxform.xla_options import jit
 
 SUBDIR = "exported"
@@ -307,9 +307,9 @@ _TARGETS: set[str] = set()
 @cache
 def _known_targets() -> frozenset[str]:
     """The FFI targets klujax registers (read from its module's source) and jaxform's."""
-    from jaxform import klu_free
+    from jaxform import klu_free, pardiso
 
-    names = {klu_free.TARGET}
+    names = {klu_free.TARGET, *pardiso.TARGETS.values()}
     try:
         import klujax
 

@@ -169,8 +169,8 @@ def newton_variant(
     if variant.keeps_factorization and not linear.keeps_factorization:
         raise ValueError(
             f"solver.newton = '{name}' keeps a factorization, which the "
-            f"'{linear.backend}' linear backend cannot: use solver.linear = 'dense' or "
-            f"'sparse' (klujax, CPU), or solver.newton = 'newton'"
+            f"'{linear.backend}' linear backend cannot: use solver.linear = 'dense', "
+            f"'sparse' (klujax, CPU) or 'pardiso' (MKL, CPU), or solver.newton = 'newton'"
         )
     if variant.keeps_factorization:
         return ModifiedNewton(anderson_depth=anderson_depth)

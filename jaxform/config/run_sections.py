@@ -96,17 +96,17 @@ class SolverConfig:
     )
     linear: str = key(
         "auto",
-        choices=("auto", "dense", "sparse", "jax-sparse"),
+        choices=("auto", "dense", "sparse", "pardiso", "jax-sparse"),
         doc="linear solver backend (auto: on CPU dense LU below 100 unknowns, klujax sparse LU "
-        "above; on a GPU dense LU below 20 000, jax-sparse (cuSolver) above; see "
-        "jaxform/linear.py)",
+        "above, Intel MKL PARDISO from 20 000 where installed (x86-64); on a GPU dense LU "
+        "below 20 000, jax-sparse (cuSolver) above; see jaxform/linear.py)",
     )
     newton: str = key(
         "auto",
         choices=("auto", "newton", "modified"),
         doc="newton: a new Jacobian and factorization every iteration; modified: one "
         "factorization kept across iterations and steps, refreshed when a step contracts the "
-        "residual by less than 2x (needs linear = dense or sparse); auto: modified on the "
+        "residual by less than 2x (needs linear = dense, sparse or pardiso); auto: modified on the "
         "sparse backend, where the scene remeshes only from MODIFIED_MIN_UNKNOWNS unknowns "
         "(newton below; see jaxform/solver.py)",
     )
