@@ -22,6 +22,14 @@ factorization that fails (an exactly singular matrix) gives NaN solutions: the N
 solve then reports a non-finite step, as with the other backends.  The factorization
 keeps a copy of the values (PARDISO's iterative refinement reads them).
 
+Reproducibility: the threaded factorization sums in an order that can change from run to
+run, so two runs of a large scene agree to round-off (a 200 x 200 seed Jacobian's
+solution differed in its last bits in two of five processes; the force histories to
+1e-15, the Newton iterations by up to 1 %), not to the bit.  PARDISO's own reproducible
+mode (``iparm(34)``) doubles the triangular solves there (39 -> 78 ms), and one thread
+makes the factorization 1.5x slower; neither is the default.  ``solver.linear =
+"sparse"`` (klujax) gives runs equal to the bit.
+
 :func:`solve` (and its transpose) factors and solves in one call with an instance kept
 per pattern, for a solve that keeps no factorization (full Newton).
 """
