@@ -30,8 +30,8 @@ mode (``iparm(34)``) doubles the triangular solves there (39 -> 78 ms), and one 
 makes the factorization 1.5x slower; neither is the default.  ``solver.linear =
 "sparse"`` (klujax) gives runs equal to the bit.
 
-:func:`solve` (and its transpose) factors and solves in one call with an instance kept
-per pattern, for a solve that keeps no factorization (full Newton).
+:func:`solve` (and its transpose) factors, solves and frees in one call, on an instance
+kept per pattern, for a solve that keeps no factorization (full Newton).
 """
 
 from __future__ import annotations
@@ -205,6 +205,7 @@ def _solve_handler(transpose: bool):
             with inst.lock:  # one factor-and-solve at a time on the pattern's instance
                 inst.factor(pid, vals[i])
                 inst.solve(b[i], x[i], transpose)
+                inst.release()  # its memory back: a remeshed run has a pattern per mesh
 
     return handler
 
@@ -314,5 +315,6 @@ def free_now(handles, valid) -> None:
 
 
 def live_factorizations() -> int:
-    """How many factorizations this process holds (for tests)."""
-    return len(_FACTORS)
+    """How many factorizations this process holds, kept ones and one-call solves' (for
+    tests)."""
+    return len(_FACTORS) + sum(inst.values is not None for inst in _SCRATCH.values())

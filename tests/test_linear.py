@@ -201,7 +201,8 @@ def test_pardiso_kept_factorizations_solve_free_and_store():
     constraint rows (the pivots PARDISO perturbs and refines) solve to 1e-12; a refactor
     frees the one it replaces and release frees exactly the valid ones (the process's
     table of factorizations back to where it was), also batched under vmap; a singular
-    matrix gives NaN (the Newton solve's non-finite step), not an exception; and a
+    matrix gives NaN (the Newton solve's non-finite step), not an exception; a one-call
+    solve holds no factorization after it; and a
     program that factors and solves is exportable (the persistent cache and the program
     store keep it: FFI targets, no host callback)."""
     a, rows, cols, rng = _saddle()
@@ -245,6 +246,10 @@ def test_pardiso_kept_factorizations_solve_free_and_store():
     x = jax.jit(lambda v, b: lin.solve(rows, cols, v, b, n, sym))(jnp.asarray(sing), b)
     assert np.isnan(np.asarray(x)).all()
     assert pardiso.STATS["partial_pivoting"] == redone + 1
+    # a one-call solve (full Newton's) keeps nothing after it (a pattern per mesh)
+    x = jax.jit(lambda v, b: lin.solve_transpose(rows, cols, v, b, n, sym))(vals, b)
+    assert np.max(np.abs(a.T @ np.asarray(x) - np.asarray(b))) <= 1e-12
+    assert pardiso.live_factorizations() == live
     # the program store's export (the targets known by name), serialized and called again
     from jaxform import program_store
 
