@@ -236,8 +236,9 @@ def _solve_factored_handler(transpose: bool):
             inst = _FACTORS.get(int(handles[i]))
             if inst is None:
                 x[i] = np.nan
-            else:
-                inst.solve(b[i], x[i], transpose)
+                continue
+            with inst.lock:  # XLA may run two solves of one factorization at once
+                inst.solve(b[i], x[i], transpose)  # (iparm(12), the transpose flag, is shared)
 
     return handler
 
@@ -249,7 +250,8 @@ def _free_ids(handles: np.ndarray, valid: np.ndarray) -> None:
         with _LOCK:
             inst = _FACTORS.pop(int(h), None)
         if inst is not None:
-            inst.release()
+            with inst.lock:
+                inst.release()
 
 
 def _free_handler(args, rets):
