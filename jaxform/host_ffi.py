@@ -112,6 +112,14 @@ class Buffer:
         return flat[:size].reshape(self.shape)
 
 
+def valid_handles(handles, valid) -> list[int]:
+    """The handles (..., 1) whose flag (...) holds, as ints: the factorizations a free
+    call (inside a program or outside) lets go."""
+    handles = np.asarray(handles)
+    ok = np.broadcast_to(np.asarray(valid, dtype=bool)[..., None], handles.shape)
+    return [int(h) for h in handles[ok]]
+
+
 def _buffers(span: _Span) -> list[Buffer]:
     out = []
     for i in range(span.size):

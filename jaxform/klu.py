@@ -92,7 +92,7 @@ def free_now(handles, valid) -> None:
     ``valid`` (...) bool, as in :class:`jaxform.linear.Factorization`."""
     import klujax_cpp
 
-    handles = np.asarray(handles)
-    ok = np.broadcast_to(np.asarray(valid)[..., None], handles.shape).reshape(-1)
-    for h in handles.reshape(-1)[ok]:
-        klujax_cpp.KLUNumeric([int(h)]).close()
+    from jaxform.host_ffi import valid_handles
+
+    for h in valid_handles(handles, valid):
+        klujax_cpp.KLUNumeric([h]).close()

@@ -9,8 +9,8 @@ Python function cannot be serialized), so those programs compiled again on every
 
 Here the free is an XLA FFI custom call instead: a target named :data:`TARGET` whose
 handler is a C-callable function made with ctypes (:mod:`jaxform.host_ffi`), registered
-once per process the first time a program uses it.  A program refers to the target by name only,
-so a program loaded from the cache calls this process's handler.  The handler frees each
+once per process the first time a program uses it.  A program refers to the target by
+name only, so a program loaded from the cache calls this process's handler.  The handler frees each
 valid handle of the call (any batch shape) and writes zeros to its int32 result, the
 token that orders later work after the free.
 """
@@ -21,9 +21,8 @@ import ctypes as C
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
-from jaxform.host_ffi import register
+from jaxform.host_ffi import register, valid_handles
 
 TARGET = "jaxform_klu_free_numeric"
 
@@ -32,11 +31,8 @@ def _free(args, rets):
     """Free each valid handle of the call (handles (..., 1), flags (...)); zeros out."""
     import klujax_cpp
 
-    handles = args[0].view(C.c_uint64).reshape(-1)
-    valid = args[1].view(C.c_bool).reshape(-1)
-    per_flag = handles.size // max(valid.size, 1)
-    for h in handles[np.repeat(valid, per_flag)]:
-        klujax_cpp.KLUNumeric([int(h)]).close()
+    for h in valid_handles(args[0].view(C.c_uint64), args[1].view(C.c_bool)):
+        klujax_cpp.KLUNumeric([h]).close()
     rets[0].view(C.c_int32)[...] = 0
 
 

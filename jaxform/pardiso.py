@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import ctypes as C
 import functools
+import hashlib
 import itertools
 import threading
 
@@ -45,7 +46,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxform.host_ffi import register
+from jaxform.host_ffi import register, valid_handles
 
 MTYPE = 11  # real unsymmetric
 STATS = {"partial_pivoting": 0}  # factorizations redone with partial pivoting (SuperLU)
@@ -174,7 +175,7 @@ def analyze(rows, cols, n: int):
     keys = rows * n + cols
     if keys.size and np.any(np.diff(keys) <= 0):
         raise ValueError("PARDISO: the pattern must be sorted row-major without repeats")
-    key = (n, keys.tobytes())
+    key = (n, hashlib.sha1(keys.tobytes()).hexdigest())  # as klu.symbolic keys its analyses
     with _LOCK:
         if key not in _PATTERN_IDS:
             ia = np.searchsorted(rows, np.arange(n + 1)).astype(np.int32)
@@ -243,12 +244,10 @@ def _solve_factored_handler(transpose: bool):
     return handler
 
 
-def _free_ids(handles: np.ndarray, valid: np.ndarray) -> None:
-    handles = handles.reshape(-1)
-    per_flag = handles.size // max(valid.size, 1)
-    for h in handles[np.repeat(valid.reshape(-1), per_flag)]:
+def _free_ids(handles, valid) -> None:
+    for h in valid_handles(handles, valid):
         with _LOCK:
-            inst = _FACTORS.pop(int(h), None)
+            inst = _FACTORS.pop(h, None)
         if inst is not None:
             with inst.lock:
                 inst.release()
@@ -313,7 +312,7 @@ def free(handle, valid):
 def free_now(handles, valid) -> None:
     """Free the valid factorizations outside jit (handles (..., 1), flags (...))."""
     if handles is not None:
-        _free_ids(np.asarray(handles, dtype=np.uint64), np.asarray(valid, dtype=bool))
+        _free_ids(np.asarray(handles, dtype=np.uint64), valid)
 
 
 def live_factorizations() -> int:
