@@ -50,7 +50,9 @@ quadratically, so this moves an iteration count by at most one.
 Measured per mesh and code, each in its own fresh process (no compile cache shared):
 ``setup_s`` (scene / Problem set-up), ``compile_s`` (first run minus second run: JIT
 compilation), ``solve_s`` (the whole load history again after compilation, best of 2),
-``newton_iterations`` (summed over the steps), ``per_iteration_s`` = solve_s / iterations,
+``newton_iterations`` (summed over the steps), ``assemblies`` (Jacobians assembled: each
+of jaxform's is followed by a factorization, its other iterations reuse a kept one),
+``per_iteration_s`` = solve_s / iterations,
 and the split of an iteration: jaxform -- its compiled pieces timed separately at the
 final state, best of 3 (``assembly_s`` = ``Model.residual_and_jacobian``: element
 residuals, their jacfwd Jacobians, contact blocks, scatter onto the pattern;
@@ -187,6 +189,8 @@ def run_jaxform(n: int, element: str, split: bool = True) -> dict:
         "solve_s": second,
         "newton_iterations": int(its.sum()),
         "iterations_per_step": its.tolist(),
+        # each factorization follows an assembly of the Jacobian (a refresh)
+        "assemblies": int(res.history["factorizations"][1:].sum()),
         "cutbacks": int(res.history["cutbacks"].sum()),
         "per_iteration_s": second / its.sum(),
         "force_N": res.history["force_N"][1:].tolist(),
@@ -540,7 +544,8 @@ def report(rows: list[dict], have_peer: bool) -> None:
     peer = {r["n"]: r for r in rows if r["code"] == "jax-fem"}
     print(
         f"\n{'mesh':>7} {'code':>20} {'unknowns':>8} {'setup':>7} {'compile':>8} "
-        f"{'solve':>8} {'its':>4} {'per it':>9} {'assembly':>9} {'element':>8} {'linear':>8} "
+        f"{'solve':>8} {'its':>4} {'asm':>4} {'per it':>9} {'assembly':>9} {'element':>8} "
+        f"{'linear':>8} "
         f"{'force':>9} {'vs peer':>8} {'time / peer':>11}"
     )
     for r in rows:
@@ -557,7 +562,8 @@ def report(rows: list[dict], have_peer: bool) -> None:
         print(
             f"{r['n']:>3}x{r['n']:<3} {name:>20} {r['unknowns']:>8} {r['setup_s']:>6.2f}s "
             f"{r['compile_s']:>7.1f}s {r['solve_s']:>7.3f}s {r['newton_iterations']:>4} "
-            f"{r['per_iteration_s'] * 1e3:>7.1f}ms {a * 1e3:>7.1f}ms {el * 1e3:>6.1f}ms "
+            f"{r.get('assemblies', -1):>4} {r['per_iteration_s'] * 1e3:>7.1f}ms "
+            f"{a * 1e3:>7.1f}ms {el * 1e3:>6.1f}ms "
             f"{lin * 1e3:>6.1f}ms "
             f"{r['force_N'][-1]:>9.3f} {dev:>+8.3%} {ratio:>10.2f}x"
         )
@@ -573,6 +579,7 @@ def write(rows: list[dict], path: Path) -> None:
         "compile_s",
         "solve_s",
         "newton_iterations",
+        "assemblies",
         "cutbacks",
         "per_iteration_s",
         "assembly_s",
