@@ -562,7 +562,7 @@ def report(rows: list[dict], have_peer: bool) -> None:
         print(
             f"{r['n']:>3}x{r['n']:<3} {name:>20} {r['unknowns']:>8} {r['setup_s']:>6.2f}s "
             f"{r['compile_s']:>7.1f}s {r['solve_s']:>7.3f}s {r['newton_iterations']:>4} "
-            f"{r.get('assemblies', -1):>4} {r['per_iteration_s'] * 1e3:>7.1f}ms "
+            f"{r['assemblies']:>4} {r['per_iteration_s'] * 1e3:>7.1f}ms "
             f"{a * 1e3:>7.1f}ms {el * 1e3:>6.1f}ms "
             f"{lin * 1e3:>6.1f}ms "
             f"{r['force_N'][-1]:>9.3f} {dev:>+8.3%} {ratio:>10.2f}x"

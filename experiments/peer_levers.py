@@ -23,7 +23,6 @@ import dataclasses
 import json
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
@@ -62,6 +61,7 @@ def _refresh_child(n: int, spec: str) -> dict:
 def _chunks(n: int, chunks: list[int]) -> list[dict]:
     import bench_peer
     import jax
+    from timing import best_of
 
     import jaxform
     from jaxform.config import load_config
@@ -75,15 +75,6 @@ def _chunks(n: int, chunks: list[int]) -> list[dict]:
     model = scene.model
     ctx = step_context(model, st, scene.inputs, scene.idx, st.t, jax.numpy.asarray(scene.dt))
 
-    def best(fn, k=5):
-        jax.block_until_ready(fn())
-        out = float("inf")
-        for _ in range(k):
-            t0 = time.perf_counter()
-            jax.block_until_ready(fn())
-            out = min(out, time.perf_counter() - t0)
-        return out
-
     def timed(term, chunk):
         def jacobians(x, ctx):
             ep = term.residual_pass(x, ctx, model.layout)
@@ -95,8 +86,8 @@ def _chunks(n: int, chunks: list[int]) -> list[dict]:
         jac, res = jax.jit(jacobians), jax.jit(residual)
         return dict(
             chunk=chunk,
-            jacobians_ms=1e3 * best(lambda: jac(st.x, ctx)),
-            residual_pass_ms=1e3 * best(lambda: res(st.x, ctx)),
+            jacobians_ms=1e3 * best_of(lambda: jac(st.x, ctx), 5),
+            residual_pass_ms=1e3 * best_of(lambda: res(st.x, ctx), 5),
         )
 
     rows = [timed(dataclasses.replace(model.element, jacobian_chunk=c), c) for c in chunks]
