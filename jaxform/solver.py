@@ -65,11 +65,6 @@ STALE_PER_ITERATION = 3  # modified Newton: iterations with a kept factorization
 # 'auto' picks modified Newton on the sparse backend from here even where the scene
 # remeshes (below it, only on a scene that keeps its mesh: newton_variant)
 MODIFIED_MIN_UNKNOWNS = 5_000
-# from here modified Newton with Anderson mixing keeps its factorization longer
-# (LARGE_MESH_RATIOS: accept_ratio, refresh_ratio): an assembly and factorization cost
-# 7 - 9 stale iterations there (docs, benchmarks, "The targets not met")
-LARGE_MESH_UNKNOWNS = 20_000
-LARGE_MESH_RATIOS = (0.7, 0.5)
 
 
 @dataclass(frozen=True)
@@ -164,9 +159,7 @@ def newton_variant(
     its new meshes' first steps and the flash's contact changes cost modified Newton
     more refreshes than full Newton's iterations: docs, benchmarks, "Scale and speed");
     full Newton otherwise.  Modified Newton needs a solver that keeps a factorization.
-    ``anderson_depth``: modified Newton's (``solver.anderson_depth``); with it, from
-    LARGE_MESH_UNKNOWNS unknowns modified Newton takes LARGE_MESH_RATIOS as its accept and
-    refresh ratios."""
+    ``anderson_depth``: modified Newton's (``solver.anderson_depth``)."""
     if name == "auto":
         pays = n_unknowns >= MODIFIED_MIN_UNKNOWNS or not remeshes
         name = "modified" if pays and linear.modified_when_large else "newton"
@@ -180,9 +173,6 @@ def newton_variant(
             f"'sparse' (klujax, CPU) or 'pardiso' (MKL, CPU), or solver.newton = 'newton'"
         )
     if variant.keeps_factorization:
-        if anderson_depth > 0 and n_unknowns >= LARGE_MESH_UNKNOWNS:
-            accept, refresh = LARGE_MESH_RATIOS
-            return ModifiedNewton(accept, refresh, anderson_depth)
         return ModifiedNewton(anderson_depth=anderson_depth)
     return variant()
 

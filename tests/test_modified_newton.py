@@ -169,21 +169,6 @@ def test_auto_picks_modified_newton_on_the_sparse_backend_unless_a_small_scene_r
     assert newton_variant("modified", DenseLU(), 10) == ModifiedNewton()
 
 
-def test_large_meshes_keep_the_factorization_longer_with_anderson_mixing():
-    """From LARGE_MESH_UNKNOWNS unknowns a mixed modified Newton accepts and keeps
-    slower-contracting steps (an assembly costs several stale iterations there); below
-    it, and with plain steps, the ratios stay the defaults (every shipped scene)."""
-    from jaxform.solver import LARGE_MESH_RATIOS
-    from jaxform.solver import LARGE_MESH_UNKNOWNS as L
-
-    big = newton_variant("auto", KLU(), L, anderson_depth=3)
-    assert (big.accept_ratio, big.refresh_below, big.anderson_depth) == (*LARGE_MESH_RATIOS, 3)
-    assert LARGE_MESH_RATIOS != (ModifiedNewton().accept_ratio, 0.3)
-    below = newton_variant("auto", KLU(), L - 1, anderson_depth=3)
-    assert below == ModifiedNewton(anderson_depth=3) and below.refresh_below == 0.3
-    assert newton_variant("modified", KLU(), L) == ModifiedNewton()
-
-
 def test_anderson_step_reaches_a_linear_root_like_gmres():
     """Reference: Anderson acceleration with a memory as deep as the system is equivalent
     to GMRES on it (Walker & Ni, SIAM J. Numer. Anal. 49, 2011), so on a linear residual

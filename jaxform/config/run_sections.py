@@ -108,9 +108,7 @@ class SolverConfig:
         "factorization kept across iterations and steps, refreshed when a step contracts the "
         "residual by less than 2x (needs linear = dense, sparse or pardiso); auto: modified on the "
         "sparse backend, where the scene remeshes only from MODIFIED_MIN_UNKNOWNS unknowns "
-        "(newton below); from LARGE_MESH_UNKNOWNS unknowns with Anderson mixing, modified "
-        "Newton keeps steps that contract by 1.4x and refreshes below 2x (see "
-        "jaxform/solver.py)",
+        "(newton below; see jaxform/solver.py)",
     )
     anderson_depth: int = key(
         3,
