@@ -569,6 +569,7 @@ class FacetContact(_Term):
     its block is (u of a, u of b, mu)."""
 
     layout: Layout
+    by_node_depth: bool = False  # ContactLaw.facets_by_node_depth
 
     def dofs(self, idx: Indices):
         return np.concatenate([idx.facet_dofs, idx.facet_mult[:, None]], axis=1)
@@ -580,7 +581,7 @@ class FacetContact(_Term):
         v = jnp.concatenate([pos, x[idx.facet_mult][:, None]], axis=1)
 
         def fn(vf):
-            return facet_terms(ctx.die, vf, ctx.t, ctx.c_contact)
+            return facet_terms(ctx.die, vf, ctx.t, ctx.c_contact, self.by_node_depth)
 
         return jax.vmap(jax.jacfwd(fn) if derivative else fn)(v)
 
@@ -662,7 +663,7 @@ class Model:
         return (
             self.element,
             *((NodeContact(self.contact, lay),) if lay.n_contact else ()),
-            *((FacetContact(lay),) if lay.n_facets else ()),
+            *((FacetContact(lay, self.contact.facets_by_node_depth),) if lay.n_facets else ()),
             Load(),
             FixedRows(lay.n_dofs),
         )

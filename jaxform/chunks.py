@@ -173,11 +173,24 @@ def chunk_steps(scene: Scene, state: SimState) -> int:
     return max(1, min(scene.chunk, int(scene.chunk_output_mb * 1e6 // max(per_step, 1))))
 
 
+def after_singular(stepper: Stepper) -> Stepper:
+    """The stepper of the steps retried after a singular Jacobian: the corner-contact
+    facets open until an arc reaches past their nodes' own depth in the die
+    (:attr:`jaxform.contact.ContactLaw.facets_by_node_depth`), the same law at a
+    converged state.  Unchanged where the mesh has no corner-contact facets."""
+    model = stepper.model
+    if not model.layout.n_facets:
+        return stepper
+    law = replace(model.contact, facets_by_node_depth=True)
+    return replace(stepper, model=replace(model, contact=law))
+
+
 def chunk(scene: Scene, stepper: Stepper, state: SimState, control, inp: Inputs, fac):
     """:func:`run_chunk` over :func:`chunk_steps` steps.  A linear solver that finds the
     Jacobian singular raises (klujax does, instead of returning a status); then the steps
-    are retried one at a time, the step halved after each singular attempt as after any
-    failed one, down to the smallest step, where the outputs carry the code SINGULAR."""
+    are retried one at a time by :func:`after_singular`'s stepper, the step halved after
+    each singular attempt as after any failed one, down to the smallest step, where the
+    outputs carry the code SINGULAR."""
     try:  # blocking: an error of the asynchronous run surfaces here, not at the caller
         return jax.block_until_ready(
             _run_chunk(stepper, state, control, inp, scene.idx, chunk_steps(scene, state), fac)
@@ -189,6 +202,7 @@ def chunk(scene: Scene, stepper: Stepper, state: SimState, control, inp: Inputs,
     n = scene.model.layout.n_dofs
     h_min = scene.dt * 0.5**scene.max_cutbacks
     h, cutbacks = float(control.h), 0
+    stepper = after_singular(stepper)
     while True:
         fac = scene.newton.variant.factorization(scene.linear, n, state.x.dtype)
         try:

@@ -313,6 +313,9 @@ class ContactLaw:
     whose nearest die holds the node, or each die its own candidate: ``pairing``)."""
 
     pairing: NearestDie | EachDie = NearestDie()
+    # a corner-contact facet also open until an arc reaches past its nodes' own depth in
+    # the die (facet_terms): the law of a step retried after a singular Jacobian
+    facets_by_node_depth: bool = False
 
     def frames(self, die, pos, which, t, t_old):
         """Every candidate's die frame (:func:`candidate_frames`)."""
@@ -369,7 +372,7 @@ class ContactLaw:
 FACET_OPEN_REACH_MM = 1e-9
 
 
-def facet_terms(die, v, t, c):
+def facet_terms(die, v, t, c, by_node_depth: bool = False):
     """Corner contact of one workpiece facet, v = (x_a (2), x_b (2), mu): (force residual
     on its two nodes (4,), complementarity residual (1,)).
 
@@ -377,14 +380,29 @@ def facet_terms(die, v, t, c):
     with a normal multiplier mu >= 0 (N, frictionless): C = mu - max(0, mu - c (g + e)),
     e = :data:`FACET_OPEN_REACH_MM`, and the nodes' residuals gain -mu dg/dx (the die
     pushes the facet back along the arc's normal, shared between the nodes by where the
-    arc touches)."""
+    arc touches).
+
+    ``by_node_depth``: e also holds the deeper node's depth in the die (0 where neither
+    is inside).  Where a Newton iterate has both nodes inside a flat face and an arc
+    ending tangent to that face between them, the arc reaches into the facet exactly as
+    far as the nodes' depths interpolate, and the active condition is a combination of the
+    nodes' own: a singular Jacobian.  With it the facet stays open there; at a converged
+    state, where a node in contact has g = 0, the law is the same.  It moves the Newton
+    path wherever nodes start a step inside the die (more iterations on the closed dies),
+    so it is the law of a step retried after a singular Jacobian
+    (:func:`jaxform.chunks.chunk`), not of every step."""
     mu = v[4]
 
     def gap(xs):
         return die.facet_gap(xs[:2], xs[2:], t)[0]
 
     g, dg = jax.value_and_grad(gap)(v[:4])
-    c_n = mu - jnp.maximum(0.0, mu - c * (g + FACET_OPEN_REACH_MM))
+    reach = FACET_OPEN_REACH_MM
+    if by_node_depth:
+        g_a, g_b = die.gap(v[:2], t)[0], die.gap(v[2:4], t)[0]
+        g_in = jnp.where(g_a < g_b, g_a, g_b)
+        reach = reach + jnp.where(g_in < 0.0, -g_in, 0.0)  # where: no derivative at 0
+    c_n = mu - jnp.maximum(0.0, mu - c * (g + reach))
     return jnp.concatenate([-mu * dg, c_n[None]])
 
 

@@ -386,3 +386,51 @@ def test_a_facet_on_a_flat_face_at_an_arc_end_with_no_force_is_open():
     # the arc touches mid-facet: its reach is shared evenly by the two nodes' heights
     assert row[4] == 0.0 and row[1] == pytest.approx(-0.5 * c, rel=1e-9)
     assert row[3] == pytest.approx(-0.5 * c, rel=1e-9)
+
+
+def test_a_facet_open_by_its_nodes_depth_adds_no_tie():
+    """``facet_terms(..., by_node_depth=True)``, the law of a step retried after a singular
+    Jacobian (docs/benchmarks.md: the asymmetric closed die's Newton iterate with both
+    nodes 0.2 - 0.4 um inside the anvil's face and the arc end between them).  The facet of
+    the test above with its nodes 1e-6 mm inside the face, the arc reaching as far into it:
+    by the default law the row is the active one, a combination of the nodes' own rows
+    (c/2 each: a singular Jacobian with them); opened by the nodes' depth it is C = mu.  A
+    facet across the corner that the arc reaches into beyond its nodes' depth stays
+    active: C = c (g + e + depth), its row c dg/dx plus c d(-g_b)/dx of the deeper node b
+    (c at z_b), with its nodes on the faces (depth 0: the default law's row) or a 0.5e-4
+    and b 1e-4 mm inside them.  Reference: the branches' derivatives, exact (to 1e-9)."""
+    from jaxform.contact import facet_terms
+    from jaxform.dies import closest_point_gap, corner_gap
+
+    pts = jnp.asarray([[0.0, 1.0], [2.0, 1.0], [2.0, 3.0]])  # flat face, then up: convex
+    radius, length, c = 0.3, 0.25, 1e4
+    e_r = 2.0 - radius
+
+    class Die:
+        def facet_gap(self, xa, xb, t):
+            return corner_gap(pts, radius, xa, xb)
+
+        def gap(self, x, t):
+            return closest_point_gap(pts, radius, x)
+
+    def row(v, by_depth):
+        v = jnp.asarray(v)
+        return np.asarray(jax.jacfwd(lambda w: facet_terms(Die(), w, 0.0, c, by_depth)[4])(v))
+
+    inside = [e_r + 0.5 * length, 1.0 + 1e-6, e_r - 0.5 * length, 1.0 + 1e-6, 0.0]
+    tied = row(inside, False)
+    assert tied[4] == 0.0 and tied[1] == pytest.approx(-0.5 * c, rel=1e-9)
+    np.testing.assert_array_equal(row(inside, True), [0.0, 0.0, 0.0, 0.0, 1.0])
+    for depth, extra in ((0.0, [0.0, 0.0, 0.0, 0.0]), (1e-4, [0.0, 0.0, 0.0, c])):
+        v = [2.0 - 0.5 * depth, 1.5, 1.5, 1.0 + depth, 0.0]
+        g, _ = corner_gap(pts, radius, jnp.asarray(v[:2]), jnp.asarray(v[2:4]))
+        assert float(g) < -0.2
+        gb = float(Die().gap(jnp.asarray(v[2:4]), 0.0)[0])
+        assert gb == pytest.approx(-depth, abs=1e-15)
+        dg = np.asarray(jax.grad(lambda w: corner_gap(pts, radius, w[:2], w[2:])[0])(
+            jnp.asarray(v[:4])))  # fmt: skip
+        opened = row(v, True)
+        assert opened[4] == 0.0
+        np.testing.assert_allclose(opened[:4], c * dg + np.asarray(extra), rtol=1e-9)
+        if depth == 0.0:
+            np.testing.assert_array_equal(opened, row(v, False))

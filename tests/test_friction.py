@@ -296,6 +296,49 @@ def test_corner_contact_holds_the_facets_off_a_convex_die():
     assert err <= 1e-6, err
 
 
+def test_a_step_retried_after_a_singular_jacobian_opens_the_facets_by_node_depth(monkeypatch):
+    """The scene of the test above (its compiled chunk shared): the second chunk's first
+    attempt by the corner-contact law raises as klujax does on a singular Jacobian; its
+    first step is then retried by :func:`jaxform.chunks.after_singular`'s stepper (facets
+    open by their nodes' depth) at the same size, converges, and the run ends with no
+    overlap of die and material (1e-6 mm).
+    Reference: the steppers the host loop hands over, recorded."""
+    from jax.errors import JaxRuntimeError
+
+    from jaxform import chunks
+    from jaxform.stepping import stepper_of
+
+    real, used = chunks._run_chunk, []
+
+    def fake(stepper, state, control, inp, idx, n, fac):
+        opened = stepper.model.contact.facets_by_node_depth
+        used.append((float(state.t), float(control.h), n, opened))
+        if float(state.t) > 0.0 and not opened and not any(u[3] for u in used):
+            raise JaxRuntimeError("INVALID_ARGUMENT: klu_factor/z_factor failed (singular matrix?)")
+        return real(stepper, state, control, inp, idx, n, fac)
+
+    monkeypatch.setattr(chunks, "_run_chunk", fake)
+    sc, res = run(
+        BILLET,
+        *SLIDE_SETTINGS,
+        "die.profile_kind=spline",
+        "die.corner_contact=true",
+        "die.profile_mm=" + str(SPLINE_DIE),
+    )
+    h = res.history
+    assert sc.model.layout.n_facets > 0 and not sc.model.contact.facets_by_node_depth
+    retried = [u for u in used if u[3]]
+    failed = next(u for u in used if u[0] > 0.0)  # the second chunk's first attempt
+    assert [u[:3] for u in retried] == [(failed[0], failed[1], 1)], used
+    k = int(np.argmin(np.abs(h["time_s"] - (failed[0] + failed[1]))))
+    assert h["time_s"][k] == pytest.approx(failed[0] + failed[1], rel=1e-12)
+    assert h["dt_s"][k] == pytest.approx(failed[1], rel=1e-12)  # at the same size
+    assert h["time_s"][-1] == pytest.approx(sc.t_end, rel=1e-12)
+    assert h["die_overlap_mm"].max() <= 1e-6, h["die_overlap_mm"].max()
+    plain = stepper_of(billet()[0])  # no corner-contact facets: the same stepper
+    assert plain.model.layout.n_facets == 0 and chunks.after_singular(plain) is plain
+
+
 def test_run_command_notes_a_die_overlap(tmp_path, capsys):
     """`jaxform run` on the convex spline die with node contact only (the scene of the
     sliding test above, so its compiled program is shared) ends with one note naming the
