@@ -8,9 +8,11 @@
   after compilation (as ``bench_peer.py`` times it), Newton iterations and assemblies.
 * ``--chunks``: the element Jacobians of the final state in chunks of that many elements
   (``ElementTerm.jacobian_chunk``; 0: one vmap), best of 5, beside the residual pass;
-  then (a probe, wrong derivatives) the same with the material point's JVP replaced by
-  one that computes the point's values but maps the tangent df straight to the stress:
-  what the element Jacobians cost without the point's own 5-component jacfwd.
+  then with the 3 x 3 strain increment of the code before 2026-12-07 in place of the
+  planar one (``kinematics.strain_increment_planar``); then (a probe, wrong derivatives)
+  with the material point's JVP replaced by one that computes the point's values but
+  maps the tangent df straight to the stress: what the element Jacobians cost without
+  the point's own 5-component jacfwd.
 
 The punch is ``bench_peer.py``'s (q4, ``solver.newton = 'auto'``, ``solver.linear =
 'auto'``).  Timings are noisy on a shared machine: compare rows of one run.
@@ -91,6 +93,12 @@ def _chunks(n: int, chunks: list[int]) -> list[dict]:
         )
 
     rows = [timed(dataclasses.replace(model.element, jacobian_chunk=c), c) for c in chunks]
+    import jaxform.kinematics as kinematics
+
+    planar = kinematics.strain_increment_planar
+    kinematics.strain_increment_planar = kinematics.strain_increment  # the code before
+    rows.append(timed(model.element, "default, 3x3 strain increment"))
+    kinematics.strain_increment_planar = planar
     _without_point_tangent()
     rows.append(timed(model.element, "default, no point jacfwd"))
     return rows

@@ -380,11 +380,11 @@ def test_preset_is_table_6_3_with_errata():
 
 
 def test_planar_kinematics_equal_the_general_ones_and_their_derivatives():
-    """step_kinematics(planar=True) (the closed-form 2-D polar decomposition) against the
-    general polar iteration on seeded random block-diagonal f (stretches 0.7-1.4,
-    rotations to 60 deg): R and dE to 1e-13, their jacfwd in the planar components of f
-    to 1e-11; and a pure stretch against the closed form dE_ii = (l - 1) / ((1 - a) + a l)
-    for alpha = a (thesis eq. 4.34)."""
+    """step_kinematics(planar=True) (closed-form 2-D polar decomposition, the strain
+    increment of the block-diagonal U) against the general iteration and 3x3 inverse on
+    seeded random block-diagonal f (stretches 0.7-1.4, rotations to 60 deg): R and dE to
+    1e-13, their jacfwd in f to 1e-11; and a pure stretch against the closed form
+    dE_ii = (l - 1) / ((1 - a) + a l) for alpha = a (thesis eq. 4.34)."""
     rng = np.random.default_rng(20261207)
     for alpha in (0.5, 0.3):
         for _ in range(6):
