@@ -565,11 +565,12 @@ class NodeContact(_Term):
 
 @dataclass(frozen=True)
 class FacetContact(_Term):
-    """Corner contact of each free-surface facet (:func:`jaxform.contact.facet_terms`):
-    its block is (u of a, u of b, mu)."""
+    """Corner contact of each free-surface facet (:func:`jaxform.contact.facet_terms`, by
+    the law's :attr:`~jaxform.contact.ContactLaw.facets_by_node_depth`): its block is
+    (u of a, u of b, mu)."""
 
+    law: ContactLaw
     layout: Layout
-    by_node_depth: bool = False  # ContactLaw.facets_by_node_depth
 
     def dofs(self, idx: Indices):
         return np.concatenate([idx.facet_dofs, idx.facet_mult[:, None]], axis=1)
@@ -581,7 +582,8 @@ class FacetContact(_Term):
         v = jnp.concatenate([pos, x[idx.facet_mult][:, None]], axis=1)
 
         def fn(vf):
-            return facet_terms(ctx.die, vf, ctx.t, ctx.c_contact, self.by_node_depth)
+            by_depth = self.law.facets_by_node_depth
+            return facet_terms(ctx.die, vf, ctx.t, ctx.c_contact, by_depth)
 
         return jax.vmap(jax.jacfwd(fn) if derivative else fn)(v)
 
@@ -663,7 +665,7 @@ class Model:
         return (
             self.element,
             *((NodeContact(self.contact, lay),) if lay.n_contact else ()),
-            *((FacetContact(lay, self.contact.facets_by_node_depth),) if lay.n_facets else ()),
+            *((FacetContact(self.contact, lay),) if lay.n_facets else ()),
             Load(),
             FixedRows(lay.n_dofs),
         )

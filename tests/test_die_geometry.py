@@ -11,7 +11,13 @@ import pytest
 from jaxform.config import ConfigError, load_config
 from jaxform.design.objectives import cavity_volume as design_cavity
 from jaxform.design.objectives import part_cavity_volume
-from jaxform.dies import closest_point_gap, make_die, rounded_polyline, sample_rounded
+from jaxform.dies import (
+    closest_point_gap,
+    corner_gap,
+    make_die,
+    rounded_polyline,
+    sample_rounded,
+)
 from jaxform.postprocess import cavity_volume, filled_volume, material_volume
 from jaxform.scenes import build_scene
 
@@ -330,7 +336,7 @@ def test_a_facet_lets_go_of_an_arc_gradually_at_its_node():
     the gap of a disengaged facet, so nothing jumps as E crosses the node (the jump made
     Newton cycle: docs/remeshing.md).  Reference: the closed form
     g = L (END_SHARE - xi) / END_SHARE for xi = |E - x_a| / L < END_SHARE, to 1e-12."""
-    from jaxform.dies import END_SHARE, corner_gap
+    from jaxform.dies import END_SHARE
 
     pts = jnp.asarray([[0.0, 1.0], [2.0, 1.0], [2.0, 3.0]])  # flat face, then up: convex
     radius, length = 0.3, 0.25
@@ -352,6 +358,21 @@ def test_a_facet_lets_go_of_an_arc_gradually_at_its_node():
     assert not bool(engaged) and float(g) == pytest.approx(length, abs=1e-12)
 
 
+_ARC_END_DIE = np.array([[0.0, 1.0], [2.0, 1.0], [2.0, 3.0]])  # flat, then up: convex
+_ARC_END_RADIUS = 0.3
+
+
+class _ArcEndDie:
+    """The die of the facet tests below: a flat face whose convex corner arc ends tangent
+    to it (the die pytree's two gap methods, at rest)."""
+
+    def facet_gap(self, xa, xb, t):
+        return corner_gap(_ARC_END_DIE, _ARC_END_RADIUS, xa, xb)
+
+    def gap(self, x, t):
+        return closest_point_gap(_ARC_END_DIE, _ARC_END_RADIUS, x)
+
+
 def test_a_facet_on_a_flat_face_at_an_arc_end_with_no_force_is_open():
     """The singular tie of docs/remeshing.md: a new mesh puts a facet on the flat face where
     a convex arc ends tangent to it; the arc's deepest point is the arc end, on the facet's
@@ -362,15 +383,10 @@ def test_a_facet_on_a_flat_face_at_an_arc_end_with_no_force_is_open():
     one, C = c (g + e) (dC/dmu = 0, dC/dz = c/2 at each node for an arc touching
     mid-facet).  Reference: the two branches' derivatives, exact (to 1e-9)."""
     from jaxform.contact import FACET_OPEN_REACH_MM, facet_terms
-    from jaxform.dies import corner_gap
 
-    pts = jnp.asarray([[0.0, 1.0], [2.0, 1.0], [2.0, 3.0]])  # flat face, then up: convex
-    radius, length, c = 0.3, 0.25, 1e4
+    pts, radius, Die = _ARC_END_DIE, _ARC_END_RADIUS, _ArcEndDie
+    length, c = 0.25, 1e4
     e_r = 2.0 - radius  # the arc's end, tangent to the flat face
-
-    class Die:
-        def facet_gap(self, xa, xb, t):
-            return corner_gap(pts, radius, xa, xb)
 
     def condition_row(dz):  # the facet's two nodes dz below the face, the arc end mid-facet
         v = jnp.asarray([e_r + 0.5 * length, 1.0 - dz, e_r - 0.5 * length, 1.0 - dz, 0.0])
@@ -400,18 +416,10 @@ def test_a_facet_open_by_its_nodes_depth_adds_no_tie():
     (c at z_b), with its nodes on the faces (depth 0: the default law's row) or a 0.5e-4
     and b 1e-4 mm inside them.  Reference: the branches' derivatives, exact (to 1e-9)."""
     from jaxform.contact import facet_terms
-    from jaxform.dies import closest_point_gap, corner_gap
 
-    pts = jnp.asarray([[0.0, 1.0], [2.0, 1.0], [2.0, 3.0]])  # flat face, then up: convex
-    radius, length, c = 0.3, 0.25, 1e4
+    pts, radius, Die = _ARC_END_DIE, _ARC_END_RADIUS, _ArcEndDie
+    length, c = 0.25, 1e4
     e_r = 2.0 - radius
-
-    class Die:
-        def facet_gap(self, xa, xb, t):
-            return corner_gap(pts, radius, xa, xb)
-
-        def gap(self, x, t):
-            return closest_point_gap(pts, radius, x)
 
     def row(v, by_depth):
         v = jnp.asarray(v)
