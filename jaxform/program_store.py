@@ -68,11 +68,11 @@ _refused: set[str] = set()  # keys whose program could not be exported
 # once it holds this share of the limit (release_if_crowded).
 MAP_SHARE = 0.5
 # Before a new program (a stored one, a replay's mesh or reverse pass, a design's
-# evaluation) the process makes room in two levels (make_room): past MAP_SHARE the stored
+# evaluation) the process makes room in levels (make_room): past MAP_SHARE the stored
 # programs go (a forward run's step chunks, read back from disk in a fraction of a
-# second), JAX's own caches only past CLEAR_SHARE: a gradient replay needs its programs
-# again at its next evaluation, and the shipped two-stage disk's replay alone holds ~75 %
-# of the limit.
+# second), JAX's compiled executables only past CLEAR_SHARE (its traces stay) and its
+# traces only where that is not enough: a gradient replay needs its programs again at its
+# next evaluation, and the shipped two-stage disk's replay alone holds ~75 % of the limit.
 CLEAR_SHARE = 0.85
 # Between MAP_SHARE and CLEAR_SHARE the stored programs go again only once the share has
 # grown this much since they last went: where JAX's programs hold more than MAP_SHARE (a
@@ -181,6 +181,32 @@ def release_programs() -> None:
     _stored_floor = 0.0
 
 
+def release_compiled() -> bool:
+    """Let go of JAX's compiled executables (its in-memory executable caches: the C++
+    dispatch caches, the lowered computations that hold their executables, the compiled
+    programs), keeping its traced and lowered programs: a program needed again is only
+    compiled again (from the persistent cache where there is one), not traced.  True when
+    this JAX has those caches (else nothing happens: :func:`release_programs` then lets go
+    of everything)."""
+    try:
+        from jax._src import pjit
+        from jax._src.interpreters import pxla
+        from jax._src.lib import _jax
+
+        caches = (pjit._cpp_pjit_cache_fun_only, pjit._cpp_pjit_cache_explicit_attributes)
+        lowered, compiled = pjit._pjit_lower, pxla._cached_compilation
+        all_cpp = _jax.PjitFunctionCache
+    except (ImportError, AttributeError):
+        return False
+    for c in caches:
+        c.clear()
+    all_cpp.clear_all()
+    lowered.cache_clear()
+    compiled.cache_clear()
+    gc.collect()
+    return True
+
+
 def release_stored_programs() -> bool:
     """Let go of the stored programs loaded in this process (:func:`call`), keeping JAX's
     own caches (the traced and compiled programs of a gradient replay); True when there
@@ -195,11 +221,14 @@ def release_stored_programs() -> bool:
 def make_room() -> str | None:
     """Before a new program: past :data:`MAP_SHARE` of the memory-map limit (and
     :data:`STORED_STEP` above where the last such release left it) the stored programs
-    go; past :data:`CLEAR_SHARE` the stored programs, and every compiled program where
-    that is not enough.  Below it a gradient replay's own programs stay, so that its next
-    evaluation on the same plan traces and compiles nothing.  Within
-    :data:`ROOM_CHECK_INTERVAL_S` of its last reading it reads nothing.  Returns what it
-    let go (``"stored"``, ``"all"``) or None."""
+    go; past :data:`CLEAR_SHARE` the stored programs, then JAX's compiled executables
+    (:func:`release_compiled`: its traced programs stay, so that a program needed again,
+    e.g. a gradient replay's on a new plan whose meshes share its buckets, is compiled
+    from the persistent cache but not traced again), and everything where that is not
+    enough.  Below it a gradient replay's own programs stay, so that its next evaluation
+    on the same plan traces and compiles nothing.  Within :data:`ROOM_CHECK_INTERVAL_S`
+    of its last reading it reads nothing.  Returns what it let go (``"stored"``,
+    ``"compiled"``, ``"all"``) or None."""
     global _stored_floor, _room_checked_at
     now = _clock()
     if now - _room_checked_at < ROOM_CHECK_INTERVAL_S:
@@ -213,6 +242,8 @@ def make_room() -> str | None:
     if release_stored_programs():
         done, share = "stored", map_share()
         _stored_floor = share
+    if share > CLEAR_SHARE and release_compiled():
+        done, share = "compiled", map_share()
     if share > CLEAR_SHARE:
         release_programs()
         done = "all"

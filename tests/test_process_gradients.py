@@ -180,21 +180,26 @@ def test_a_plan_made_at_a_design_replays_that_designs_forward_run():
     assert float(value) == pytest.approx(float(at.value(design)[0]), rel=1e-12)
 
 
-def test_a_crowded_replay_lets_its_programs_go_and_keeps_the_gradient(monkeypatch):
+@pytest.mark.parametrize("level", ["all", "compiled"])
+def test_a_crowded_replay_lets_its_programs_go_and_keeps_the_gradient(monkeypatch, level):
     """Reference: the shared start gradient (the whole replay as one program).  The replay
     mesh by mesh (separate programs, as a design runs it) with every compiled program let
     go before each mesh and each mesh's reverse pass (both memory-map shares set to 0, as
-    in a process near vm.max_map_count): at least one release per mesh each way, and the
-    same objective and gradient to 1e-9 of each group's largest component."""
+    in a process near vm.max_map_count; ``compiled``: only the compiled executables,
+    their traces kept): at least one release per mesh each way, and the same objective
+    and gradient to 1e-9 of each group's largest component."""
     import jax
 
     from jaxform import program_store
 
     released = []
-    real = program_store.release_programs
+    real = {"all": program_store.release_programs, "compiled": program_store.release_compiled}
+    name = {"all": "release_programs", "compiled": "release_compiled"}[level]
     monkeypatch.setattr(program_store, "MAP_SHARE", 0.0)
     monkeypatch.setattr(program_store, "CLEAR_SHARE", 0.0)
-    monkeypatch.setattr(program_store, "release_programs", lambda: (released.append(1), real()))
+    monkeypatch.setattr(program_store, name, lambda: (released.append(1), real[level]())[1])
+    if level == "compiled":
+        monkeypatch.setattr(program_store, "release_programs", lambda: None)
     _, _, plan = forward()
     pb = build_process_problem(plan, GROUPS, objective(plan))
     val, grad, _ = pb.value_and_grad(pb.start)

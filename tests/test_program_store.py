@@ -164,14 +164,51 @@ def test_a_crowded_process_lets_its_programs_go(tmp_path, monkeypatch):
     assert _maps() <= grown - 2 * 19
 
 
+def test_letting_the_compiled_programs_go_keeps_their_traces():
+    """Reference: ten compiled programs (and a gradient through one of them, a program
+    holding a traced inner one) hold at least two memory maps each; after
+    release_compiled the process holds fewer than one map more than before them, and
+    calling them again compiles them but traces nothing (each trace runs the Python
+    body once: the counter stays at eleven)."""
+    if program_store.map_share() == 0.0:
+        pytest.skip("no memory-map limit to read on this system (/proc)")
+    traced = []
+
+    @jax.jit
+    def f(x, k):
+        traced.append(1)
+        return jnp.sin(x) * k + jnp.cumsum(x)
+
+    @jax.jit
+    def g(x):
+        return jax.grad(lambda y: f(y, 3.0).sum())(x)
+
+    xs = [jnp.arange(float(n)) for n in range(3, 13)]
+    program_store.release_compiled()
+    before = _maps()
+    for x in xs:
+        f(x, 2.0).block_until_ready()
+    g(xs[0]).block_until_ready()
+    n_traces = len(traced)
+    assert _maps() >= before + 2 * 10
+    assert program_store.release_compiled()
+    assert _maps() < before + 10
+    for x in xs:
+        np.testing.assert_allclose(np.asarray(f(x, 2.0)), np.sin(x) * 2.0 + np.cumsum(x))
+    np.testing.assert_allclose(np.asarray(g(xs[0])), 3.0 * np.cos(xs[0]) + np.arange(3.0, 0, -1))
+    assert len(traced) == n_traces
+
+
 @pytest.mark.parametrize(
-    "share, stored, floor, expected",
-    [(0.4, True, 0.0, None), (0.7, True, 0.0, "stored"), (0.7, False, 0.0, None),
-     (0.7, True, 0.65, None), (0.76, True, 0.65, "stored"), (0.9, True, 0.0, "all"),
-     (0.9, False, 0.0, "all"), (0.9, True, 0.85, "all")],
+    "share, stored, floor, after, expected",
+    [(0.4, True, 0.0, 0.4, None), (0.7, True, 0.0, 0.7, "stored"),
+     (0.7, False, 0.0, 0.7, None), (0.7, True, 0.65, 0.7, None),
+     (0.76, True, 0.65, 0.76, "stored"), (0.9, True, 0.0, 0.9, "all"),
+     (0.9, False, 0.0, 0.9, "all"), (0.9, True, 0.85, 0.9, "all"),
+     (0.9, True, 0.0, 0.4, "compiled"), (0.9, False, 0.0, 0.6, "compiled")],
 )  # fmt: skip
 def test_making_room_lets_the_stored_programs_go_first(monkeypatch, share, stored, floor,
-                                                       expected):  # fmt: skip
+                                                       after, expected):  # fmt: skip
     """Reference: the policy of make_room, before a stored program, a replay's mesh or
     reverse pass and a design's evaluation (a gradient replay's programs are needed again
     at its next evaluation; the shipped two-stage disk's alone hold ~75 % of the map
@@ -180,18 +217,27 @@ def test_making_room_lets_the_stored_programs_go_first(monkeypatch, share, store
     the stored programs (JAX's caches stay), and only once the share has grown by
     STORED_STEP (0.1) since they last went (``floor``: a forward run beside a design's
     gradient programs does not read its programs back at each new one); past CLEAR_SHARE
-    everything.  The share is read again after the stored programs went (here it does
-    not fall)."""
+    JAX's compiled executables (their traces stay; ``after``: the share then), and
+    everything where that does not bring it under CLEAR_SHARE.  The share is read again
+    after the stored programs went (here it does not fall)."""
     calls = []
+    now = [share]
+
+    def compiled():
+        calls.append("compiled")
+        now[0] = after
+        return True
+
     monkeypatch.setattr(program_store, "_room_checked_at", -float("inf"))
     monkeypatch.setattr(program_store, "_stored_floor", floor)
     monkeypatch.setattr(program_store, "MAP_SHARE", 0.5)
     monkeypatch.setattr(program_store, "CLEAR_SHARE", 0.85)
-    monkeypatch.setattr(program_store, "map_share", lambda: share)
+    monkeypatch.setattr(program_store, "map_share", lambda: now[0])
     monkeypatch.setattr(program_store, "_loaded", {"k": None} if stored else {})
     monkeypatch.setattr(program_store, "release_programs", lambda: calls.append("all"))
+    monkeypatch.setattr(program_store, "release_compiled", compiled)
     assert program_store.make_room() == expected
-    assert calls == (["all"] if expected == "all" else [])
+    assert calls == {"all": ["compiled", "all"], "compiled": ["compiled"]}.get(expected, [])
     assert bool(program_store._loaded) == (stored and expected is None)
     if expected == "stored":
         assert program_store._stored_floor == share
