@@ -260,6 +260,52 @@ def test_reheat_in_a_furnace_and_to_a_set_temperature():
         assert abs(h[f"{k}_temperature_K"][-1] - 700.0) < 1e-9
 
 
+def _blocker_then_air() -> dict:
+    """A flat blocker (0.5 mm of travel at 10 mm/s, die at 473 K, shear friction 0.3) on
+    an 8 x 5 q1p0 billet of 1.01 x the volume of a 10 x 6 mm one (Al 1100, 673 K), then
+    one 0.25 s step in air: a two-stage disk's start that failed in its dwell."""
+    f = 1.01 ** (1.0 / 3.0)
+    flat = [[0.0, 3.3], [12.0, 3.3]]
+    blocker = {"kind": "forming", "name": "blocker", "travel_mm": 0.5,
+               "die": {"corner_radius_mm": 0.5, "profile_mm": flat}}  # fmt: skip
+    return {
+        "billet": {"diameter_mm": 10.0 * f, "height_mm": 6.0 * f},
+        "mesh": {"nr": 8, "nz": 5, "element": "q1p0"},
+        "remesh": {"quality_below": 0.3, "element_size_mm": 0.5, "die_size_ratio": 0.5,
+                   "elements_across": 2, "onto_dies": True},
+        "material": {"preset": "al1100_coupled"},
+        "die": {"speed_mm_s": 10.0, "reduction": 0.4},
+        "friction": {"model": "shear", "m": 0.3},
+        "thermal": {"model": "coupled", "billet_temperature_K": 673.0,
+                    "die_temperature_K": 473.0, "air_temperature_K": 293.15,
+                    "htc_die_W_m2K": 10000.0, "htc_air_W_m2K": 20.0, "emissivity": 0.1},
+        "time": {"dt_s": 0.02},
+        "solver": {"max_cutbacks": 8},
+        "output": {"fields": False, "plots": False},
+        "process": {"operation": [
+            blocker, {"kind": "dwell", "name": "transfer", "time_s": 0.25, "dt_s": 0.25}]},
+    }  # fmt: skip
+
+
+def test_a_part_in_air_only_springs_back():
+    """In air the part only springs back and cools: over the dwell no node moves more than
+    5 um from where the blocker left it (reference: 1.45 um of spring-back, the step's
+    root from the part itself, ~1.4 um with 0.99 x the billet), no corner's quality falls
+    by more than 1e-3, and the dwell's step is one of 0.25 s.  Before jaxform.process ran
+    its first step in air without a probe, the 0.25 s step from the probe's extrapolated
+    predictor failed, and its cutback converged with the part's top outer corner rolled
+    over (0.28 mm up and inward at 0.125 s, quality 0.98 -> 0.79), which then flowed on
+    at ~4 mm/s until the elements folded."""
+    res = run(_blocker_then_air())
+    dwell = res.runs[1].result
+    lay = dwell.scene.model.layout
+    moved = max(float(np.abs(lay.nodal(np.asarray(x))[:, :2]).max()) for x in dwell.fields["x"])
+    assert moved < 5e-3, f"{1e3 * moved:.1f} um"
+    quality = dwell.history["mesh_quality"]
+    assert quality.min() > quality[0] - 1e-3
+    np.testing.assert_allclose(dwell.history["time_s"], [0.0, 0.25], rtol=0, atol=1e-12)
+
+
 def test_process_outputs_and_a_die_into_the_incoming_part(tmp_path):
     """The ParaView series has one entry per history row, time over the process; the
     process and per-blow plots are written; a die that overlaps the part the first blow
