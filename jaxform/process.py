@@ -243,16 +243,12 @@ def _air_config(op: Operation) -> Config:
     convection and radiation of the operation, a flat top die (placed clear of the part
     by :func:`air_scene`), no remeshing.
 
-    Its first step does not probe (``time.first_step_probe = 0``): a probe's rate,
-    extrapolated, predicts a step from rest whose motion grows with time (a die starting
-    to move), but the first step in air is a jump, the spring-back of the load the dies
-    held and the die-chilled surface warming from inside, the same over a quarter of the
-    step as over all of it, so four times the probe's change is a start Newton may not
-    come back from (a blocker's part in air, 1 % more billet: the 0.25 s step from it
-    failed, and its cutback, started from that solve's kept factorization, converged with
-    the outer corner rolled over, which then flowed on at ~4 mm/s until the mesh folded;
-    from the part itself the step converges in 12 iterations, 1.5 um of spring-back).  A
-    step that lowers a corner's quality by more than :data:`AIR_QUALITY_DROP` is cut back
+    Its first step does not probe (``time.first_step_probe = 0``): a probe's change,
+    extrapolated, suits a die starting to move, but the first step in air is a jump (the
+    spring-back of the load the dies held, the die-chilled surface warming from inside),
+    and from four times the probe's change Newton can fail and its cutback come to a root
+    with a corner rolled over, which then flows on in air (docs/processes.md).  A step
+    that lowers a corner's quality by more than :data:`AIR_QUALITY_DROP` is cut back
     (``solver.max_quality_drop``): such a root is not the part's in air."""
     cfg, k = op.config, op.keys
     th = cfg.thermal
