@@ -40,23 +40,47 @@ def vertex_normals(p: np.ndarray, axisymmetric: bool):
     return nrm / np.maximum(np.linalg.norm(nrm, axis=1), 1e-300)[:, None], share
 
 
-def with_volume(p: np.ndarray, free: np.ndarray, target: float, axisymmetric: bool):
+def with_volume(
+    p: np.ndarray, free: np.ndarray, target: float, axisymmetric: bool, weights=None, slides=None
+):
     """The closed counter-clockwise polygon p with its ``free`` vertices moved along their
-    outward normals by one distance so that its measure is ``target`` (to 1e-13): Newton
-    steps on the distance, its derivative the free vertices' surface share (exact to
-    first order where the outward normals are the edges'; at a corner of the free surface
-    it converges linearly: by 0.29 a step where one free vertex is a right-angled corner).
-    Unchanged where no vertex is free."""
+    outward normals by one distance (times each vertex's ``weights``, default 1) so that
+    its measure is ``target`` (to 1e-13): Newton steps on the distance, its derivative the
+    free vertices' weighted surface share (exact to first order where the outward normals
+    are the edges'; at a corner of the free surface it converges linearly: by 0.29 a step
+    where one free vertex is a right-angled corner).  ``slides`` (n, 2): the move, per
+    unit distance, of the other vertices with a nonzero row (a vertex on a die along its
+    surface, one on the mid-plane along it).  Unchanged where no vertex moves."""
     p = np.array(p, dtype=float)
-    if not free.any():
+    s = np.zeros_like(p) if slides is None else np.asarray(slides, dtype=float)
+    slide = ~free & (np.abs(s).sum(axis=1) > 0.0)
+    if not (free.any() or slide.any()):
         return p
+    w = np.ones(len(p)) if weights is None else np.asarray(weights, dtype=float)
     for _ in range(40):
         change = float(polygon_measure(p, axisymmetric)) - target
         if abs(change) <= 1e-13 * abs(target):
             break
         unit, share = vertex_normals(p, axisymmetric)
-        p[free] -= change / float(np.sum(share[free])) * unit[free]
+        move = np.where(free[:, None], unit, s) * (free | slide)[:, None]
+        rate = float(np.sum(share * w * np.sum(move * unit, axis=1)))
+        if rate <= 0.0:
+            break
+        p -= change / rate * w[:, None] * move
     return p
+
+
+def near_weights(p: np.ndarray, sites: np.ndarray, reach: float, floor: float = 1e-3):
+    """(n,) weights of the vertices p (n, 2) by their distance d to the nearest of the
+    points ``sites`` (m, 2): exp(-(d / reach)^2), at least ``floor`` (so that a volume
+    with no free vertex near its site still goes somewhere); all 1 where there is no
+    site.  With :func:`with_volume`, a volume a remesh cut or added at the sites goes back
+    where it was taken, not across the section (a pocket far away is not closed by it)."""
+    sites = np.asarray(sites, dtype=float).reshape(-1, 2)
+    if len(sites) == 0:
+        return np.ones(len(p))
+    d = np.min(np.linalg.norm(np.asarray(p)[:, None] - sites[None], axis=2), axis=1)
+    return np.maximum(np.exp(-((d / reach) ** 2)), floor)
 
 
 _NEXT = np.array([1, 2, 3, 0])

@@ -47,6 +47,7 @@ from jaxform.contact import TOUCH_GAP_MM, facets_in_contact
 from jaxform.geometry import (
     mesh_change,
     min_quality,
+    near_weights,
     nearest_on_segments,
     polygon_measure,
     tributary_areas,
@@ -55,7 +56,7 @@ from jaxform.geometry import (
 from jaxform.mesh import MeshError, boundary_edges, boundary_polygon
 from jaxform.rezone import gap_function
 from jaxform.scenes import scene_on_mesh
-from jaxform.section_mesh import HELD, MesherHelp, quads_of, sized_polygon
+from jaxform.section_mesh import HELD, PUT_BACK_REACH, MesherHelp, quads_of, sized_polygon
 from jaxform.transfer import StateMap, Transfer, gauss_weights
 
 
@@ -181,7 +182,9 @@ def onto_dies(mesh, polygon: tuple[np.ndarray, np.ndarray], gap_fn, axisymmetric
     free_gap, _ = gap_fn(coords[loop])
     free = (free_gap > TOUCH_GAP_MM) & ~np.isin(loop, moved) & ~held
     target = float(np.sum(polygon_measure(mesh.coords[mesh.elements], axisymmetric)))
-    coords[loop] = with_volume(coords[loop], free, target, axisymmetric)
+    reach = PUT_BACK_REACH * float(np.median(chord))  # gmsh's size along the die there
+    weights = near_weights(coords[loop], mesh.coords[moved], reach)
+    coords[loop] = with_volume(coords[loop], free, target, axisymmetric, weights)
     if min_quality(coords, mesh.elements) <= 0.0:  # a moved node folded a thin element
         return mesh
     return replace(mesh, coords=coords)

@@ -22,7 +22,7 @@ import numpy as np
 
 from jaxform.config import RemeshConfig
 from jaxform.contact import TOUCH_GAP_MM
-from jaxform.geometry import polygon_measure, with_volume
+from jaxform.geometry import near_weights, polygon_measure, with_volume
 from jaxform.mesh import MeshError, boundary_polygon, polygon_quads
 
 _CORNER_TURN = np.deg2rad(30.0)  # a sharper turn of the boundary is refined like die contact
@@ -122,9 +122,13 @@ def sized_polygon(
         thin = (points[kept], [labels[i] for i in kept])
         cleared = off_dies(*thin, gap_fn, die_size)
         if cleared is not None or len(kept) < len(points):
+            before = points
             points, labels = thin if cleared is None else cleared
-            # the volume the dies cut off, or the dropped vertices, back to the free surface
-            points = volume_back(points, labels, gap_fn, target, axisymmetric)
+            # the volume the dies cut off, or the dropped vertices, back to the free
+            # surface near where it was taken
+            sites = changed_at(before, points, 1e-9 * max(1.0, float(np.abs(before).max())))
+            points = volume_back(points, labels, gap_fn, target, axisymmetric,
+                                 near=(sites, PUT_BACK_REACH * die_size))  # fmt: skip
     kept, kept_labels = simplify(points, labels, 1e-6 * settings.element_size_mm)
     pts, kept_labels, cut = fold_cut(points[kept], kept_labels, THIN * die_size)
     touching = _touching(pts, gap_fn)
@@ -141,6 +145,7 @@ WRAP_PASSES = 4  # times an edge across a convex die arc is split onto the arc, 
 _FRACTIONS = np.arange(1, 8) / 8.0  # where along an edge its depth into a die is sampled
 DEEP = 0.1  # an edge is split onto a die where it passes this times the die size into it
 THIN = 0.3  # boundary vertices closer than this times the die size to the one before merge
+PUT_BACK_REACH = 4.0  # a volume a remesh cuts goes back within about this x the die size
 
 
 def _held(labels: list[str]) -> np.ndarray:
@@ -222,23 +227,72 @@ def off_dies(points: np.ndarray, labels: list[str], gap_fn, die_size: float):
     return (pts, labs) if changed else None
 
 
-def volume_back(points: np.ndarray, labels: list[str], gap_fn, target: float, axisymmetric: bool):
+def volume_back(
+    points: np.ndarray, labels: list[str], gap_fn, target: float, axisymmetric: bool, near=None
+):
     """The closed counter-clockwise polygon with its measure ``target`` again: its free
     vertices (off the dies, the axis and the mid-plane) moved along their outward normals
     by one distance (:func:`jaxform.geometry.with_volume`); a free vertex that this pushes
-    into a die goes onto it and the rest move again."""
-    g, _ = gap_fn(points)
+    into a die goes onto it and the rest move again.  ``near`` = (sites (m, 2), reach mm):
+    the distance falls off as exp(-(d / reach)^2) with a vertex's distance d from the
+    sites where the volume was cut (:func:`jaxform.geometry.near_weights`), and the ends
+    of a free edge that lie on a die or the mid-plane slide along it (:func:`_slides`): a
+    flash's tip, whose face runs from the land to the mid-plane, has no free vertex.
+    Spread evenly over the free vertices instead, the volume a convex die corner cut at a
+    flash land's entry went into the only free surface left, a pocket of the cavity far
+    from it, and a remesh closed it (docs/remeshing.md)."""
+    g, n = gap_fn(points)
     free = (g > TOUCH_GAP_MM) & ~_held(labels)
+    slides = None if near is None else _slides(points, labels, gap_fn, free)
     pts = points
     for _ in range(WRAP_PASSES):
-        pts = with_volume(pts, free, target, axisymmetric)
+        weights = None if near is None else near_weights(pts, *near)
+        pts = with_volume(pts, free, target, axisymmetric, weights, slides)
         g, n = gap_fn(pts)
         pushed = free & (g < -TOUCH_GAP_MM)
-        if not pushed.any():
+        sliding = slides is not None and np.abs(slides).sum(axis=1) > 0.0
+        into = sliding & (g < -TOUCH_GAP_MM) & ~free
+        if not (pushed.any() or np.any(into)):
             break
-        pts[pushed] -= g[pushed][:, None] * n[pushed]
+        pts[pushed | into] -= g[pushed | into][:, None] * n[pushed | into]
         free &= ~pushed
     return pts
+
+
+def _slides(points: np.ndarray, labels: list[str], gap_fn, free: np.ndarray) -> np.ndarray:
+    """(n, 2) for each vertex that ends a free edge (its midpoint off the dies, not on the
+    axis or the mid-plane) but is not free itself, its move per unit outward move of that
+    edge: along the tangent of the die it touches, or along the axis or mid-plane edge it
+    ends, by the free edge's outward normal's component there; 0 rows elsewhere (and for
+    a vertex on a die and the axis or mid-plane at once)."""
+    nxt = np.roll(points, -1, axis=0)
+    lab = np.asarray(labels, dtype=object)
+    held_edge = np.isin(lab, HELD)
+    free_edge = (gap_fn(0.5 * (points + nxt))[0] > TOUCH_GAP_MM) & ~held_edge
+    front = ~free & (free_edge | np.roll(free_edge, 1))
+    g, n = gap_fn(points)
+    edge = nxt - points
+    edge = edge / np.maximum(np.linalg.norm(edge, axis=1), 1e-300)[:, None]
+    held_in, held_out = np.roll(held_edge, 1), held_edge
+    out = np.zeros_like(points)
+    on_die = front & (g <= TOUCH_GAP_MM) & ~(held_in | held_out)
+    out[on_die] = np.stack([-n[on_die, 1], n[on_die, 0]], axis=1)
+    line = front & (held_in ^ held_out) & (g > TOUCH_GAP_MM)
+    out[line] = np.where(held_out[line][:, None], edge[line], np.roll(edge, 1, axis=0)[line])
+    # the free edge's outward unit normal (counter-clockwise: the edge turned clockwise)
+    normal = np.stack([edge[:, 1], -edge[:, 0]], axis=1)
+    n_free = np.where(free_edge[:, None], normal, np.roll(normal, 1, axis=0))
+    return out * np.sum(out * n_free, axis=1)[:, None]
+
+
+def changed_at(before: np.ndarray, after: np.ndarray, tol: float) -> np.ndarray:
+    """(m, 2) the points where a polygon changed: the vertices of ``before`` with no vertex
+    of ``after`` within ``tol`` (dropped or moved) and those of ``after`` with none of
+    ``before`` (moved there or added)."""
+    d = np.linalg.norm(before[:, None] - after[None], axis=2)
+    gone = before[d.min(axis=1) > tol]
+    new = after[d.min(axis=0) > tol]
+    return np.concatenate([gone, new]).reshape(-1, 2)
 
 
 def simplify(points: np.ndarray, labels: list[str], tol: float):
