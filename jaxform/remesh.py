@@ -182,7 +182,7 @@ def onto_dies(mesh, polygon: tuple[np.ndarray, np.ndarray], gap_fn, axisymmetric
     free_gap, _ = gap_fn(coords[loop])
     free = (free_gap > TOUCH_GAP_MM) & ~np.isin(loop, moved) & ~held
     target = float(np.sum(polygon_measure(mesh.coords[mesh.elements], axisymmetric)))
-    reach = PUT_BACK_REACH * float(np.median(chord))  # gmsh's size along the die there
+    reach = PUT_BACK_REACH * float(np.median(chord))  # the polygon's edges along the die
     weights = near_weights(coords[loop], mesh.coords[moved], reach)
     coords[loop] = with_volume(coords[loop], free, target, axisymmetric, weights)
     if min_quality(coords, mesh.elements) <= 0.0:  # a moved node folded a thin element

@@ -243,34 +243,36 @@ def volume_back(
     from it, and a remesh closed it (docs/remeshing.md)."""
     g, n = gap_fn(points)
     free = (g > TOUCH_GAP_MM) & ~_held(labels)
-    slides = None if near is None else _slides(points, labels, gap_fn, free)
+    slides = None if near is None else _slides(points, labels, (g, n), gap_fn, free)
+    sliding = np.zeros(len(points), bool) if slides is None else np.abs(slides).sum(axis=1) > 0
     pts = points
     for _ in range(WRAP_PASSES):
         weights = None if near is None else near_weights(pts, *near)
         pts = with_volume(pts, free, target, axisymmetric, weights, slides)
         g, n = gap_fn(pts)
+        # a free vertex pushed into a die goes onto it and stays; a sliding one goes back
+        # onto the die it slides along
         pushed = free & (g < -TOUCH_GAP_MM)
-        sliding = slides is not None and np.abs(slides).sum(axis=1) > 0.0
-        into = sliding & (g < -TOUCH_GAP_MM) & ~free
-        if not (pushed.any() or np.any(into)):
+        into = pushed | (sliding & (g < -TOUCH_GAP_MM))
+        if not into.any():
             break
-        pts[pushed | into] -= g[pushed | into][:, None] * n[pushed | into]
+        pts[into] -= g[into][:, None] * n[into]
         free &= ~pushed
     return pts
 
 
-def _slides(points: np.ndarray, labels: list[str], gap_fn, free: np.ndarray) -> np.ndarray:
+def _slides(points: np.ndarray, labels: list[str], gaps, gap_fn, free: np.ndarray) -> np.ndarray:
     """(n, 2) for each vertex that ends a free edge (its midpoint off the dies, not on the
     axis or the mid-plane) but is not free itself, its move per unit outward move of that
     edge: along the tangent of the die it touches, or along the axis or mid-plane edge it
     ends, by the free edge's outward normal's component there; 0 rows elsewhere (and for
-    a vertex on a die and the axis or mid-plane at once)."""
+    a vertex on a die and the axis or mid-plane at once).  ``gaps``: gap_fn(points)."""
     nxt = np.roll(points, -1, axis=0)
     lab = np.asarray(labels, dtype=object)
     held_edge = np.isin(lab, HELD)
     free_edge = (gap_fn(0.5 * (points + nxt))[0] > TOUCH_GAP_MM) & ~held_edge
     front = ~free & (free_edge | np.roll(free_edge, 1))
-    g, n = gap_fn(points)
+    g, n = gaps
     edge = nxt - points
     edge = edge / np.maximum(np.linalg.norm(edge, axis=1), 1e-300)[:, None]
     held_in, held_out = np.roll(held_edge, 1), held_edge
