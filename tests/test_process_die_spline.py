@@ -244,26 +244,31 @@ def test_die_spline_taylor_rate_through_the_process():
     assert row.min_rate >= 1.9, (row.rate1, row.r1)
 
 
-def test_flat_blocker_design_config_starts_flat_and_clear_of_the_billet():
-    """experiments/two_stage_disk_flat_blocker.toml (the design from a flat blocker) passes
-    the process's design check; its die_spline group covers the whole blocker face: 17
+@pytest.mark.parametrize(
+    "name, height",
+    [("two_stage_disk_flat_blocker.toml", 3.7), ("two_stage_disk_fixed_volume.toml", 4.1)],
+)
+def test_flat_blocker_design_config_starts_flat_and_clear_of_the_billet(name, height):
+    """The designs from a flat blocker (experiments/two_stage_disk_flat_blocker.toml, the
+    billet's volume a variable; experiments/two_stage_disk_fixed_volume.toml, at 96 % of it)
+    pass the process's design check; the die_spline group covers the whole blocker face: 17
     points sampled (r = 0 .. 8 mm every 0.5 mm), 6 free controls with free ends, every
-    height 3.7 mm at u = 0 (1e-12 mm: a flat face is a spline) and no penalty; and the die
-    starts clear of the billet's top by more than the spline's bound, so that no design
-    within the bounds stands in the billet at the start."""
+    height the flat die's at u = 0 (1e-12 mm: a flat face is a spline) and no penalty; and
+    the die starts clear of the billet's top by more than the spline's bound, so that no
+    design within the bounds stands in the billet at the start."""
     from jaxform.design.problem import build_group
     from jaxform.process import forming_scene
 
-    process = load_typed(ROOT / "experiments" / "two_stage_disk_flat_blocker.toml")
+    process = load_typed(ROOT / "experiments" / name)
     check_process_design(process)
     ops = process.operations
     initial = prepare(ops)
     scene = forming_scene(ops[0], initial, initial)
     group = build_group(scene, "die_spline")
     u = group.initial()
-    np.testing.assert_allclose(np.asarray(group.heights(u)), 3.7, atol=1e-12)
+    np.testing.assert_allclose(np.asarray(group.heights(u)), height, atol=1e-12)
     assert len(group.points) == 17 and len(group.free) == 6
     assert float(group.penalty(u)) == 0.0
     top = float(np.asarray(scene.mesh.coords)[:, 1].max())
     bound = ops[0].config.design.die_spline_offset_max_mm
-    assert 3.7 - top > bound
+    assert height - top > bound
