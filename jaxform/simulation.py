@@ -29,7 +29,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxform.adaptation import Adapted, OnMesh, OwnedFactorization, adaptation_of
+from jaxform.adaptation import Adapted, OnMesh, OwnedFactorization, Remeshing, adaptation_of
 from jaxform.chunks import converged_rows, failure_message, host_failure, run_on
 from jaxform.fields import OUTPUT_FIELDS
 from jaxform.forming_outputs import damage_columns
@@ -48,7 +48,7 @@ from jaxform.stepping import (
     step_outputs,
     stepper_of,
 )
-from jaxform.triggers import Armed, causes, off
+from jaxform.triggers import CAPACITY, FAILED_STEP, Armed, causes, off
 from jaxform.xla_options import jit
 
 
@@ -220,6 +220,7 @@ class Run:
     failure: str | None = None
     before: tuple | None = None
     keep: tuple = FIELD_KEYS
+    rescued: str | None = None  # the failure a new mesh answers until a step converges on it
 
 
 def _thinned(rows: tuple, first: int, keep: tuple) -> tuple:
@@ -356,14 +357,42 @@ def _adapted_paused(run: Run, adaptation, owned: OwnedFactorization) -> Run:
     return _adapted(run, adaptation.adapt(run.mesh, run.state, run.rows[-1]), owned)
 
 
+def _rescued(run: Run, adaptation, owned: OwnedFactorization) -> Run:
+    """``run``, whose step failed at the smallest step size on a mesh that had converged
+    steps, on a new mesh made at its last converged state (the run goes on from there);
+    ``run`` itself where the scene does not remesh, the failure is the press capacity or
+    no step has converged yet, or the remesh fails.  A step that fails on a worn mesh
+    (the two-stage disk's flash land: Newton stalled at ||R||/F 0.015 with the worst
+    corner at quality 0.31, the quality trigger at 0.3) may go on from a fresh one; its
+    first step failing as well stops the run with both causes (:func:`_without_empty_mesh`)."""
+    last = {**run.rows[-1], "pause_cause": FAILED_STEP}
+    if (
+        not isinstance(adaptation, Remeshing)
+        or run.failure is None
+        or _on_new_mesh(run)
+        or len(run.rows) < 2
+        or int(run.rows[-1].get("pause_cause", 0)) & CAPACITY
+    ):
+        return run
+    paused = replace(run, failure=None, rows=run.rows[:-1] + (last,))
+    done = adaptation.adapt(run.mesh, run.state, last)
+    if done.failure is not None or not done.new_mesh:
+        return run
+    return replace(_adapted(paused, done, owned), rescued=run.failure)
+
+
 def _without_empty_mesh(run: Run) -> Run:
     """A run whose first step on its newest mesh failed ends on the mesh before it (the
-    last converged state), that mesh's remesh undone."""
+    last converged state), that mesh's remesh undone; where that mesh was made because a
+    step had failed (:func:`_rescued`), the message names that failure first."""
     if len(run.segments) < 2 or run.segments[-1].first_row != len(run.rows):
         return run
     state, mesh = run.before
     row = {**run.rows[-1], "remeshed": 0, "new_nodes": 0}
     failure = f"the first step after the remesh at {row['time_s']:g} s: {run.failure}"
+    if run.rescued is not None:
+        failure = (f"{run.rescued}; a new mesh at the last converged time {row['time_s']:g} s "
+                   f"did not help: its first step: {run.failure}")  # fmt: skip
     return replace(
         run,
         mesh=mesh,
@@ -521,6 +550,12 @@ def simulate(
                 if retried.failure is None:
                     stepped, first = retried, first - 1  # the paused row again, now adapted
             run = stepped
+            if len(run.rows) > first:  # a step converged: a new mesh's rescue is done
+                run = replace(run, rescued=None)
+            if run.failure is not None and (again := _rescued(run, adaptation, owned)) is not run:
+                # a failed step goes on from a new mesh at the last converged row, which
+                # is handed on again with the remesh's columns
+                run, first = again, min(first, len(run.rows) - 1)
             paused = len(run.rows) > first and bool(run.rows[-1]["paused"])
             declined = False
             if paused and run.failure is None:

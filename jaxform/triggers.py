@@ -43,8 +43,10 @@ from jaxform.geometry import min_quality
 
 # the trigger bits of a paused step (outputs' ``pause_cause``)
 QUALITY, STEPS, STROKE, CORNER, FOLD, CAPACITY = 1, 2, 4, 8, 16, 32
+# not a trigger: the host remeshes after a step that failed (jaxform.simulation._rescued)
+FAILED_STEP = 64
 CAUSE_NAMES = {QUALITY: "quality", STEPS: "steps", STROKE: "stroke", CORNER: "die corner",
-               FOLD: "fold", CAPACITY: "press capacity"}  # fmt: skip
+               FOLD: "fold", CAPACITY: "press capacity", FAILED_STEP: "failed step"}  # fmt: skip
 
 
 # a mesh at this share of the quality threshold still serves a step where only the steps

@@ -549,6 +549,53 @@ def test_a_first_step_that_fails_below_the_run_step_is_tried_again_from_it(monke
     ), str(err.value)
 
 
+def test_a_step_that_fails_goes_on_from_a_new_mesh_at_the_last_converged_state(monkeypatch):
+    """The seed with remeshing on (a quality trigger that never fires) and its second
+    chunk made to fail on the start mesh: the run remeshes at the last converged row
+    (the remesh's trigger 'failed step', that row's `remeshed` column 1) and goes on to
+    the end, its forces those of the run without remeshes (1e-6 relative: frictionless,
+    homogeneous, as test_forced_remeshes_leave_frictionless_upsetting_unchanged).  Made
+    to fail on every mesh after its first chunk, the run stops with one line naming the
+    failure and that the new mesh did not help, on the last converged state of the start
+    mesh (that remesh undone)."""
+    import jaxform.simulation as sim
+
+    real_stepped = sim._stepped
+
+    def on_start_mesh(run, owned):
+        if len(run.segments) == 1 and len(run.rows) > 1:
+            return replace(run, failure="step (made to fail on the start mesh)")
+        return real_stepped(run, owned)
+
+    monkeypatch.setattr(sim, "_stepped", on_start_mesh)
+    over = QUIET + ["mesh.nr=4", "mesh.nz=4", "die.reduction=0.15"]
+    res = jaxform.run(SEED, over + ["remesh.quality_below=0.01"])
+    h = res.history
+    at = list(np.nonzero(h["remeshed"])[0])
+    assert len(at) == 1 and at[0] >= 1 and len(res.segments) == 2
+    assert [r.trigger for r in res.remeshes] == ["failed step"]
+    monkeypatch.setattr(sim, "_stepped", real_stepped)
+    plain = jaxform.run(SEED, over)
+    assert len(h["force_N"]) == len(plain.history["force_N"])
+    assert np.allclose(h["force_N"], plain.history["force_N"], rtol=1e-6)
+
+    def after_first_chunk(run, owned):
+        if len(run.rows) > 1:
+            return replace(run, failure="step (made to fail)")
+        return real_stepped(run, owned)
+
+    monkeypatch.setattr(sim, "_stepped", after_first_chunk)
+    with pytest.raises(sim.SimulationError) as err:
+        jaxform.run(SEED, over + ["remesh.quality_below=0.01"])
+    msg = str(err.value)
+    assert "\n" not in msg
+    assert msg.startswith("step (made to fail); a new mesh at the last converged time "), msg
+    assert "did not help: its first step: " in msg
+    stopped = err.value.result
+    assert len(stopped.segments) == 1 and not stopped.remeshes
+    assert stopped.history["remeshed"].sum() == 0 and len(stopped.history["time_s"]) == at[0] + 1
+
+
 def test_an_error_between_chunks_is_one_line_with_the_last_state(monkeypatch):
     """Any error of the host loop between compiled chunks (here the remesh raising
     something no one planned for) ends the run with SimulationError naming the time,
