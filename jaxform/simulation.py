@@ -205,7 +205,7 @@ class Run:
     state on it and the step control, the rows so far (row 0 the initial state), the
     meshes (:class:`Segment`) and the adaptation's reports, the converged steps since the
     last new mesh, the armed triggers, the compiled step programs (layouts) used, the
-    failure (None: going on), the (state, mesh) before the last new mesh, and the output
+    failure (None: going on), the (state, mesh, control) before the last new mesh, and the output
     fields every row keeps (the others only the last row: :func:`_thinned`)."""
 
     mesh: OnMesh
@@ -221,6 +221,7 @@ class Run:
     before: tuple | None = None
     keep: tuple = FIELD_KEYS
     rescued: str | None = None  # the failure a new mesh answers until a step converges on it
+    went_back: int = 0  # new meshes in a row whose first step failed (_back_on_old_mesh)
 
 
 def _thinned(rows: tuple, first: int, keep: tuple) -> tuple:
@@ -347,7 +348,7 @@ def _adapted(run: Run, done: Adapted, owned: OwnedFactorization) -> Run:
         out,
         segments=run.segments + (segment,),
         since=0,
-        before=(run.state, run.mesh),
+        before=(run.state, run.mesh, run.control),
         programs=run.programs | {done.mesh.stepped.model.layout},
     )
 
@@ -355,6 +356,12 @@ def _adapted(run: Run, done: Adapted, owned: OwnedFactorization) -> Run:
 def _adapted_paused(run: Run, adaptation, owned: OwnedFactorization) -> Run:
     """``run`` with its paused last row answered by ``adaptation`` (:func:`_adapted`)."""
     return _adapted(run, adaptation.adapt(run.mesh, run.state, run.rows[-1]), owned)
+
+
+def _fresh(run: Run, first: int) -> bool:
+    """Whether a step converged on a mesh that came after row ``first - 1``: a new mesh's
+    first step (the rows from ``first`` on hold one of that mesh)."""
+    return run.segments[-1].first_row >= first
 
 
 def _rescued(run: Run, adaptation, owned: OwnedFactorization) -> Run:
@@ -365,7 +372,7 @@ def _rescued(run: Run, adaptation, owned: OwnedFactorization) -> Run:
     (the two-stage disk's flash land: Newton stalled at ||R||/F 0.015 with the worst
     corner at quality 0.31, the quality trigger at 0.3) may go on from a fresh one; its
     first step failing as well stops the run with both causes (:func:`_without_empty_mesh`)."""
-    last = {**run.rows[-1], "pause_cause": FAILED_STEP}
+    last = {**run.rows[-1], "pause_cause": FAILED_STEP, "paused": False}  # answered here
     if (
         not isinstance(adaptation, Remeshing)
         or run.failure is None
@@ -381,13 +388,53 @@ def _rescued(run: Run, adaptation, owned: OwnedFactorization) -> Run:
     return replace(_adapted(paused, done, owned), rescued=run.failure)
 
 
+# new meshes in a row whose first step may fail before the run stops (_back_on_old_mesh)
+GO_BACK_LIMIT = 2
+
+
+def _back_on_old_mesh(run: Run, owned: OwnedFactorization) -> Run:
+    """``run``, whose first step on its newest mesh failed (also from ``time.dt_s``), back
+    on the mesh before it at the last converged state, that remesh undone, to go on there;
+    ``run`` itself where that mesh was made because a step had failed (:func:`_rescued`)
+    or GO_BACK_LIMIT new meshes in a row have failed so.  The old mesh, worn but good for
+    a step or more, moves the state on, and the remesh its trigger makes after that step
+    is another mesh of another section: the two-stage disk's configured blocker at 0.98 of
+    its billet on 0.35 mm elements stopped at the finisher's first step after the remesh
+    at 0.29 s and, with this, goes on."""
+    if (
+        run.failure is None
+        or not _on_new_mesh(run)
+        or run.rescued is not None
+        or run.went_back >= GO_BACK_LIMIT
+    ):
+        return run
+    state, mesh, control = run.before
+    owned.renew(mesh.stepped)
+    segments = run.segments[:-1]
+    return replace(
+        run,
+        mesh=mesh,
+        state=state,
+        control=control,
+        # not paused again: the same remesh of the same state would fail the same way
+        rows=run.rows[:-1] + ({**run.rows[-1], "remeshed": 0, "new_nodes": 0, "paused": False},),
+        segments=segments,
+        reports=run.reports[:-1],
+        since=len(run.rows) - max(segments[-1].first_row, 1),  # its steps (row 0 is none)
+        programs=run.programs | {mesh.stepped.model.layout},
+        failure=None,
+        before=None,
+        went_back=run.went_back + 1,
+    )
+
+
 def _without_empty_mesh(run: Run) -> Run:
     """A run whose first step on its newest mesh failed ends on the mesh before it (the
     last converged state), that mesh's remesh undone; where that mesh was made because a
     step had failed (:func:`_rescued`), the message names that failure first."""
     if len(run.segments) < 2 or run.segments[-1].first_row != len(run.rows):
         return run
-    state, mesh = run.before
+    state, mesh, _ = run.before
     row = {**run.rows[-1], "remeshed": 0, "new_nodes": 0}
     failure = f"the first step after the remesh at {row['time_s']:g} s: {run.failure}"
     if run.rescued is not None:
@@ -551,10 +598,16 @@ def simulate(
                     stepped, first = retried, first - 1  # the paused row again, now adapted
             run = stepped
             if len(run.rows) > first:  # a step converged: a new mesh's rescue is done
-                run = replace(run, rescued=None)
-            if run.failure is not None and (again := _rescued(run, adaptation, owned)) is not run:
-                # a failed step goes on from a new mesh at the last converged row, which
-                # is handed on again with the remesh's columns
+                run = replace(
+                    run, rescued=None, went_back=0 if _fresh(run, first) else run.went_back
+                )
+            if run.failure is not None and (
+                (again := _back_on_old_mesh(run, owned)) is not run
+                or (again := _rescued(run, adaptation, owned)) is not run
+            ):
+                # a failed first step on a new mesh goes back to the mesh before it; a
+                # failed step on a worn mesh goes on from a new mesh at the last converged
+                # row; either way that row is handed on again with its remesh columns
                 run, first = again, min(first, len(run.rows) - 1)
             paused = len(run.rows) > first and bool(run.rows[-1]["paused"])
             declined = False

@@ -158,7 +158,8 @@ class EverySteps(Trigger):
         return (threshold > 0) & (value >= threshold)
 
     def for_chunk(self, configured, threshold, steps_since):
-        return configured - steps_since if configured else 0.0
+        # a mesh that has had its steps (one a run went back to) fires after the next one
+        return max(configured - steps_since, 1) if configured else 0.0
 
 
 @dataclass(frozen=True)

@@ -471,11 +471,12 @@ def _corrupting_remesh(monkeypatch, how):
 
 def test_a_failure_on_the_first_step_after_a_remesh_keeps_the_last_state(monkeypatch, tmp_path):
     """The state a remesh hands over is made meaningless (NaN unknowns): the first step on
-    the new mesh fails at every cutback.  The run stops with SimulationError naming the
-    remesh, the step, the time and the cause (no traceback, as the issue's closed dies
-    ended: 'need at least one array to stack'); the result ends on the last converged
-    state on the old mesh (5 steps, one segment, no remesh kept) and its outputs are
-    written."""
+    each new mesh fails at every cutback.  The run goes back to the mesh before twice
+    (GO_BACK_LIMIT; a step there each time, remeshed after it), then stops with
+    SimulationError naming the remesh, the step, the time and the cause (no traceback, as
+    the issue's closed dies ended: 'need at least one array to stack'); the result ends
+    on the last converged state on the old mesh (7 steps, one segment, no remesh kept)
+    and its outputs are written."""
     from jaxform.simulation import SimulationError
 
     _corrupting_remesh(monkeypatch, lambda s: replace(s, x=s.x * jnp.nan))
@@ -486,16 +487,16 @@ def test_a_failure_on_the_first_step_after_a_remesh_keeps_the_last_state(monkeyp
         jaxform.run(SEED, over, out_dir=tmp_path)
     msg = str(err.value)
     assert "\n" not in msg
-    assert msg.startswith("the first step after the remesh at ")
-    assert "step 6" in msg and "the residual is not finite" in msg, msg
+    assert msg.startswith("the first step after the remesh at 7 s: ")
+    assert "step 8" in msg and "the residual is not finite" in msg, msg
     res = err.value.result
-    assert len(res.history["time_s"]) == 6 and len(res.segments) == 1 and not res.remeshes
+    assert len(res.history["time_s"]) == 8 and len(res.segments) == 1 and not res.remeshes
     assert res.history["remeshed"].sum() == 0
     assert res.final_state.x.shape == (res.final_scene.model.layout.n_dofs,)
     assert float(res.final_state.t) == pytest.approx(res.history["time_s"][-1], abs=1e-12)
     assert np.all(np.isfinite(np.asarray(res.final_state.x)))
     lines = (tmp_path / "history.csv").read_text().splitlines()
-    assert len(lines) == 1 + 6  # header and the six converged rows
+    assert len(lines) == 1 + 8  # header and the eight rows (row 0 and seven steps)
 
 
 def test_a_first_step_that_fails_below_the_run_step_is_tried_again_from_it(monkeypatch):
@@ -545,7 +546,7 @@ def test_a_first_step_that_fails_below_the_run_step_is_tried_again_from_it(monke
     with pytest.raises(sim.SimulationError) as err:
         jaxform.run(SEED, over + ["remesh.every_steps=5"])
     assert str(err.value).startswith(
-        f"the first step after the remesh at 5 s: tried again from time.dt_s = {dt:g} s, step"
+        f"the first step after the remesh at 7 s: tried again from time.dt_s = {dt:g} s, step"
     ), str(err.value)
 
 
@@ -594,6 +595,50 @@ def test_a_step_that_fails_goes_on_from_a_new_mesh_at_the_last_converged_state(m
     stopped = err.value.result
     assert len(stopped.segments) == 1 and not stopped.remeshes
     assert stopped.history["remeshed"].sum() == 0 and len(stopped.history["time_s"]) == at[0] + 1
+
+
+def test_a_new_mesh_whose_first_step_fails_goes_back_to_the_mesh_before(monkeypatch):
+    """The seed with a remesh every 5 steps, the first step on its first new mesh made to
+    fail (from time.dt_s too): the run goes back to the start mesh at row 5 (that remesh
+    undone), takes a step there, remeshes after it (row 6) and goes on to the end, its
+    forces those of the run without remeshes (1e-6 relative).  Made to fail on every new
+    mesh, it goes back GO_BACK_LIMIT times and then stops with the one line of a failed
+    first step after a remesh, on the last converged state of the mesh before."""
+    import jaxform.simulation as sim
+
+    real_stepped = sim._stepped
+    failed = []
+
+    def first_new_mesh(run, owned):
+        if sim._on_new_mesh(run) and not failed:
+            failed.append(len(run.rows))
+            return replace(run, failure="step (made to fail on the first new mesh)")
+        return real_stepped(run, owned)
+
+    monkeypatch.setattr(sim, "_stepped", first_new_mesh)
+    over = QUIET + ["mesh.nr=4", "mesh.nz=4", "die.reduction=0.15"]
+    res = jaxform.run(SEED, over + ["remesh.every_steps=5"])
+    h = res.history
+    assert failed == [6]  # the step to row 6 (at time.dt_s: not tried again)
+    remeshed = list(np.nonzero(h["remeshed"])[0])
+    assert remeshed[0] == 6 and len(res.segments) == len(remeshed) + 1
+    monkeypatch.setattr(sim, "_stepped", real_stepped)
+    plain = jaxform.run(SEED, over)
+    assert np.allclose(h["force_N"], plain.history["force_N"], rtol=1e-6)
+
+    def every_new_mesh(run, owned):
+        if sim._on_new_mesh(run):
+            return replace(run, failure="step (made to fail on every new mesh)")
+        return real_stepped(run, owned)
+
+    monkeypatch.setattr(sim, "_stepped", every_new_mesh)
+    with pytest.raises(sim.SimulationError) as err:
+        jaxform.run(SEED, over + ["remesh.every_steps=5"])
+    msg = str(err.value)
+    assert msg.startswith("the first step after the remesh at 7 s: "), msg
+    stopped = err.value.result
+    assert len(stopped.segments) == 1 and stopped.history["remeshed"].sum() == 0
+    assert len(stopped.history["time_s"]) == 1 + 5 + sim.GO_BACK_LIMIT
 
 
 def test_an_error_between_chunks_is_one_line_with_the_last_state(monkeypatch):
