@@ -80,6 +80,14 @@ CLEAR_SHARE = 0.85
 # and be read back again and again.
 STORED_STEP = 0.1
 _stored_floor = 0.0  # the share just after the stored programs last went
+# JAX's compiled executables also go where the share plus the largest rise seen between
+# two readings would pass this: the next rise may be as large.  A design of the two-stage
+# disk on 0.35 mm elements rose from 17 000 to 49 000 maps within 30 s (a new plan's
+# forward run and gradient programs) and was stopped by the kernel from 80 % of the limit
+# (LLVM "Cannot allocate memory", then a segfault) before the share passed CLEAR_SHARE.
+HEADROOM_SHARE = 0.95
+_last_share: float | None = None  # the share at make_room's last reading, after its release
+_largest_rise = 0.0  # the largest rise of the share from one reading to the next
 # make_room reads the process's map table (/proc/self/maps: 2-10 ms in a process holding
 # hundreds of programs) at most once in this many seconds: no compile adds maps that fast,
 # and a loop of cheap evaluations (a sampling optimizer on a closed form) would otherwise
@@ -221,7 +229,9 @@ def release_stored_programs() -> bool:
 def make_room() -> str | None:
     """Before a new program: past :data:`MAP_SHARE` of the memory-map limit (and
     :data:`STORED_STEP` above where the last such release left it) the stored programs
-    go; past :data:`CLEAR_SHARE` the stored programs, then JAX's compiled executables
+    go; past :data:`CLEAR_SHARE`, or where the largest rise of the share seen from one
+    reading to the next would take it past :data:`HEADROOM_SHARE`, the stored programs,
+    then JAX's compiled executables
     (:func:`release_compiled`: its traced programs stay, so that a program needed again,
     e.g. a gradient replay's on a new plan whose meshes share its buckets, is compiled
     from the persistent cache but not traced again), and everything where that is not
@@ -229,24 +239,31 @@ def make_room() -> str | None:
     on the same plan traces and compiles nothing.  Within :data:`ROOM_CHECK_INTERVAL_S`
     of its last reading it reads nothing.  Returns what it let go (``"stored"``,
     ``"compiled"``, ``"all"``) or None."""
-    global _stored_floor, _room_checked_at
+    global _stored_floor, _room_checked_at, _last_share, _largest_rise
     now = _clock()
     if now - _room_checked_at < ROOM_CHECK_INTERVAL_S:
         return None
     _room_checked_at = now
     share = map_share()
-    crowded = share > CLEAR_SHARE
-    if not crowded and share <= max(MAP_SHARE, _stored_floor + STORED_STEP):
+    if _last_share is not None:
+        _largest_rise = max(_largest_rise, share - _last_share)
+    _last_share = share
+
+    def tight(share):
+        return share > CLEAR_SHARE or share + _largest_rise > HEADROOM_SHARE
+
+    if not tight(share) and share <= max(MAP_SHARE, _stored_floor + STORED_STEP):
         return None
     done = None
     if release_stored_programs():
         done, share = "stored", map_share()
         _stored_floor = share
-    if share > CLEAR_SHARE and release_compiled():
+    if tight(share) and release_compiled():
         done, share = "compiled", map_share()
-    if share > CLEAR_SHARE:
+    if tight(share):
         release_programs()
-        done = "all"
+        done, share = "all", map_share()
+    _last_share = share
     return done
 
 

@@ -228,6 +228,8 @@ def test_making_room_lets_the_stored_programs_go_first(monkeypatch, share, store
         return True
 
     monkeypatch.setattr(program_store, "_room_checked_at", -float("inf"))
+    monkeypatch.setattr(program_store, "_last_share", None)
+    monkeypatch.setattr(program_store, "_largest_rise", 0.0)
     monkeypatch.setattr(program_store, "_stored_floor", floor)
     monkeypatch.setattr(program_store, "MAP_SHARE", 0.5)
     monkeypatch.setattr(program_store, "CLEAR_SHARE", 0.85)
@@ -240,6 +242,38 @@ def test_making_room_lets_the_stored_programs_go_first(monkeypatch, share, store
     assert bool(program_store._loaded) == (stored and expected is None)
     if expected == "stored":
         assert program_store._stored_floor == share
+
+
+def test_making_room_keeps_room_for_the_largest_rise_seen(monkeypatch):
+    """Reference: HEADROOM_SHARE (0.95).  Readings of 0.30 and 0.55 (a rise of 0.25; no
+    stored programs) let nothing go; at 0.75, below CLEAR_SHARE (0.85) but within the
+    largest rise of 0.95, JAX's compiled executables go (to 0.20); the readings after that
+    (0.45, a rise of 0.25 again) let nothing go, and a larger rise (to 0.72, 0.27) counts
+    from then on."""
+    calls, now = [], [0.0]
+
+    def compiled():
+        calls.append("compiled")
+        now[0] = 0.2
+        return True
+
+    monkeypatch.setattr(program_store, "_last_share", None)
+    monkeypatch.setattr(program_store, "_largest_rise", 0.0)
+    monkeypatch.setattr(program_store, "_stored_floor", 0.0)
+    monkeypatch.setattr(program_store, "MAP_SHARE", 0.5)
+    monkeypatch.setattr(program_store, "CLEAR_SHARE", 0.85)
+    monkeypatch.setattr(program_store, "map_share", lambda: now[0])
+    monkeypatch.setattr(program_store, "_loaded", {})
+    monkeypatch.setattr(program_store, "release_programs", lambda: calls.append("all"))
+    monkeypatch.setattr(program_store, "release_compiled", compiled)
+    done = []
+    for share in (0.30, 0.55, 0.75, 0.45, 0.72):
+        monkeypatch.setattr(program_store, "_room_checked_at", -float("inf"))
+        now[0] = share
+        done.append(program_store.make_room())
+    assert done == [None, None, "compiled", None, "compiled"]
+    assert calls == ["compiled", "compiled"]
+    assert program_store._largest_rise == pytest.approx(0.27)
 
 
 def test_making_room_reads_the_map_table_at_most_once_an_interval(monkeypatch):
