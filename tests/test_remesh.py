@@ -505,8 +505,10 @@ def test_a_first_step_that_fails_below_the_run_step_is_tried_again_from_it(monke
     any step below time.dt_s (as the two-stage disk's did from 6.6e-5 s down): the run
     tries that step again from time.dt_s and goes on to the end, each row after a remesh
     a step of time.dt_s, the forces those of the run without remeshes (1e-6 relative:
-    frictionless, homogeneous).  A step that fails from time.dt_s too stops the run with
-    one line that says it was tried again."""
+    frictionless, homogeneous).  A first step that fails from time.dt_s too on every new
+    mesh sends the run back to the mesh before twice (a step there each time,
+    GO_BACK_LIMIT) and then stops it with one line that says it was tried again, on the
+    last converged state of the start mesh."""
     import jaxform.simulation as sim
 
     real_stepped, real_adapted = sim._stepped, sim._adapted
@@ -548,6 +550,20 @@ def test_a_first_step_that_fails_below_the_run_step_is_tried_again_from_it(monke
     assert str(err.value).startswith(
         f"the first step after the remesh at 7 s: tried again from time.dt_s = {dt:g} s, step"
     ), str(err.value)
+    # it went back to the start mesh GO_BACK_LIMIT times, a step there each time
+    stopped = err.value.result
+    assert len(stopped.segments) == 1 and stopped.history["remeshed"].sum() == 0
+    assert len(stopped.history["time_s"]) == 1 + 5 + sim.GO_BACK_LIMIT
+
+
+def _failing(sim, when):
+    """jaxform.simulation._stepped, failing ("step (made to fail)") where ``when(run)``."""
+    real = sim._stepped
+
+    def stepped(run, owned):
+        return replace(run, failure="step (made to fail)") if when(run) else real(run, owned)
+
+    return stepped
 
 
 def test_a_step_that_fails_goes_on_from_a_new_mesh_at_the_last_converged_state(monkeypatch):
@@ -562,12 +578,7 @@ def test_a_step_that_fails_goes_on_from_a_new_mesh_at_the_last_converged_state(m
     import jaxform.simulation as sim
 
     real_stepped = sim._stepped
-
-    def on_start_mesh(run, owned):
-        if len(run.segments) == 1 and len(run.rows) > 1:
-            return replace(run, failure="step (made to fail on the start mesh)")
-        return real_stepped(run, owned)
-
+    on_start_mesh = _failing(sim, lambda run: len(run.segments) == 1 and len(run.rows) > 1)
     monkeypatch.setattr(sim, "_stepped", on_start_mesh)
     over = QUIET + ["mesh.nr=4", "mesh.nz=4", "die.reduction=0.15"]
     res = jaxform.run(SEED, over + ["remesh.quality_below=0.01"])
@@ -580,12 +591,7 @@ def test_a_step_that_fails_goes_on_from_a_new_mesh_at_the_last_converged_state(m
     assert len(h["force_N"]) == len(plain.history["force_N"])
     assert np.allclose(h["force_N"], plain.history["force_N"], rtol=1e-6)
 
-    def after_first_chunk(run, owned):
-        if len(run.rows) > 1:
-            return replace(run, failure="step (made to fail)")
-        return real_stepped(run, owned)
-
-    monkeypatch.setattr(sim, "_stepped", after_first_chunk)
+    monkeypatch.setattr(sim, "_stepped", _failing(sim, lambda run: len(run.rows) > 1))
     with pytest.raises(sim.SimulationError) as err:
         jaxform.run(SEED, over + ["remesh.quality_below=0.01"])
     msg = str(err.value)
@@ -601,21 +607,20 @@ def test_a_new_mesh_whose_first_step_fails_goes_back_to_the_mesh_before(monkeypa
     """The seed with a remesh every 5 steps, the first step on its first new mesh made to
     fail (from time.dt_s too): the run goes back to the start mesh at row 5 (that remesh
     undone), takes a step there, remeshes after it (row 6) and goes on to the end, its
-    forces those of the run without remeshes (1e-6 relative).  Made to fail on every new
-    mesh, it goes back GO_BACK_LIMIT times and then stops with the one line of a failed
-    first step after a remesh, on the last converged state of the mesh before."""
+    forces those of the run without remeshes (1e-6 relative).  (Made to fail on every new
+    mesh: test_a_first_step_that_fails_below_the_run_step_is_tried_again_from_it.)"""
     import jaxform.simulation as sim
 
     real_stepped = sim._stepped
     failed = []
 
-    def first_new_mesh(run, owned):
+    def first_new_mesh(run):
         if sim._on_new_mesh(run) and not failed:
             failed.append(len(run.rows))
-            return replace(run, failure="step (made to fail on the first new mesh)")
-        return real_stepped(run, owned)
+            return True
+        return False
 
-    monkeypatch.setattr(sim, "_stepped", first_new_mesh)
+    monkeypatch.setattr(sim, "_stepped", _failing(sim, first_new_mesh))
     over = QUIET + ["mesh.nr=4", "mesh.nz=4", "die.reduction=0.15"]
     res = jaxform.run(SEED, over + ["remesh.every_steps=5"])
     h = res.history
@@ -625,20 +630,6 @@ def test_a_new_mesh_whose_first_step_fails_goes_back_to_the_mesh_before(monkeypa
     monkeypatch.setattr(sim, "_stepped", real_stepped)
     plain = jaxform.run(SEED, over)
     assert np.allclose(h["force_N"], plain.history["force_N"], rtol=1e-6)
-
-    def every_new_mesh(run, owned):
-        if sim._on_new_mesh(run):
-            return replace(run, failure="step (made to fail on every new mesh)")
-        return real_stepped(run, owned)
-
-    monkeypatch.setattr(sim, "_stepped", every_new_mesh)
-    with pytest.raises(sim.SimulationError) as err:
-        jaxform.run(SEED, over + ["remesh.every_steps=5"])
-    msg = str(err.value)
-    assert msg.startswith("the first step after the remesh at 7 s: "), msg
-    stopped = err.value.result
-    assert len(stopped.segments) == 1 and stopped.history["remeshed"].sum() == 0
-    assert len(stopped.history["time_s"]) == 1 + 5 + sim.GO_BACK_LIMIT
 
 
 def test_an_error_between_chunks_is_one_line_with_the_last_state(monkeypatch):
