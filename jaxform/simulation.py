@@ -205,8 +205,8 @@ class Run:
     state on it and the step control, the rows so far (row 0 the initial state), the
     meshes (:class:`Segment`) and the adaptation's reports, the converged steps since the
     last new mesh, the armed triggers, the compiled step programs (layouts) used, the
-    failure (None: going on), the (state, mesh, control) before the last new mesh, and the output
-    fields every row keeps (the others only the last row: :func:`_thinned`)."""
+    failure (None: going on), the (state, mesh, control) before the last new mesh, and the
+    output fields every row keeps (the others only the last row: :func:`_thinned`)."""
 
     mesh: OnMesh
     state: SimState
