@@ -42,6 +42,7 @@ import re
 import tempfile
 import threading
 import time
+import warnings
 import zlib
 from functools import cache
 from pathlib import Path
@@ -86,6 +87,14 @@ _stored_floor = 0.0  # the share just after the stored programs last went
 # forward run and gradient programs) and was stopped by the kernel from 80 % of the limit
 # (LLVM "Cannot allocate memory", then a segfault) before the share passed CLEAR_SHARE.
 HEADROOM_SHARE = 0.95
+_warned_limit = False  # MapLimitWarning given (once a process)
+
+
+class MapLimitWarning(ResourceWarning):
+    """The process holds so many memory maps, after letting its programs go, that the
+    largest rise seen would pass the kernel's limit (``vm.max_map_count``)."""
+
+
 _last_share: float | None = None  # the share at make_room's last reading, after its release
 _largest_rise = 0.0  # the largest rise of the share from one reading to the next
 # make_room reads the process's map table (/proc/self/maps: 2-10 ms in a process holding
@@ -264,7 +273,27 @@ def make_room() -> str | None:
         release_programs()
         done, share = "all", map_share()
     _last_share = share
+    if share + _largest_rise > 1.0:
+        _warn_limit(share)
     return done
+
+
+def _warn_limit(share: float) -> None:
+    """:class:`MapLimitWarning`, once a process: what the process holds, what a program
+    took, and the remedy (the kernel's limit raised)."""
+    global _warned_limit
+    if _warned_limit:
+        return
+    _warned_limit = True
+    warnings.warn(
+        f"this process holds {share:.0%} of the kernel's memory-map limit "
+        f"(vm.max_map_count = {_map_limit()}) after letting its compiled programs go, and "
+        f"one reading to the next has added up to {_largest_rise:.0%} of it: the next "
+        "programs may not fit (LLVM 'Cannot allocate memory', and the process stops); "
+        "raise the limit, e.g. sysctl -w vm.max_map_count=262144",
+        MapLimitWarning,
+        stacklevel=3,
+    )
 
 
 def release_if_crowded(share: float | None = None) -> bool:

@@ -7,6 +7,7 @@ again; the key changes with anything that shapes the program."""
 from __future__ import annotations
 
 import contextlib
+import warnings
 
 import jax
 import jax.numpy as jnp
@@ -274,6 +275,31 @@ def test_making_room_keeps_room_for_the_largest_rise_seen(monkeypatch):
     assert done == [None, None, "compiled", None, "compiled"]
     assert calls == ["compiled", "compiled"]
     assert program_store._largest_rise == pytest.approx(0.27)
+
+
+def test_a_process_that_cannot_make_room_for_the_largest_rise_is_warned_once(monkeypatch):
+    """Reference: the kernel's limit.  Readings of 0.30 and 0.70 (a rise of 0.40) with
+    programs that do not let go (the share stays): make_room lets everything go, the
+    share plus the rise still passes the whole limit, and MapLimitWarning names the
+    remedy (vm.max_map_count), once a process."""
+    now = [0.3]
+    monkeypatch.setattr(program_store, "_last_share", None)
+    monkeypatch.setattr(program_store, "_largest_rise", 0.0)
+    monkeypatch.setattr(program_store, "_warned_limit", False)
+    monkeypatch.setattr(program_store, "map_share", lambda: now[0])
+    monkeypatch.setattr(program_store, "_loaded", {})
+    monkeypatch.setattr(program_store, "release_programs", lambda: None)
+    monkeypatch.setattr(program_store, "release_compiled", lambda: True)
+    monkeypatch.setattr(program_store, "_room_checked_at", -float("inf"))
+    assert program_store.make_room() is None
+    now[0] = 0.7
+    monkeypatch.setattr(program_store, "_room_checked_at", -float("inf"))
+    with pytest.warns(program_store.MapLimitWarning, match="vm.max_map_count"):
+        assert program_store.make_room() == "all"
+    monkeypatch.setattr(program_store, "_room_checked_at", -float("inf"))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        program_store.make_room()  # once a process
 
 
 def test_making_room_reads_the_map_table_at_most_once_an_interval(monkeypatch):
