@@ -24,6 +24,7 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -199,13 +200,22 @@ def die_force_column(name: str) -> str:
     return f"force_{name}_N"
 
 
+class Before(NamedTuple):
+    """What a run was on just before its newest mesh: to go back to (a failed first step
+    on that mesh, :func:`_undone`)."""
+
+    state: SimState
+    mesh: OnMesh
+    control: StepControl
+
+
 @dataclass(frozen=True)
 class Run:
     """The host loop's state between two compiled chunks: the mesh the run is on, the
     state on it and the step control, the rows so far (row 0 the initial state), the
     meshes (:class:`Segment`) and the adaptation's reports, the converged steps since the
     last new mesh, the armed triggers, the compiled step programs (layouts) used, the
-    failure (None: going on), the (state, mesh, control) before the last new mesh, and the
+    failure (None: going on), what it was on before the last new mesh, and the
     output fields every row keeps (the others only the last row: :func:`_thinned`)."""
 
     mesh: OnMesh
@@ -218,7 +228,7 @@ class Run:
     since: int = 0
     programs: frozenset = frozenset()
     failure: str | None = None
-    before: tuple | None = None
+    before: Before | None = None
     keep: tuple = FIELD_KEYS
     rescued: str | None = None  # the failure a new mesh answers until a step converges on it
     went_back: int = 0  # new meshes in a row whose first step failed (_back_on_old_mesh)
@@ -348,7 +358,7 @@ def _adapted(run: Run, done: Adapted, owned: OwnedFactorization) -> Run:
         out,
         segments=run.segments + (segment,),
         since=0,
-        before=(run.state, run.mesh, run.control),
+        before=Before(run.state, run.mesh, run.control),
         programs=run.programs | {done.mesh.stepped.model.layout},
     )
 
@@ -356,12 +366,6 @@ def _adapted(run: Run, done: Adapted, owned: OwnedFactorization) -> Run:
 def _adapted_paused(run: Run, adaptation, owned: OwnedFactorization) -> Run:
     """``run`` with its paused last row answered by ``adaptation`` (:func:`_adapted`)."""
     return _adapted(run, adaptation.adapt(run.mesh, run.state, run.rows[-1]), owned)
-
-
-def _fresh(run: Run, first: int) -> bool:
-    """Whether a step converged on a mesh that came after row ``first - 1``: a new mesh's
-    first step (the rows from ``first`` on hold one of that mesh)."""
-    return run.segments[-1].first_row >= first
 
 
 def _rescued(run: Run, adaptation, owned: OwnedFactorization) -> Run:
@@ -372,7 +376,6 @@ def _rescued(run: Run, adaptation, owned: OwnedFactorization) -> Run:
     (the two-stage disk's flash land: Newton stalled at ||R||/F 0.015 with the worst
     corner at quality 0.31, the quality trigger at 0.3) may go on from a fresh one; its
     first step failing as well stops the run with both causes (:func:`_without_empty_mesh`)."""
-    last = {**run.rows[-1], "pause_cause": FAILED_STEP, "paused": False}  # answered here
     if (
         not isinstance(adaptation, Remeshing)
         or run.failure is None
@@ -381,6 +384,7 @@ def _rescued(run: Run, adaptation, owned: OwnedFactorization) -> Run:
         or int(run.rows[-1].get("pause_cause", 0)) & CAPACITY
     ):
         return run
+    last = {**run.rows[-1], "pause_cause": FAILED_STEP, "paused": False}  # answered here
     paused = replace(run, failure=None, rows=run.rows[:-1] + (last,))
     done = adaptation.adapt(run.mesh, run.state, last)
     if done.failure is not None or not done.new_mesh:
@@ -408,23 +412,31 @@ def _back_on_old_mesh(run: Run, owned: OwnedFactorization) -> Run:
         or run.went_back >= GO_BACK_LIMIT
     ):
         return run
+    back = _undone(run)
+    owned.renew(back.mesh.stepped)
+    return replace(
+        back,
+        # not paused again: the same remesh of the same state would fail the same way
+        rows=back.rows[:-1] + ({**back.rows[-1], "paused": False},),
+        since=len(back.rows) - max(back.segments[-1].first_row, 1),  # its steps (row 0: none)
+        failure=None,
+        went_back=run.went_back + 1,
+    )
+
+
+def _undone(run: Run) -> Run:
+    """``run`` back on what it was on before its newest mesh (:class:`Before`), that
+    remesh undone: its segment and report dropped, its row's remesh columns 0."""
     state, mesh, control = run.before
-    owned.renew(mesh.stepped)
-    segments = run.segments[:-1]
     return replace(
         run,
         mesh=mesh,
         state=state,
         control=control,
-        # not paused again: the same remesh of the same state would fail the same way
-        rows=run.rows[:-1] + ({**run.rows[-1], "remeshed": 0, "new_nodes": 0, "paused": False},),
-        segments=segments,
+        rows=run.rows[:-1] + ({**run.rows[-1], "remeshed": 0, "new_nodes": 0},),
+        segments=run.segments[:-1],
         reports=run.reports[:-1],
-        since=len(run.rows) - max(segments[-1].first_row, 1),  # its steps (row 0 is none)
-        programs=run.programs | {mesh.stepped.model.layout},
-        failure=None,
         before=None,
-        went_back=run.went_back + 1,
     )
 
 
@@ -432,23 +444,15 @@ def _without_empty_mesh(run: Run) -> Run:
     """A run whose first step on its newest mesh failed ends on the mesh before it (the
     last converged state), that mesh's remesh undone; where that mesh was made because a
     step had failed (:func:`_rescued`), the message names that failure first."""
-    if len(run.segments) < 2 or run.segments[-1].first_row != len(run.rows):
+    if not _on_new_mesh(run):
         return run
-    state, mesh, _ = run.before
-    row = {**run.rows[-1], "remeshed": 0, "new_nodes": 0}
-    failure = f"the first step after the remesh at {row['time_s']:g} s: {run.failure}"
+    back = _undone(run)
+    time_s = back.rows[-1]["time_s"]
+    failure = f"the first step after the remesh at {time_s:g} s: {run.failure}"
     if run.rescued is not None:
-        failure = (f"{run.rescued}; a new mesh at the last converged time {row['time_s']:g} s "
+        failure = (f"{run.rescued}; a new mesh at the last converged time {time_s:g} s "
                    f"did not help: its first step: {run.failure}")  # fmt: skip
-    return replace(
-        run,
-        mesh=mesh,
-        state=state,
-        rows=run.rows[:-1] + (row,),
-        segments=run.segments[:-1],
-        reports=run.reports[:-1],
-        failure=failure,
-    )
+    return replace(back, failure=failure)
 
 
 def _result(scene: Scene, run: Run, adaptation) -> Result:
@@ -597,10 +601,10 @@ def simulate(
                 if retried.failure is None:
                     stepped, first = retried, first - 1  # the paused row again, now adapted
             run = stepped
-            if len(run.rows) > first:  # a step converged: a new mesh's rescue is done
-                run = replace(
-                    run, rescued=None, went_back=0 if _fresh(run, first) else run.went_back
-                )
+            if len(run.rows) > first:  # a step converged: a new mesh's rescue is done,
+                # and where it converged on a new mesh, that mesh works
+                fresh = run.segments[-1].first_row >= first
+                run = replace(run, rescued=None, went_back=0 if fresh else run.went_back)
             if run.failure is not None and (
                 (again := _back_on_old_mesh(run, owned)) is not run
                 or (again := _rescued(run, adaptation, owned)) is not run
