@@ -1,6 +1,7 @@
 """The config of a design: the TOML document whose forward run (`jaxform run`) is the run
 at that design, written by `jaxform design` as designed.toml beside the configured
-config.toml.
+config.toml.  It runs with the design's solver (full Newton, no probe of the first step;
+:func:`_as_the_design_ran`), which is what makes the two one run.
 
     (problem, design, the loaded Config or Process) --designed_document--> Designed
         (TOML document, material table, first mesh) --write_designed--> designed.toml
@@ -91,6 +92,7 @@ def designed_document(loaded: Config | Process, problem, design) -> Designed:
         material = None
         for g in problem.groups:
             material = _write(g, design[g.name], target, material) or material
+    _as_the_design_ran(doc)
     mesh = None
     first = getattr(problem, "first", problem)
     if any(isinstance(getattr(g, "inner", g), _NODE_GROUPS) for g in first.groups):
@@ -98,6 +100,20 @@ def designed_document(loaded: Config | Process, problem, design) -> Designed:
         coords = np.asarray(_stage_inputs(problem, design)[0].coords)
         mesh = replace(scene.mesh, coords=coords)
     return Designed(doc, material, mesh)
+
+
+def _as_the_design_ran(doc: dict) -> None:
+    """Set ``doc``'s solver to the one the design's forward runs use
+    (:meth:`jaxform.scenes.Scene.full_newton`): ``solver.newton = "newton"`` and
+    ``time.first_step_probe = 0`` (in every operation's own ``[time]`` too).  Modified
+    Newton and a probed first step converge each step to the same tolerance but by other
+    iterates, so the adaptive steps, and with them the remeshes, fall elsewhere; at a
+    design on the edge of filling that moved the fill by 0.03 %."""
+    doc.setdefault("solver", {})["newton"] = "newton"
+    doc.setdefault("time", {})["first_step_probe"] = 0.0
+    for table in doc.get("process", {}).get("operation", []):
+        if "first_step_probe" in table.get("time", {}):
+            table["time"]["first_step_probe"] = 0.0
 
 
 def _stage_inputs(problem, design) -> dict:

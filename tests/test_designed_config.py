@@ -12,6 +12,7 @@ scene's designed config builds the inputs the design gives (1e-12).
 
 from __future__ import annotations
 
+import copy
 import sys
 from functools import cache
 from pathlib import Path
@@ -24,7 +25,7 @@ import pytest
 from jaxform.design.process_problem import build_process_problem, process_objective
 from jaxform.designed_config import designed_document, die_profiles, write_designed
 from jaxform.process import prepare, run_process
-from jaxform.process_config import load_typed
+from jaxform.process_config import load_typed, process_document
 from jaxform.process_design import forward_plan
 from jaxform.process_gradients import ProcessPlan
 
@@ -157,6 +158,33 @@ def test_at_the_start_the_designed_process_is_the_configured_one():
     b = forming_scene(again.operations[0], initial, initial).inputs
     for x, y in zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b)):
         np.testing.assert_allclose(np.asarray(y), np.asarray(x), rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("probe", [None, 0.5])
+def test_a_designed_config_runs_with_the_design_s_solver(probe):
+    """designed.toml's scenes are solved as the design's forward runs solve them
+    (Scene.full_newton: full Newton, no probe of the first step), whatever the configured
+    solver (modified Newton, a probe; also one in an operation's own [time]): the two
+    runs converge each step by the same iterates, so their adaptive steps and remeshes
+    fall alike (at a disk design on the edge of filling, modified Newton and the probe
+    had moved the fill by 0.03 %)."""
+    from jaxform.process import forming_scene
+
+    process, pb = problem()
+    doc = copy.deepcopy(process.document)
+    doc.setdefault("solver", {})["newton"] = "modified"
+    if probe is not None:
+        doc["process"][0]["document"].setdefault("time", {})["first_step_probe"] = probe
+    configured = load_typed(process_document(doc))
+    again = load_typed(designed_document(configured, pb, pb.start).document)
+    forming = [op for op in again.operations if op.forming]
+    assert len(forming) == 2
+    for op in forming:
+        assert (op.config.solver.newton, op.config.time.first_step_probe) == ("newton", 0.0)
+    initial = prepare(again.operations)
+    scene = forming_scene(forming[0], initial, initial)
+    ran = scene.full_newton()
+    assert (scene.newton, scene.first_step_probe) == (ran.newton, ran.first_step_probe)
 
 
 def test_a_single_scene_designed_config_builds_the_designed_inputs(tmp_path):
