@@ -378,7 +378,8 @@ def optimizer_settings(d):
         return LhsRsm(d.samples_per_variable, d.rsm_rounds, d.max_simulations, d.seed)
     if d.optimizer == "cmaes":
         return CmaEs(d.population, d.cmaes_sigma, d.max_simulations, d.seed)
-    return OptimizerSettings(d.optimizer, d.iterations, d.learning_rate)
+    return OptimizerSettings(d.optimizer, d.iterations, d.learning_rate,
+                             step_max_fraction=d.step_max_fraction)  # fmt: skip
 
 
 def design_report(problem, hist) -> list[dict]:

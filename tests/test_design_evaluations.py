@@ -136,3 +136,20 @@ def test_lbfgs_on_a_process_runs_a_gradient_only_where_a_trial_is_accepted():
     assert inner.forward == accepted + hist.rejected >= accepted
     assert hist.evaluations == 1 + inner.forward
     assert hist.objective[-1] < hist.objective[0]
+
+
+@pytest.mark.parametrize("fraction", [0.25, 0.05])
+def test_no_lbfgs_step_moves_a_variable_more_than_its_share_of_the_box(fraction):
+    """design.step_max_fraction: on (a - 0.3)^2 over [-1, 1] from a = 1 (the minimum 0.7
+    away, the box 2 wide), each accepted step moves a by at most fraction x 2 (1e-12),
+    and the first by exactly that (the gradient's step, 1.4, is larger); with 0.05 the
+    design needs at least 7 steps to reach the minimum, with 0.25 two."""
+    pb, _ = replanning()
+    hist = optimize(pb, OptimizerSettings("lbfgs", iterations=12, step_max_fraction=fraction))
+    a = np.array([float(d["a"][0]) for d in hist.designs])
+    steps = np.abs(np.diff(a))
+    assert np.all(steps <= 2.0 * fraction * (1 + 1e-12))
+    assert steps[0] == pytest.approx(2.0 * fraction, rel=1e-12)
+    reached = int(np.argmax(np.abs(a - 0.3) < 1e-6))
+    assert a[reached] == pytest.approx(0.3, abs=1e-6)
+    assert reached == (7 if fraction == 0.05 else 2)

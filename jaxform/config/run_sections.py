@@ -427,6 +427,16 @@ class DesignConfig:
     learning_rate: float = key(
         0.05, low=0.0, low_open=True, doc="Adam step size in the scaled design variables"
     )
+    step_max_fraction: float = key(
+        0.25,
+        low=0.0,
+        high=1.0,
+        low_open=True,
+        doc="lbfgs: the most any variable moves in one step, as a fraction of its bound box "
+        "(a restart's steepest descent moves the largest by this much); smaller where a step "
+        "across the box overshoots an edge the design has to come back to (a robust design's "
+        "billet volume)",
+    )
     replan_distance: float = key(
         0.0,
         low=0.0,

@@ -7,10 +7,11 @@ compiled gradient evaluation per trial design, and
   ``projection_box``);
 * L-BFGS: optax's two-loop recursion (``scale_by_lbfgs``) gives the direction, a
   backtracking (Armijo) line search on the projected path picks the step; the first
-  step is limited to a quarter of the bound box so that a large gradient cannot throw
-  the design across it; a direction that does not descend (curvature pairs taken across
-  a kink of the objective: a contact switch) is replaced by -g, scaled so that its
-  largest component moves a quarter of its box, and the memory is cleared;
+  step is limited to a fraction of the bound box (``step_max_fraction``, a quarter by
+  default) so that a large gradient cannot throw the design across it; a direction that
+  does not descend (curvature pairs taken across a kink of the objective: a contact
+  switch) is replaced by -g, scaled so that its largest component moves that fraction of
+  its box, and the memory is cleared;
 * Adam: optax's ``adam`` with the configured step size;
 * a trial design whose run fails (:class:`GradientRunError`: a load step did not
   converge) is treated as a rejected step and the step is halved, so one bad trial
@@ -47,6 +48,8 @@ class OptimizerSettings:
         method: ``lbfgs`` (L-BFGS with an Armijo backtracking line search) or ``adam``.
         iterations: optimizer iterations; learning_rate: Adam's step size.
         max_backtracks, armijo: line-search halvings and sufficient-decrease factor.
+        step_max_fraction: L-BFGS: the most any variable moves in one step, as a fraction
+            of its bound box (a restart's steepest descent: the largest moves that much).
 
     Returns:
         the settings (frozen) to pass to :func:`optimize`.
@@ -57,6 +60,7 @@ class OptimizerSettings:
     learning_rate: float = 0.05  # Adam
     max_backtracks: int = 8
     armijo: float = 1e-4
+    step_max_fraction: float = 0.25  # L-BFGS: the most a variable moves, of its box
 
     def minimize(self, problem, design=None, progress=None, history=None) -> DesignHistory:
         return gradient_loop(problem, self, design, progress, history)
@@ -191,10 +195,11 @@ def gradient_loop(problem, settings: OptimizerSettings, design=None, progress=No
                 updates = jax.tree_util.tree_map(lambda d: -d, g)
                 state_new = opt.init(u)
                 hist.restarts += 1
-            # first / any step: no component moves by more than a quarter of its box (a
-            # restart: the largest moves by that much, the line search backtracks)
+            # first / any step: no component moves by more than step_max_fraction of its
+            # box (a restart: the largest moves by that much, the line search backtracks)
+            most = settings.step_max_fraction
             ratio = max(
-                float(jnp.max(jnp.abs(d) / (0.25 * w)))
+                float(jnp.max(jnp.abs(d) / (most * w)))
                 for d, w in zip(
                     jax.tree_util.tree_leaves(updates), jax.tree_util.tree_leaves(width)
                 )
