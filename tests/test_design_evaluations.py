@@ -52,21 +52,21 @@ def replanning():
     inner.forward = 0
     pb = Replanning(process, inner)
 
-    def forward_value(design):
+    def forward_run(design):
         inner.forward += 1
         a = np.asarray(design["a"], np.float64)
-        val = float(np.sum((a - 0.3) ** 2))
-        pb._keep(design, (val, None, f"forward {inner.forward}"))
-        return val
+        return inner, (float(np.sum((a - 0.3) ** 2)), None, f"forward {inner.forward}")
 
-    pb.forward_value = forward_value
+    pb._forward_run = forward_run
     return pb, inner
 
 
 def test_the_reports_at_the_start_and_the_best_design_run_nothing():
     """After an L-BFGS design of 3 iterations: the report and the value at the start and
     at the best design come from the runs the optimizer made (no further run, the same
-    run's output); a design evaluated neither first nor best runs again."""
+    run's output); a design evaluated neither first nor best is reported from its own
+    forward run (what `jaxform run` of its config gives), not a replay on a plan made at
+    another design."""
     pb, inner = replanning()
     hist = optimize(pb, OptimizerSettings("lbfgs", iterations=3))
     runs = inner.runs
@@ -77,8 +77,10 @@ def test_the_reports_at_the_start_and_the_best_design_run_nothing():
     assert pb.report(best)["objective"] == hist.objective[hist.best]
     assert pb.value(best)[0] == hist.objective[hist.best]
     assert inner.runs == runs  # nothing ran
-    pb.report({"a": np.array([-0.5])})
-    assert inner.runs == runs + 1
+    forward = inner.forward
+    report = pb.report({"a": np.array([-0.5])})
+    assert report == {"objective": pytest.approx(0.64, rel=1e-12), "run": f"forward {forward + 1}"}
+    assert (inner.runs, inner.forward) == (runs, forward + 1)
 
 
 def test_the_kept_best_follows_the_least_objective_and_skips_failed_runs():
@@ -91,8 +93,8 @@ def test_the_kept_best_follows_the_least_objective_and_skips_failed_runs():
     assert roles == ["best", "first"] and len(pb.kept) == 2
     assert pb.report({"a": np.array([0.35])})["run"] == "run 4"
     assert pb.report({"a": np.array([1.0])})["run"] == "run 1"
-    pb.report({"a": np.array([0.5])})  # no longer kept: it runs
-    assert inner.runs == 5
+    assert pb.report({"a": np.array([0.5])})["run"] == "forward 1"  # no longer kept: runs
+    assert inner.runs == 4
 
 
 def test_a_value_run_is_kept_and_a_gradient_run_there_replaces_it():

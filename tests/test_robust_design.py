@@ -143,7 +143,8 @@ def test_a_design_far_from_its_plan_is_evaluated_on_a_new_plan():
     """design.replan_distance = 0.02: a design 1 % of the bound box from the start is
     evaluated on the start's plan (no new plan), one 5 % away on the plan of its own
     forward run (one new plan), whose value is that forward run's objective
-    (forward_value, relative 1e-9)."""
+    (forward_value, relative 1e-9); the report at a design not evaluated is its forward
+    run's (exactly)."""
     import jax.numpy as jnp
 
     from jaxform.process_design import Replanning, process_problem
@@ -163,6 +164,12 @@ def test_a_design_far_from_its_plan_is_evaluated_on_a_new_plan():
     assert pb.replans == 1
     want = pb.forward_value(far)
     assert abs(val - want) <= 1e-9 * abs(want), (val, want)
+    # a design evaluated by no one is reported from its own forward run (exactly), not
+    # from a replay on the current plan (made at another design)
+    other = moved(-0.03)
+    replans = pb.replans
+    assert pb.report(other)["objective"] == pb.forward_value(other)
+    assert pb.replans == replans
 
 
 @pytest.mark.slow  # shares the two-blow process's programs with the tests above

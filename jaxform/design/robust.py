@@ -81,7 +81,13 @@ class Scenarios:
         return {**design, **self.scenarios[k]}
 
     def scenario_values(self, design) -> list[float]:
-        """The objective in each scenario (one run each)."""
+        """The objective in each scenario (one run each): where the problem has a forward
+        run (a process's), the forward run's at that scenario, as `jaxform run` of the
+        design's config with the scenario's inputs gives; else its value."""
+        forward = self.forward_value
+        if forward is not None:
+            return [float(p.forward_value(self._full(design, k)))
+                    for k, p in enumerate(self.problems)]  # fmt: skip
         return [float(p.value(self._full(design, k))[0])
                 for k, p in enumerate(self.problems)]  # fmt: skip
 
