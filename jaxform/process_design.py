@@ -132,7 +132,7 @@ class Replanning:
         self.replan_distance = float(replan_distance)
         self.made_at = {k: np.asarray(v) for k, v in problem.start.items()}  # see adopt
         self.kept = {}  # see _keep: the first and the best evaluation, for reports
-        self._forward = None  # (design key, plan, problem, out) of the last forward run
+        self._forward = None  # (design key, problem on its plan, out) of the last forward run
 
     start = property(lambda self: self.first.start)
     groups = property(lambda self: self.first.groups)
@@ -203,13 +203,9 @@ class Replanning:
 
     def on_own_plan(self, design):
         """The problem on the plan of the forward run at ``design`` (its steps, meshes;
-        the last :meth:`forward_value`'s run where that was at ``design``).  Raises
-        SimulationError, OperationRefused as the forward run does."""
-        if self._forward is not None and self._forward[0] == _key(design):
-            plan = self._forward[1]
-        else:
-            _, plan = forward_plan(self.process, at=(self.first, design))
-        return replace(self.first, plan=plan, objective=self.objective_of(plan))
+        the last forward run's where that was at ``design``).  Raises SimulationError,
+        OperationRefused as the forward run does."""
+        return self._run_at(design)[0]
 
     def adopt(self, design) -> None:
         """Evaluate from now on on the plan of the forward run at ``design``."""
@@ -229,26 +225,30 @@ class Replanning:
         return out[0]
 
     def _forward_run(self, design):
-        """(the problem on the plan of the forward run at ``design``, (objective, None,
-        run) read from that run); the last one's again without a run (a gradient or a
-        report there needs no second forward run).  Raises GradientRunError where the
-        run fails or an operation is refused."""
+        """:meth:`_run_at`, its failure a :class:`jaxform.gradients.GradientRunError` (the
+        optimizers reject such a design)."""
         from jaxform.gradients import GradientRunError
         from jaxform.process import OperationRefused
+
+        try:
+            return self._run_at(design)
+        except (SimulationError, OperationRefused) as err:  # no process at this design
+            raise GradientRunError(f"the forward process at this design failed: {err}") from None
+
+    def _run_at(self, design):
+        """(the problem on the plan of the forward run at ``design``, (objective, None,
+        run) read from that run); the last one's again without a run (a gradient, a new
+        plan or a report there needs no second forward run).  Raises SimulationError,
+        OperationRefused as the forward run does."""
         from jaxform.process_gradients import forward_trajectory
 
         key = _key(design)
-        if self._forward is not None and self._forward[0] == key:
-            return self._forward[2], self._forward[3]
-        try:
+        if self._forward is None or self._forward[0] != key:
             result, plan = forward_plan(self.process, at=(self.first, design))
-        except (SimulationError, OperationRefused) as err:  # no process at this design
-            raise GradientRunError(f"the forward process at this design failed: {err}") from None
-        problem = replace(self.first, plan=plan, objective=self.objective_of(plan))
-        ptraj = forward_trajectory(result)
-        out = (problem.value_of(design, ptraj), None, ptraj)
-        self._forward = (key, plan, problem, out)
-        return problem, out
+            problem = replace(self.first, plan=plan, objective=self.objective_of(plan))
+            ptraj = forward_trajectory(result)
+            self._forward = (key, problem, (problem.value_of(design, ptraj), None, ptraj))
+        return self._forward[1], self._forward[2]
 
     def _on_a_plan(self, evaluate, design):
         from jaxform.design.process_problem import DieIntoPart

@@ -81,30 +81,30 @@ class Scenarios:
         return {**design, **self.scenarios[k]}
 
     def scenario_values(self, design) -> list[float]:
-        """The objective in each scenario (one run each): where the problem has a forward
-        run (a process's), the forward run's at that scenario, as `jaxform run` of the
+        """The objective in each scenario (one run each): where the problems have forward
+        runs (a process's), each scenario's forward run's, as `jaxform run` of the
         design's config with the scenario's inputs gives; else its value."""
-        forward = self.forward_value
-        if forward is not None:
+        if self._forward_runs():
             return [float(p.forward_value(self._full(design, k)))
                     for k, p in enumerate(self.problems)]  # fmt: skip
         return [float(p.value(self._full(design, k))[0])
                 for k, p in enumerate(self.problems)]  # fmt: skip
+
+    def _forward_runs(self) -> bool:
+        """Whether every inner problem has a forward run (``forward_value``)."""
+        return all(getattr(p, "forward_value", None) for p in self.problems)
+
+    def _aggregate(self, vals) -> float:
+        return max(vals) if self.aggregate == "worst" else float(np.mean(vals))
 
     @property
     def forward_value(self):
         """design -> the objective aggregated over the scenarios' own forward runs, where
         every inner problem has one (a process's, :class:`jaxform.process_design.Replanning`:
         what the optimizers then evaluate trials by); else None."""
-        if not all(getattr(p, "forward_value", None) for p in self.problems):
+        if not self._forward_runs():
             return None
-
-        def value(design) -> float:
-            vals = [float(p.forward_value(self._full(design, k)))
-                    for k, p in enumerate(self.problems)]  # fmt: skip
-            return max(vals) if self.aggregate == "worst" else float(np.mean(vals))
-
-        return value
+        return lambda design: self._aggregate(self.scenario_values(design))
 
     def value(self, design):
         runs = [p.value(self._full(design, k)) for k, p in enumerate(self.problems)]
@@ -130,7 +130,7 @@ class Scenarios:
         vals = self.scenario_values(design)
         worst = int(np.argmax(vals))
         out = dict(self.problems[worst].report(self._full(design, worst)))
-        out["objective"] = max(vals) if self.aggregate == "worst" else float(np.mean(vals))
+        out["objective"] = self._aggregate(vals)
         constraints = out.pop("constraints", [])
         out.update({f"scenario{k}": v for k, v in enumerate(vals)})
         out["constraints"] = constraints
